@@ -1,0 +1,16 @@
+// Modbus RTU CRC-16 (polynomial 0xA001 reflected, initial 0xFFFF), sent low
+// byte first: MB over Serial Line v1.02 §2.5.1.2 and Appendix B.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <span>
+
+namespace mbc {
+
+uint16_t crc16(std::span<const uint8_t> bytes);
+
+// True when the last two bytes are the CRC of the rest (low byte first).
+bool crc_ok(std::span<const uint8_t> frame);
+
+}  // namespace mbc

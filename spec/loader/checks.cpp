@@ -1,0 +1,340 @@
+#include "checks.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <set>
+
+#include "codec/hex.h"
+
+namespace mbc::spec {
+namespace {
+
+std::string hex16(unsigned v) {
+  char buf[8];
+  std::snprintf(buf, sizeof buf, "0x%04X", v & 0xFFFF);
+  return buf;
+}
+
+struct Checker {
+  const Spec& s;
+  const JsonDocument& doc;
+  Diagnostics& out;
+
+  void error(const std::string& pointer, const std::string& rule, const std::string& msg) {
+    SourceLoc l = doc.where(pointer);
+    out.push_back({s.path, l.line, l.col, rule, msg});
+  }
+
+  bool has_erratum(const std::vector<std::string>& ids) const { return !ids.empty(); }
+
+  static std::pair<double, double> type_bounds(const Register& r) {
+    switch (r.type) {
+      case DataType::s16: return {-32768, 32767};
+      case DataType::u32: return {0, 4294967295.0};
+      case DataType::s32: return {-2147483648.0, 2147483647.0};
+      case DataType::f32: return {-3.4028234663852886e38, 3.4028234663852886e38};
+      case DataType::bit: return {0, 1};
+      default: return {0, r.words == 2 ? 4294967295.0 : 65535};
+    }
+  }
+
+  void ids() {
+    auto unique = [&](const char* what, const std::string& base, auto const& items) {
+      std::map<std::string, size_t> seen;
+      for (size_t i = 0; i < items.size(); ++i) {
+        auto [it, fresh] = seen.emplace(items[i].id, i);
+        if (!fresh)
+          error(base + "/" + std::to_string(i) + "/id", "duplicate-id",
+                std::string(what) + " id '" + items[i].id + "' is already used by " + what + " #" +
+                    std::to_string(it->second + 1));
+      }
+    };
+    unique("example", "/examples", s.examples);
+    unique("erratum", "/errata", s.errata);
+    // Inline enums are generated after the declared ones; only check declared.
+    std::vector<Enumeration> declared;
+    for (size_t i = 0; doc.root.contains("enums") && i < doc.root["enums"].size(); ++i) declared.push_back(s.enums[i]);
+    unique("enum", "/enums", declared);
+    unique("bitfield", "/bitfields", s.bitfields);
+  }
+
+  void erratum_refs(const std::string& pointer, const std::vector<std::string>& ids) {
+    for (const auto& id : ids)
+      if (!s.find_erratum(id)) error(pointer, "unknown-reference", "erratum '" + id + "' is not in errata:");
+  }
+
+  void registers() {
+    for (const auto& r : s.registers) {
+      if (r.block_index > 0) continue;  // a block is checked once, at its first register
+      const std::string& p = r.origin;
+      std::string label = "register " + hex16(r.address);
+      bool wide_type = r.type == DataType::u32 || r.type == DataType::s32 || r.type == DataType::f32;
+      if (wide_type && r.words != 2)
+        error(p + "/words", "word-order", label + ": type " + to_string(r.type) + " takes 2 words");
+      if ((r.type == DataType::u16 || r.type == DataType::s16 || r.type == DataType::bit) && r.words != 1)
+        error(p + "/words", "word-order", label + ": type " + to_string(r.type) + " takes 1 word");
+      if (r.words == 2 && r.word_order == WordOrder::none)
+        error(p, "word-order", label + " spans 2 words but declares no word_order (high_first or low_first)");
+      if (r.words == 1 && r.word_order != WordOrder::none)
+        error(p + "/word_order", "word-order", label + " is one word; word_order does not apply");
+      if ((r.table == Table::coil || r.table == Table::discrete_input) != (r.type == DataType::bit))
+        error(p + "/type", "table-type", label + ": coils and discrete inputs have type bit, and only they do");
+      if ((r.table == Table::input || r.table == Table::discrete_input) && r.access != Access::ro)
+        error(p + "/access", "table-type", label + ": input registers and discrete inputs are read-only");
+      erratum_refs(p + "/erratum", r.errata);
+      if (r.type == DataType::enumeration) {
+        if (r.enum_id.empty()) error(p, "unknown-reference", label + " has type enum but names no enum");
+        else if (!s.find_enum(r.enum_id))
+          error(p + "/enum", "unknown-reference", label + ": enum '" + r.enum_id + "' is not in enums:");
+      } else if (!r.enum_id.empty() && !s.find_enum(r.enum_id)) {
+        error(p + "/enum", "unknown-reference", label + ": enum '" + r.enum_id + "' is not in enums:");
+      }
+      if (r.type == DataType::bitfield) {
+        if (r.bitfield_id.empty()) error(p, "unknown-reference", label + " has type bitfield but names no bitfield");
+        else if (!s.find_bitfield(r.bitfield_id))
+          error(p + "/bitfield", "unknown-reference", label + ": bitfield '" + r.bitfield_id + "' is not in bitfields:");
+      }
+      if (r.access == Access::command && !r.command)
+        error(p, "command", label + " has access command but no command: {effect: ...}");
+      auto [lo, hi] = type_bounds(r);
+      if (r.range) {
+        if (r.range->min > r.range->max)
+          error(p + "/range", "range-order", label + ": range min " + fmt(r.range->min) + " > max " + fmt(r.range->max));
+        else if (r.range->min < lo || r.range->max > hi)
+          error(p + "/range", "range-order",
+                label + ": range " + fmt(r.range->min) + ".." + fmt(r.range->max) + " does not fit type " +
+                    to_string(r.type) + " (" + fmt(lo) + ".." + fmt(hi) + ")");
+      }
+      if (r.default_value) {
+        double d = *r.default_value;
+        bool fits = d >= lo && d <= hi && (r.type == DataType::f32 || d == std::floor(d));
+        if (!fits)
+          error(p + "/default", "default-in-range", label + ": default " + fmt(d) + " does not fit type " + to_string(r.type));
+        else if (r.range && (d < r.range->min || d > r.range->max) && r.errata.empty())
+          error(p + "/default", "default-in-range",
+                label + ": default " + fmt(d) + " lies outside range " + fmt(r.range->min) + ".." + fmt(r.range->max) +
+                    " (record an erratum and cite it if the manual prints it so)");
+        else if (!r.range && !r.enum_id.empty() && r.errata.empty()) {
+          const Enumeration* e = s.find_enum(r.enum_id);
+          if (e && std::none_of(e->values.begin(), e->values.end(), [&](const EnumValue& v) { return double(v.value) == d; }))
+            error(p + "/default", "default-in-range", label + ": default " + fmt(d) + " is not one of enum '" + r.enum_id + "'");
+        }
+      }
+      if (r.persistence.command && !s.register_covering(*r.persistence.command))
+        error(p + "/persistence/command", "unknown-reference",
+              label + ": save command register " + hex16(*r.persistence.command) + " is not in registers:");
+      if (r.persistence.unless_register && !s.register_covering(*r.persistence.unless_register))
+        error(p + "/persistence/unless", "unknown-reference",
+              label + ": register " + hex16(*r.persistence.unless_register) + " is not in registers:");
+      if (r.persistence.by == PersistBy::save_command && !r.persistence.command)
+        error(p + "/persistence", "unknown-reference", label + ": persistence by save_command names no command register");
+    }
+    // Overlap, per table; blocks and 2-word registers cover several addresses.
+    for (size_t i = 1; i < s.registers.size(); ++i) {
+      const Register& a = s.registers[i - 1];
+      const Register& b = s.registers[i];
+      if (a.table != b.table) continue;
+      if (a.last_address() >= b.address) {
+        const Register& later = a.origin > b.origin && a.loc.line > b.loc.line ? a : b;
+        const Register& earlier = &later == &a ? b : a;
+        if (!later.errata.empty() && !earlier.errata.empty()) continue;  // an overlap the manual prints, recorded
+        error(later.origin + "/address", "register-overlap",
+              "register " + hex16(later.address) + " (" + later.name.en + ") overlaps register " + hex16(earlier.address) +
+                  " (" + earlier.name.en + ", line " + std::to_string(earlier.loc.line) + ")");
+      }
+      if (b.last_address() > 0xFFFF)
+        error(b.origin + "/address", "address-overflow", "register " + hex16(b.address) + " runs past address 0xFFFF");
+    }
+    if (!s.registers.empty() && s.registers.front().last_address() > 0xFFFF)
+      error(s.registers.front().origin, "address-overflow", "register runs past address 0xFFFF");
+  }
+
+  void bitfields() {
+    for (size_t i = 0; i < s.bitfields.size(); ++i) {
+      const auto& b = s.bitfields[i];
+      std::string p = "/bitfields/" + std::to_string(i);
+      uint32_t used = 0;
+      for (size_t k = 0; k < b.fields.size(); ++k) {
+        const auto& f = b.fields[k];
+        std::string fp = p + "/fields/" + std::to_string(k);
+        if (f.hi < f.lo) {
+          error(fp, "bitfield", "bitfield '" + b.id + "' field '" + f.name.en + "' needs bit: N or bits: [lo, hi] with lo <= hi");
+          continue;
+        }
+        uint32_t mask = uint32_t(((uint64_t(1) << (f.hi - f.lo + 1)) - 1) << f.lo);
+        if ((used & mask) && f.erratum.empty())
+          error(fp, "bitfield-overlap", "bitfield '" + b.id + "' field '" + f.name.en + "' (bits " + std::to_string(f.lo) +
+                                            "-" + std::to_string(f.hi) + ") overlaps an earlier field");
+        used |= mask;
+        if (!f.enum_id.empty() && !s.find_enum(f.enum_id))
+          error(fp + "/enum", "unknown-reference", "enum '" + f.enum_id + "' is not in enums:");
+        if (!f.erratum.empty() && !s.find_erratum(f.erratum))
+          error(fp + "/erratum", "unknown-reference", "erratum '" + f.erratum + "' is not in errata:");
+      }
+    }
+  }
+
+  void profile() {
+    std::set<int> seen;
+    for (size_t i = 0; i < s.profile.function_codes.size(); ++i) {
+      const auto& f = s.profile.function_codes[i];
+      std::string p = "/profile/function_codes/" + std::to_string(i);
+      if (!seen.insert(f.code).second) error(p + "/code", "duplicate-id", "function code " + std::to_string(f.code) + " is listed twice");
+      int limit = standard_max_quantity(f.code);
+      if (f.max_quantity && limit && *f.max_quantity > limit)
+        error(p + "/max_quantity", "function-limit",
+              "FC " + std::to_string(f.code) + ": max_quantity " + std::to_string(*f.max_quantity) +
+                  " exceeds what fits in one PDU (" + std::to_string(limit) + ", MBAP v1.1b3 §6)");
+      if (f.max_read_quantity && *f.max_read_quantity > 125)
+        error(p + "/max_read_quantity", "function-limit", "FC 23: max_read_quantity exceeds 125 (MBAP v1.1b3 §6.17)");
+      if (f.max_write_quantity && *f.max_write_quantity > 121)
+        error(p + "/max_write_quantity", "function-limit", "FC 23: max_write_quantity exceeds 121 (MBAP v1.1b3 §6.17)");
+      if (!f.erratum.empty() && !s.find_erratum(f.erratum))
+        error(p + "/erratum", "unknown-reference", "erratum '" + f.erratum + "' is not in errata:");
+    }
+    for (const auto& [v, e] : s.profile.exception_policy)
+      if (!e.erratum.empty() && !s.find_erratum(e.erratum))
+        error(std::string("/profile/exception_policy/") + to_string(v) + "/erratum", "unknown-reference",
+              "erratum '" + e.erratum + "' is not in errata:");
+  }
+
+  void serial() {
+    const auto& se = s.serial;
+    if (se.slave_min > se.slave_max)
+      error("/serial/slave_id", "range-order", "slave_id min " + std::to_string(se.slave_min) + " > max " + std::to_string(se.slave_max));
+    if (se.baud_default && std::find(se.baud_rates.begin(), se.baud_rates.end(), *se.baud_default) == se.baud_rates.end())
+      error("/serial/baud_rates/default", "default-in-range", "default baud rate " + std::to_string(*se.baud_default) + " is not in values");
+    if (se.frame_default && std::find(se.frame_formats.begin(), se.frame_formats.end(), *se.frame_default) == se.frame_formats.end())
+      error("/serial/frame_formats/default", "default-in-range", "default frame format " + *se.frame_default + " is not in values");
+    for (size_t i = 0; i < se.settings.size(); ++i)
+      if (!s.register_covering(se.settings[i].register_address))
+        error("/serial/settings/" + std::to_string(i) + "/register", "unknown-reference",
+              "register " + hex16(se.settings[i].register_address) + " is not in registers:");
+    for (const char* part : {"slave_id", "broadcast", "baud_rates", "frame_formats"}) {
+      std::string p = std::string("/serial/") + part + "/erratum";
+      if (!doc.root["serial"][part].contains("erratum")) continue;
+      const auto& e = doc.root["serial"][part]["erratum"];
+      std::vector<std::string> ids;
+      if (e.is_string()) ids.push_back(e.get<std::string>());
+      else for (const auto& x : e) ids.push_back(x.get<std::string>());
+      erratum_refs(p, ids);
+    }
+  }
+
+  // An example must make sense against the map: a request that is not
+  // answered with an exception addresses mapped registers with a supported
+  // function code, unless the manual is known to be wrong there (erratum).
+  void examples() {
+    std::map<std::string, std::vector<int>> steps;
+    for (const auto& e : s.examples) {
+      const std::string& p = e.origin;
+      erratum_refs(p + "/erratum", e.errata);
+      if (!e.sequence.empty()) steps[e.sequence].push_back(e.step);
+      std::optional<Bytes> req = parse_hex_strict(e.request);
+      if (!req) error(p + "/request", "hex-frame", "example '" + e.id + "': request is not uppercase hex pairs separated by single spaces");
+      std::optional<Bytes> rsp;
+      if (e.response) {
+        rsp = parse_hex_strict(*e.response);
+        if (!rsp) error(p + "/response", "hex-frame", "example '" + e.id + "': response is not uppercase hex pairs separated by single spaces");
+      }
+      if (e.resolved_request && !parse_hex_strict(*e.resolved_request))
+        error(p + "/resolved/request", "hex-frame", "example '" + e.id + "': resolved request is not uppercase hex pairs");
+      if (e.resolved_response && !parse_hex_strict(*e.resolved_response))
+        error(p + "/resolved/response", "hex-frame", "example '" + e.id + "': resolved response is not uppercase hex pairs");
+      if (e.has_resolution() && e.errata.empty())
+        error(p + "/resolved", "unknown-reference", "example '" + e.id + "' has a resolved reading but cites no erratum");
+      for (size_t i = 0; i < e.given.size(); ++i)
+        if (!s.register_covering(e.given[i].address, e.given[i].table))
+          error(p + "/given/" + std::to_string(i), "example-map", "example '" + e.id + "': given register " + hex16(e.given[i].address) + " is not in registers:");
+      for (size_t i = 0; i < e.after.size(); ++i)
+        if (!s.register_covering(e.after[i].address, e.after[i].table))
+          error(p + "/after/" + std::to_string(i), "example-map", "example '" + e.id + "': after register " + hex16(e.after[i].address) + " is not in registers:");
+      if (!req || req->size() < 2 || !e.errata.empty()) continue;
+      bool exception_reply = rsp && rsp->size() >= 2 && ((*rsp)[1] & 0x80);
+      if (exception_reply || e.no_reply) continue;
+      int fc = (*req)[1];
+      if (!s.profile.function(fc)) {
+        error(p + "/request", "example-map", "example '" + e.id + "': function code " + std::to_string(fc) + " is not in profile.function_codes");
+        continue;
+      }
+      auto u16 = [&](size_t at) { return unsigned((*req)[at] << 8 | (*req)[at + 1]); };
+      Table table = fc == 1 ? Table::coil : fc == 2 ? Table::discrete_input : fc == 4 ? Table::input : Table::holding;
+      unsigned start = 0, qty = 0;
+      if ((fc >= 1 && fc <= 4) || fc == 15 || fc == 16) {
+        if (req->size() < 6) continue;
+        start = u16(2);
+        qty = u16(4);
+      } else if (fc == 5 || fc == 6 || fc == 22) {
+        if (req->size() < 4) continue;
+        start = u16(2);
+        qty = 1;
+      } else {
+        continue;
+      }
+      if (fc == 5) table = Table::coil;
+      for (unsigned a = start; a < start + qty && a <= 0xFFFF; ++a) {
+        const Register* r = s.register_covering(uint16_t(a), table);
+        if (!r) {
+          error(p + "/request", "example-map",
+                "example '" + e.id + "': FC " + std::to_string(fc) + " addresses " + hex16(a) +
+                    ", which is not in registers: (cite an erratum, or expect an exception response)");
+          break;
+        }
+        bool reads = fc <= 4;
+        if (reads && r->access == Access::wo) {
+          error(p + "/request", "example-map", "example '" + e.id + "' reads write-only register " + hex16(a) + " and expects no exception");
+          break;
+        }
+        if (!reads && r->access == Access::ro) {
+          error(p + "/request", "example-map", "example '" + e.id + "' writes read-only register " + hex16(a) + " and expects no exception");
+          break;
+        }
+      }
+    }
+    for (auto& [id, list] : steps) {
+      std::sort(list.begin(), list.end());
+      for (size_t i = 0; i < list.size(); ++i)
+        if (list[i] != int(i + 1)) {
+          error("/examples", "sequence-steps", "sequence '" + id + "' has steps that are not 1.." + std::to_string(list.size()));
+          break;
+        }
+    }
+  }
+
+  static std::string fmt(double d) {
+    if (d == std::floor(d) && std::fabs(d) < 1e15) return std::to_string(int64_t(d));
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%g", d);
+    return buf;
+  }
+};
+
+}  // namespace
+
+int standard_max_quantity(int fc) {
+  switch (fc) {
+    case 1:
+    case 2: return 2000;
+    case 3:
+    case 4: return 125;
+    case 15: return 1968;
+    case 16: return 123;
+    case 23: return 125;
+    default: return 0;
+  }
+}
+
+void check_semantics(const Spec& spec, const JsonDocument& doc, const std::string& expected_id, Diagnostics& out) {
+  Checker c{spec, doc, out};
+  if (!expected_id.empty() && spec.device.id != expected_id)
+    c.error("/device/id", "id-matches-file", "device.id '" + spec.device.id + "' does not match the file name '" + expected_id + ".yaml'");
+  c.ids();
+  c.registers();
+  c.bitfields();
+  c.profile();
+  c.serial();
+  c.examples();
+}
+
+}  // namespace mbc::spec

@@ -1,0 +1,173 @@
+#include "dump.h"
+
+#include <cmath>
+
+namespace mbc::spec {
+namespace {
+
+using nlohmann::json;
+
+json number(double d) {
+  if (d == std::floor(d) && std::fabs(d) < 9.0e15) return int64_t(d);
+  return d;
+}
+
+json name(const Name& n) { return {{"zh", n.zh}, {"en", n.en}}; }
+
+json policy(const PolicyEntry& e) {
+  json j;
+  switch (e.kind) {
+    case PolicyEntry::Kind::exception:
+      j["response"] = "exception";
+      j["code"] = e.code;
+      break;
+    case PolicyEntry::Kind::silent: j["response"] = "silent"; break;
+    case PolicyEntry::Kind::unspecified: j["response"] = "unspecified"; break;
+  }
+  j["section"] = e.section;
+  if (!e.erratum.empty()) j["erratum"] = e.erratum;
+  return j;
+}
+
+json reg(const Register& r) {
+  json j;
+  j["address"] = r.address;
+  j["words"] = r.words;
+  j["table"] = to_string(r.table);
+  j["name"] = r.name.en;
+  j["name_zh"] = r.name.zh;
+  j["access"] = to_string(r.access);
+  j["type"] = to_string(r.type);
+  j["word_order"] = r.words == 2 ? json(to_string(r.word_order)) : json(nullptr);
+  j["range"] = r.range ? json{{"min", number(r.range->min)}, {"max", number(r.range->max)}} : json(nullptr);
+  j["default"] = r.default_value ? number(*r.default_value) : json(nullptr);
+  j["unit"] = r.unit;
+  j["scale"] = number(r.scale);
+  if (r.persistence.store == Store::none) {
+    j["persistence"] = "volatile";
+  } else {
+    json p{{"store", r.persistence.store == Store::flash ? "flash" : "eeprom"},
+           {"by", r.persistence.by == PersistBy::save_command ? "save_command" : "on_write"}};
+    if (r.persistence.command) p["command"] = *r.persistence.command;
+    if (r.persistence.unless_register)
+      p["unless"] = {{"register", *r.persistence.unless_register}, {"value", r.persistence.unless_value}};
+    j["persistence"] = p;
+  }
+  j["takes_effect"] = r.takes_effect == TakesEffect::power_cycle ? "power_cycle" : "immediate";
+  if (!r.enum_id.empty()) j["enum"] = r.enum_id;
+  if (!r.bitfield_id.empty()) j["bitfield"] = r.bitfield_id;
+  if (r.command) {
+    json c{{"effect", r.command->effect}, {"motion", r.command->motion}, {"eeprom", r.command->eeprom}};
+    if (r.command->reads_back) c["reads_back"] = *r.command->reads_back;
+    if (!r.command->values.empty()) c["values"] = r.command->values;
+    j["command"] = c;
+  }
+  if (!r.printed.empty()) j["printed"] = r.printed;
+  j["errata"] = r.errata;
+  if (!r.note.empty()) j["note"] = r.note;
+  j["section"] = r.section;
+  j["line"] = r.loc.line;
+  return j;
+}
+
+json values(const std::vector<RegisterValue>& v) {
+  json a = json::array();
+  for (const auto& x : v) a.push_back({{"address", x.address}, {"value", number(x.value)}, {"table", to_string(x.table)}});
+  return a;
+}
+
+}  // namespace
+
+nlohmann::json to_json(const Spec& s) {
+  json j;
+  j["mbconform_spec"] = 1;
+  j["device"] = {{"id", s.device.id},
+                 {"vendor", s.device.vendor},
+                 {"title", s.device.title},
+                 {"models", s.device.models},
+                 {"manual",
+                  {{"file", s.device.manual.file},
+                   {"address_notation", s.device.manual.address_notation},
+                   {"addressing_note", s.device.manual.addressing_note}}},
+                 {"section", s.device.section}};
+  const Serial& se = s.serial;
+  j["serial"] = {
+      {"slave_id", {{"min", se.slave_min}, {"max", se.slave_max}, {"default", se.slave_default ? json(*se.slave_default) : json(nullptr)}, {"set_by", se.slave_set_by}, {"section", se.slave_section}}},
+      {"broadcast", {{"address", se.broadcast_address ? json(*se.broadcast_address) : json(nullptr)}, {"writes", se.broadcast_writes}, {"reply", se.broadcast_reply}, {"section", se.broadcast_section}}},
+      {"baud_rates", {{"values", se.baud_rates}, {"default", se.baud_default ? json(*se.baud_default) : json(nullptr)}, {"section", se.baud_section}}},
+      {"frame_formats", {{"values", se.frame_formats}, {"default", se.frame_default ? json(*se.frame_default) : json(nullptr)}, {"section", se.frame_section}}},
+      {"section", se.section}};
+  json settings = json::array();
+  for (const auto& st : se.settings) {
+    json enc = json::array();
+    for (const auto& [v, m] : st.encoding) enc.push_back({{"value", v}, {"means", m}});
+    settings.push_back({{"register", st.register_address}, {"setting", st.setting}, {"encoding", enc}, {"section", st.section}});
+  }
+  j["serial"]["settings"] = settings;
+
+  json fcs = json::array();
+  for (const auto& f : s.profile.function_codes) {
+    json x{{"code", f.code}, {"section", f.section}};
+    x["max_quantity"] = f.max_quantity ? json(*f.max_quantity) : json(nullptr);
+    if (f.max_read_quantity) x["max_read_quantity"] = *f.max_read_quantity;
+    if (f.max_write_quantity) x["max_write_quantity"] = *f.max_write_quantity;
+    if (!f.subfunctions.empty()) x["subfunctions"] = f.subfunctions;
+    if (!f.mei_types.empty()) x["mei_types"] = f.mei_types;
+    if (!f.note.empty()) x["note"] = f.note;
+    fcs.push_back(x);
+  }
+  json pol = json::object();
+  for (Violation v : kAllViolations) pol[to_string(v)] = policy(s.profile.policy(v));
+  json codes = json::array();
+  for (const auto& c : s.profile.exception_codes)
+    codes.push_back({{"code", c.code}, {"name", name(c.name)}, {"meaning", c.meaning}, {"section", c.section}});
+  j["profile"] = {{"function_codes", fcs}, {"exception_policy", pol}, {"exception_codes", codes}, {"section", s.profile.section}};
+
+  json enums = json::array();
+  for (const auto& e : s.enums) {
+    json vals = json::array();
+    for (const auto& v : e.values) vals.push_back({{"value", v.value}, {"name", name(v.name)}});
+    enums.push_back({{"id", e.id}, {"section", e.section}, {"values", vals}});
+  }
+  j["enums"] = enums;
+  json bfs = json::array();
+  for (const auto& b : s.bitfields) {
+    json fields = json::array();
+    for (const auto& f : b.fields) {
+      json x{{"lo", f.lo}, {"hi", f.hi}, {"name", name(f.name)}, {"reserved", f.reserved}};
+      if (f.default_value) x["default"] = *f.default_value;
+      if (!f.enum_id.empty()) x["enum"] = f.enum_id;
+      fields.push_back(x);
+    }
+    bfs.push_back({{"id", b.id}, {"section", b.section}, {"fields", fields}});
+  }
+  j["bitfields"] = bfs;
+
+  json regs = json::array();
+  for (const auto& r : s.registers) regs.push_back(reg(r));
+  j["registers"] = regs;
+
+  json ex = json::array();
+  for (const auto& e : s.examples) {
+    json x{{"id", e.id}, {"section", e.section}, {"does", e.does}, {"request", e.request},
+           {"response", e.response ? json(*e.response) : json(nullptr)}, {"given", values(e.given)},
+           {"after", values(e.after)}, {"errata", e.errata}, {"no_reply", e.no_reply}};
+    if (!e.sequence.empty()) x["sequence"] = {{"id", e.sequence}, {"step", e.step}};
+    if (e.has_resolution()) {
+      json r = json::object();
+      if (e.resolved_request) r["request"] = *e.resolved_request;
+      if (e.resolved_response) r["response"] = *e.resolved_response;
+      if (e.resolved_silent) r["silent"] = true;
+      x["resolved"] = r;
+    }
+    ex.push_back(x);
+  }
+  j["examples"] = ex;
+  json er = json::array();
+  for (const auto& e : s.errata)
+    er.push_back({{"id", e.id}, {"section", e.section}, {"kind", e.kind}, {"printed", e.printed}, {"resolved", e.resolved}, {"why", e.why}});
+  j["errata"] = er;
+  return j;
+}
+
+}  // namespace mbc::spec

@@ -1,0 +1,211 @@
+#include "errata.h"
+
+#include <algorithm>
+#include <set>
+#include <sstream>
+
+#include "codec/crc16.h"
+#include "codec/hex.h"
+
+namespace mbc::spec {
+namespace {
+
+using nlohmann::json;
+
+json frame_entry(const Example& e, const std::string& role, const std::string& hex) {
+  json f{{"example", e.id}, {"section", e.section}, {"role", role}, {"hex", hex}};
+  auto bytes = parse_hex(hex);
+  if (!bytes || bytes->size() < 3) {
+    f["crc_ok"] = false;
+    f["crc_correct"] = nullptr;
+    f["problem"] = "too short to carry a CRC";
+    return f;
+  }
+  std::span<const uint8_t> body(bytes->data(), bytes->size() - 2);
+  uint16_t c = crc16(body);
+  uint8_t lo = uint8_t(c & 0xFF), hi = uint8_t(c >> 8);
+  bool ok = (*bytes)[bytes->size() - 2] == lo && (*bytes)[bytes->size() - 1] == hi;
+  f["crc_ok"] = ok;
+  f["crc_printed"] = to_hex(std::span<const uint8_t>(bytes->data() + bytes->size() - 2, 2));
+  uint8_t correct[2] = {lo, hi};
+  f["crc_correct"] = to_hex(correct);
+  if (!ok) {
+    Bytes fixed(body.begin(), body.end());
+    fixed.push_back(lo);
+    fixed.push_back(hi);
+    f["corrected_frame"] = to_hex(fixed);
+    // Printed with the two CRC bytes swapped?
+    if ((*bytes)[bytes->size() - 2] == hi && (*bytes)[bytes->size() - 1] == lo) f["problem"] = "CRC bytes printed high byte first";
+  }
+  f["errata"] = e.errata;
+  return f;
+}
+
+std::string policy_text(const PolicyEntry& e) {
+  switch (e.kind) {
+    case PolicyEntry::Kind::exception: return "exception " + std::to_string(e.code);
+    case PolicyEntry::Kind::silent: return "no reply";
+    case PolicyEntry::Kind::unspecified: return "not stated";
+  }
+  return "?";
+}
+
+bool requires_two_stop_bits_violation(const std::string& f) { return f.size() == 3 && f[1] == 'N' && f[2] == '1'; }
+
+json deviations(const Spec& d, const Spec& std_) {
+  json out = json::array();
+  auto add = [&](std::string topic, std::string device, std::string standard, std::string clause, std::string section) {
+    out.push_back({{"topic", std::move(topic)}, {"device", std::move(device)}, {"standard", std::move(standard)},
+                   {"clause", std::move(clause)}, {"section", std::move(section)}});
+  };
+  if (d.device.id == std_.device.id) return out;
+
+  // Serial framing: MB over Serial Line v1.02 §2.5.1: 11 bits per character;
+  // no parity requires two stop bits; even parity is the default.
+  for (const auto& f : d.serial.frame_formats)
+    if (requires_two_stop_bits_violation(f))
+      add("serial.frame_format", f + " (no parity, 1 stop bit: 10-bit characters)",
+          "no parity requires 2 stop bits (8N2); even parity (8E1) is the default", "MB-SL v1.02 §2.5.1", d.serial.frame_section);
+  if (std::find(d.serial.frame_formats.begin(), d.serial.frame_formats.end(), "8E1") == d.serial.frame_formats.end())
+    add("serial.frame_format", "even parity (8E1) not offered", "even parity is required", "MB-SL v1.02 §2.5.1", d.serial.frame_section);
+  for (int baud : {9600, 19200})
+    if (std::find(d.serial.baud_rates.begin(), d.serial.baud_rates.end(), baud) == d.serial.baud_rates.end())
+      add("serial.baud_rate", std::to_string(baud) + " bit/s not offered", std::to_string(baud) + " bit/s is required",
+          "MB-SL v1.02 §2.5.1", d.serial.baud_section);
+  if (d.serial.baud_default && std_.serial.baud_default && *d.serial.baud_default != *std_.serial.baud_default)
+    add("serial.baud_rate.default", std::to_string(*d.serial.baud_default), std::to_string(*std_.serial.baud_default),
+        "MB-SL v1.02 §2.5.1", d.serial.baud_section);
+  if (d.serial.slave_min != std_.serial.slave_min || d.serial.slave_max != std_.serial.slave_max)
+    add("serial.slave_id", std::to_string(d.serial.slave_min) + ".." + std::to_string(d.serial.slave_max),
+        std::to_string(std_.serial.slave_min) + ".." + std::to_string(std_.serial.slave_max), "MB-SL v1.02 §2.2",
+        d.serial.slave_section);
+  if (d.serial.slave_default && *d.serial.slave_default == 0)
+    add("serial.slave_id.default", "0 (the broadcast address)", "a unicast address 1..247", "MB-SL v1.02 §2.2", d.serial.slave_section);
+  if (d.serial.broadcast_writes != std_.serial.broadcast_writes || d.serial.broadcast_reply != std_.serial.broadcast_reply)
+    add("serial.broadcast", "writes " + d.serial.broadcast_writes + ", reply " + d.serial.broadcast_reply,
+        "writes " + std_.serial.broadcast_writes + ", reply " + std_.serial.broadcast_reply, "MB-SL v1.02 §2.1",
+        d.serial.broadcast_section);
+
+  // Function codes and their limits.
+  for (const auto& f : d.profile.function_codes) {
+    const FunctionCode* s = std_.profile.function(f.code);
+    if (!s) {
+      add("function_code." + std::to_string(f.code), "supported", "not a public function code of MBAP v1.1b3", "MBAP v1.1b3 §5.1", f.section);
+      continue;
+    }
+    if (s->max_quantity && f.max_quantity && *f.max_quantity != *s->max_quantity)
+      add("function_code." + std::to_string(f.code) + ".max_quantity", std::to_string(*f.max_quantity),
+          std::to_string(*s->max_quantity), s->section, f.section);
+    if (s->max_quantity && !f.max_quantity)
+      add("function_code." + std::to_string(f.code) + ".max_quantity", "not stated", std::to_string(*s->max_quantity), s->section, f.section);
+  }
+
+  // Exception policy, kind by kind.
+  for (Violation v : kAllViolations) {
+    PolicyEntry a = d.profile.policy(v), b = std_.profile.policy(v);
+    bool same = a.kind == b.kind && (a.kind != PolicyEntry::Kind::exception || a.code == b.code);
+    if (!same)
+      add(std::string("exception_policy.") + to_string(v), policy_text(a), policy_text(b), b.section, a.section);
+  }
+  // Exception codes given a meaning of the device's own.
+  for (const auto& c : d.profile.exception_codes) {
+    static const char* standard_names[] = {"", "ILLEGAL FUNCTION", "ILLEGAL DATA ADDRESS", "ILLEGAL DATA VALUE", "SERVER DEVICE FAILURE",
+                                           "ACKNOWLEDGE", "SERVER DEVICE BUSY", "", "MEMORY PARITY ERROR"};
+    std::string std_name = c.code >= 1 && c.code <= 8 ? standard_names[c.code] : "";
+    add("exception_code." + std::to_string(c.code), c.name.en + (c.name.zh.empty() ? "" : " (" + c.name.zh + ")"),
+        std_name.empty() ? "not defined" : std_name, "MBAP v1.1b3 §7", c.section);
+  }
+  return out;
+}
+
+}  // namespace
+
+nlohmann::json errata_report(const Spec& d, const Spec& standard) {
+  json r;
+  r["device"] = {{"id", d.device.id}, {"vendor", d.device.vendor}, {"title", d.device.title}, {"models", d.device.models}};
+  r["manual"] = {{"file", d.device.manual.file}, {"address_notation", d.device.manual.address_notation},
+                 {"addressing_note", d.device.manual.addressing_note}};
+  json frames = json::array();
+  for (const auto& e : d.examples) {
+    frames.push_back(frame_entry(e, "request", e.request));
+    if (e.response) frames.push_back(frame_entry(e, "response", *e.response));
+  }
+  r["frames"] = frames;
+  json contradictions = json::array();
+  for (const auto& e : d.errata) {
+    json refs = json::array();
+    for (const auto& reg : d.registers)
+      if (reg.block_index <= 0 && std::find(reg.errata.begin(), reg.errata.end(), e.id) != reg.errata.end())
+        refs.push_back("register " + std::to_string(reg.address));
+    for (const auto& ex : d.examples)
+      if (std::find(ex.errata.begin(), ex.errata.end(), e.id) != ex.errata.end()) refs.push_back("example " + ex.id);
+    contradictions.push_back({{"id", e.id}, {"section", e.section}, {"kind", e.kind}, {"printed", e.printed},
+                              {"resolved", e.resolved}, {"why", e.why}, {"affects", refs}});
+  }
+  r["errata"] = contradictions;
+  r["deviations"] = deviations(d, standard);
+  size_t bad = std::count_if(frames.begin(), frames.end(), [](const json& f) { return !f["crc_ok"].get<bool>(); });
+  r["summary"] = {{"frames", frames.size()}, {"frames_bad_crc", bad}, {"errata", d.errata.size()},
+                  {"deviations", r["deviations"].size()}, {"registers", d.registers.size()}, {"examples", d.examples.size()}};
+  return r;
+}
+
+std::string errata_markdown(const nlohmann::json& r) {
+  std::ostringstream o;
+  auto cell = [](std::string s) {
+    for (size_t i = 0; (i = s.find('|', i)) != std::string::npos; i += 2) s.replace(i, 1, "\\|");
+    std::replace(s.begin(), s.end(), '\n', ' ');
+    return s;
+  };
+  const json& d = r["device"];
+  o << "# Manual errata: " << d["title"].get<std::string>() << " (`" << d["id"].get<std::string>() << "`)\n\n";
+  o << "Generated by `mbconform spec errata` from `spec/devices/" << d["id"].get<std::string>()
+    << ".yaml`; do not edit by hand.\n\n";
+  o << "- Vendor: " << d["vendor"].get<std::string>() << "\n- Manual: `" << r["manual"]["file"].get<std::string>()
+    << "` (register numbers printed in " << r["manual"]["address_notation"].get<std::string>() << ")\n";
+  if (!r["manual"]["addressing_note"].get<std::string>().empty())
+    o << "- Addressing: " << r["manual"]["addressing_note"].get<std::string>() << "\n";
+  const json& s = r["summary"];
+  o << "- " << s["frames"] << " printed frames, " << s["frames_bad_crc"] << " with a wrong CRC; " << s["errata"]
+    << " errata; " << s["deviations"] << " deviations from modbus-standard\n\n";
+
+  o << "## Printed frames, CRC checked\n\n| example | section | role | frame as printed | CRC | correct CRC |\n|---|---|---|---|---|---|\n";
+  for (const auto& f : r["frames"]) {
+    bool ok = f["crc_ok"].get<bool>();
+    o << "| " << cell(f["example"]) << " | " << cell(f["section"]) << " | " << f["role"].get<std::string>() << " | `"
+      << f["hex"].get<std::string>() << "` | " << (ok ? "ok" : "**wrong**") << " | "
+      << (f["crc_correct"].is_null() ? std::string("-") : (ok ? "" : "`" + f["crc_correct"].get<std::string>() + "`"));
+    if (f.contains("problem")) o << " " << f["problem"].get<std::string>();
+    o << " |\n";
+  }
+  o << "\n## Contradictions and their resolution\n\n";
+  if (r["errata"].empty()) o << "None recorded.\n";
+  for (const auto& e : r["errata"]) {
+    o << "### " << e["id"].get<std::string>() << " (§" << e["section"].get<std::string>() << ", " << e["kind"].get<std::string>()
+      << ")\n\n";
+    o << "- **Printed:** " << e["printed"].get<std::string>() << "\n";
+    o << "- **Resolved:** " << e["resolved"].get<std::string>() << "\n";
+    o << "- **Why:** " << e["why"].get<std::string>() << "\n";
+    if (!e["affects"].empty()) {
+      o << "- **Affects:** ";
+      bool first = true;
+      for (const auto& a : e["affects"]) {
+        o << (first ? "" : ", ") << a.get<std::string>();
+        first = false;
+      }
+      o << "\n";
+    }
+    o << "\n";
+  }
+  o << "## Deviations from modbus-standard\n\n";
+  if (r["deviations"].empty()) o << "None.\n";
+  else {
+    o << "| topic | this device | the standard | clause | manual section |\n|---|---|---|---|---|\n";
+    for (const auto& v : r["deviations"])
+      o << "| " << cell(v["topic"]) << " | " << cell(v["device"]) << " | " << cell(v["standard"]) << " | " << cell(v["clause"])
+        << " | " << cell(v["section"]) << " |\n";
+  }
+  return o.str();
+}
+
+}  // namespace mbc::spec

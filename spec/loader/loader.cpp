@@ -1,0 +1,483 @@
+#include "loader.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+
+#include <valijson/adapters/nlohmann_json_adapter.hpp>
+#include <valijson/schema.hpp>
+#include <valijson/schema_parser.hpp>
+#include <valijson/validation_results.hpp>
+#include <valijson/validator.hpp>
+
+#include "checks.h"
+#include "codec/hex.h"
+#include "yaml_json.h"
+
+#ifndef MBCONFORM_SOURCE_SPEC_DIR
+#define MBCONFORM_SOURCE_SPEC_DIR "spec"
+#endif
+
+namespace mbc::spec {
+namespace {
+
+using nlohmann::json;
+
+const valijson::Schema& device_schema() {
+  static const valijson::Schema* schema = [] {
+    auto* s = new valijson::Schema;  // lives for the process; valijson schemas do not copy
+    json doc = json::parse(device_schema_text());
+    valijson::SchemaParser parser(valijson::SchemaParser::kDraft7);
+    valijson::adapters::NlohmannJsonAdapter adapter(doc);
+    parser.populateSchema(adapter, *s);
+    return s;
+  }();
+  return *schema;
+}
+
+// valijson contexts look like {"<root>", "[registers]", "[3]", "[access]"}.
+std::string context_to_pointer(const std::vector<std::string>& ctx) {
+  std::string p;
+  for (const auto& c : ctx) {
+    if (c == "<root>") continue;
+    std::string t = c;
+    if (t.size() >= 2 && t.front() == '[' && t.back() == ']') t = t.substr(1, t.size() - 2);
+    if (t.size() >= 2 && t.front() == '"' && t.back() == '"') t = t.substr(1, t.size() - 2);
+    p += "/" + t;
+  }
+  return p;
+}
+
+std::string pointer_to_path(const std::string& p) {
+  // "/registers/3/access" -> "registers[3].access"
+  std::string out;
+  std::stringstream ss(p);
+  std::string tok;
+  std::getline(ss, tok, '/');
+  while (std::getline(ss, tok, '/')) {
+    bool idx = !tok.empty() && std::all_of(tok.begin(), tok.end(), ::isdigit);
+    if (idx) out += "[" + tok + "]";
+    else out += (out.empty() ? "" : ".") + tok;
+  }
+  return out.empty() ? "(document)" : out;
+}
+
+void validate_schema(const JsonDocument& doc, const std::string& file, Diagnostics& out) {
+  valijson::Validator validator;
+  valijson::ValidationResults results;
+  valijson::adapters::NlohmannJsonAdapter target(doc.root);
+  if (validator.validate(device_schema(), target, &results)) return;
+  struct Err {
+    std::string pointer;
+    std::string description;
+  };
+  std::vector<Err> errs;
+  valijson::ValidationResults::Error e;
+  while (results.popError(e)) errs.push_back({context_to_pointer(e.context), e.description});
+  // valijson reports every enclosing failure too ("failed to validate item #3
+  // in array"); keep the innermost ones, which say what is actually wrong.
+  std::set<std::string> seen;
+  for (const auto& a : errs) {
+    bool has_deeper = std::any_of(errs.begin(), errs.end(), [&](const Err& b) {
+      return b.pointer.size() > a.pointer.size() && b.pointer.compare(0, a.pointer.size(), a.pointer) == 0 &&
+             b.pointer[a.pointer.size()] == '/';
+    });
+    if (has_deeper) continue;
+    std::string msg = pointer_to_path(a.pointer) + ": " + a.description;
+    if (!seen.insert(msg).second) continue;
+    SourceLoc loc = doc.where(a.pointer);
+    out.push_back({file, loc.line, loc.col, "schema", msg});
+  }
+}
+
+// ---- building the plain structs (the schema has vouched for the types) ----
+
+struct Builder {
+  const JsonDocument& doc;
+  std::string file;
+  Diagnostics& out;
+
+  SourceLoc at(const std::string& p) const { return doc.where(p); }
+  static std::string str(const json& j, const char* key, std::string def = "") {
+    auto it = j.find(key);
+    return it != j.end() && it->is_string() ? it->get<std::string>() : def;
+  }
+  static Table table_from(const std::string& t) {
+    return t == "input" ? Table::input : t == "coil" ? Table::coil : t == "discrete_input" ? Table::discrete_input : Table::holding;
+  }
+  static Name name(const json& j) {
+    Name n;
+    if (j.is_object()) {
+      n.zh = str(j, "zh");
+      n.en = str(j, "en");
+    }
+    return n;
+  }
+  static std::vector<std::string> refs(const json& j, const char* key) {
+    std::vector<std::string> r;
+    auto it = j.find(key);
+    if (it == j.end()) return r;
+    if (it->is_string()) r.push_back(it->get<std::string>());
+    else if (it->is_array())
+      for (const auto& x : *it) r.push_back(x.get<std::string>());
+    return r;
+  }
+  static std::string first_ref(const json& j, const char* key) {
+    auto r = refs(j, key);
+    return r.empty() ? "" : r.front();
+  }
+
+  PolicyEntry policy(const json& j, const std::string& p) {
+    PolicyEntry e;
+    e.loc = at(p);
+    if (j.is_string()) {
+      e.kind = j == "silent" ? PolicyEntry::Kind::silent : PolicyEntry::Kind::unspecified;
+      return e;
+    }
+    if (j.contains("exception")) {
+      e.kind = PolicyEntry::Kind::exception;
+      e.code = j["exception"].get<int>();
+    } else if (j.contains("silent")) {
+      e.kind = PolicyEntry::Kind::silent;
+    }
+    e.section = str(j, "section");
+    e.erratum = str(j, "erratum");
+    return e;
+  }
+
+  std::vector<EnumValue> enum_values(const json& arr) {
+    std::vector<EnumValue> v;
+    for (const auto& x : arr) v.push_back({x["value"].get<int64_t>(), name(x["name"]), str(x, "note")});
+    return v;
+  }
+
+  Spec build() {
+    const json& r = doc.root;
+    Spec s;
+    s.path = file;
+    const json& d = r["device"];
+    s.device.id = str(d, "id");
+    s.device.vendor = str(d, "vendor");
+    s.device.title = str(d, "title");
+    for (const auto& m : d["models"]) s.device.models.push_back(m.get<std::string>());
+    s.device.manual.file = str(d["manual"], "file");
+    s.device.manual.address_notation = str(d["manual"], "address_notation");
+    s.device.manual.addressing_note = str(d["manual"], "addressing_note");
+    s.device.section = str(d, "section");
+
+    const json& se = r["serial"];
+    s.serial.section = str(se, "section");
+    const json& sid = se["slave_id"];
+    s.serial.slave_min = sid["min"].get<int>();
+    s.serial.slave_max = sid["max"].get<int>();
+    if (sid.contains("default") && sid["default"].is_number()) s.serial.slave_default = sid["default"].get<int>();
+    s.serial.slave_set_by = str(sid, "set_by");
+    s.serial.slave_section = str(sid, "section");
+    const json& bc = se["broadcast"];
+    if (bc.contains("address") && bc["address"].is_number()) s.serial.broadcast_address = bc["address"].get<int>();
+    s.serial.broadcast_writes = str(bc, "writes", "unspecified");
+    s.serial.broadcast_reply = str(bc, "reply", "unspecified");
+    s.serial.broadcast_section = str(bc, "section");
+    for (const auto& b : se["baud_rates"]["values"]) s.serial.baud_rates.push_back(b.get<int>());
+    if (se["baud_rates"].contains("default") && se["baud_rates"]["default"].is_number())
+      s.serial.baud_default = se["baud_rates"]["default"].get<int>();
+    s.serial.baud_section = str(se["baud_rates"], "section");
+    for (const auto& f : se["frame_formats"]["values"]) s.serial.frame_formats.push_back(f.get<std::string>());
+    if (se["frame_formats"].contains("default") && se["frame_formats"]["default"].is_string())
+      s.serial.frame_default = se["frame_formats"]["default"].get<std::string>();
+    s.serial.frame_section = str(se["frame_formats"], "section");
+    if (se.contains("settings"))
+      for (const auto& st : se["settings"]) {
+        SerialSetting x;
+        x.register_address = st["register"].get<uint16_t>();
+        x.setting = str(st, "setting");
+        x.section = str(st, "section");
+        if (st.contains("encoding"))
+          for (const auto& e : st["encoding"])
+            x.encoding.emplace_back(e["value"].get<int64_t>(),
+                                    e["means"].is_string() ? e["means"].get<std::string>() : e["means"].dump());
+        s.serial.settings.push_back(x);
+      }
+
+    const json& pr = r["profile"];
+    s.profile.section = str(pr, "section");
+    for (size_t i = 0; i < pr["function_codes"].size(); ++i) {
+      const json& f = pr["function_codes"][i];
+      FunctionCode fc;
+      fc.code = f["code"].get<int>();
+      if (f.contains("max_quantity")) fc.max_quantity = f["max_quantity"].get<int>();
+      if (f.contains("max_read_quantity")) fc.max_read_quantity = f["max_read_quantity"].get<int>();
+      if (f.contains("max_write_quantity")) fc.max_write_quantity = f["max_write_quantity"].get<int>();
+      if (f.contains("subfunctions")) fc.subfunctions = f["subfunctions"].get<std::vector<int>>();
+      if (f.contains("mei_types")) fc.mei_types = f["mei_types"].get<std::vector<int>>();
+      fc.note = str(f, "note");
+      fc.section = str(f, "section");
+      fc.erratum = str(f, "erratum");
+      fc.loc = at("/profile/function_codes/" + std::to_string(i));
+      s.profile.function_codes.push_back(fc);
+    }
+    for (Violation v : kAllViolations) {
+      const char* key = to_string(v);
+      const json& pol = pr["exception_policy"];
+      if (pol.contains(key))
+        s.profile.exception_policy[v] = policy(pol[key], std::string("/profile/exception_policy/") + key);
+    }
+    if (pr.contains("exception_codes"))
+      for (const auto& c : pr["exception_codes"])
+        s.profile.exception_codes.push_back({c["code"].get<int>(), name(c["name"]), str(c, "meaning"), str(c, "section")});
+
+    if (r.contains("enums"))
+      for (size_t i = 0; i < r["enums"].size(); ++i) {
+        const json& e = r["enums"][i];
+        s.enums.push_back({str(e, "id"), str(e, "section"), enum_values(e["values"]), at("/enums/" + std::to_string(i))});
+      }
+    if (r.contains("bitfields"))
+      for (size_t i = 0; i < r["bitfields"].size(); ++i) {
+        const json& b = r["bitfields"][i];
+        Bitfield bf{str(b, "id"), str(b, "section"), {}, at("/bitfields/" + std::to_string(i))};
+        for (const auto& f : b["fields"]) {
+          BitField x;
+          if (f.contains("bit")) x.lo = x.hi = f["bit"].get<int>();
+          else if (f.contains("bits")) {
+            x.lo = f["bits"][0].get<int>();
+            x.hi = f["bits"][1].get<int>();
+          } else {
+            x.lo = 0;
+            x.hi = -1;  // reported by the bitfield rule
+          }
+          x.name = name(f["name"]);
+          x.reserved = f.value("reserved", false);
+          if (f.contains("default")) x.default_value = f["default"].get<int64_t>();
+          x.enum_id = str(f, "enum");
+          x.erratum = str(f, "erratum");
+          bf.fields.push_back(x);
+        }
+        s.bitfields.push_back(bf);
+      }
+
+    for (size_t i = 0; i < r["registers"].size(); ++i) build_register(s, r["registers"][i], i);
+    std::stable_sort(s.registers.begin(), s.registers.end(), [](const Register& a, const Register& b) {
+      return std::pair(int(a.table), a.address) < std::pair(int(b.table), b.address);
+    });
+
+    for (size_t i = 0; i < r["examples"].size(); ++i) {
+      const json& e = r["examples"][i];
+      Example x;
+      x.id = str(e, "id");
+      x.section = str(e, "section");
+      x.does = str(e, "does");
+      x.request = str(e, "request");
+      if (e.contains("response")) x.response = str(e, "response");
+      for (const char* key : {"given", "after"}) {
+        if (!e.contains(key)) continue;
+        auto& into = std::string(key) == "given" ? x.given : x.after;
+        for (const auto& g : e[key]) {
+          RegisterValue v{g["address"].get<uint16_t>(), g["value"].get<double>()};
+          if (g.contains("table")) {
+            v.table = table_from(str(g, "table"));
+            v.table_set = true;
+          }
+          into.push_back(v);
+        }
+      }
+      if (e.contains("sequence")) {
+        x.sequence = str(e["sequence"], "id");
+        x.step = e["sequence"]["step"].get<int>();
+      }
+      if (auto bytes = parse_hex(x.request); bytes && bytes->size() >= 2)
+        for (auto* list : {&x.given, &x.after})
+          for (auto& v : *list)
+            if (!v.table_set) v.table = table_for_function((*bytes)[1]);
+      x.errata = refs(e, "erratum");
+      x.no_reply = e.value("no_reply", false);
+      if (e.contains("resolved")) {
+        const json& rs = e["resolved"];
+        if (rs.contains("request")) x.resolved_request = str(rs, "request");
+        if (rs.contains("response")) x.resolved_response = str(rs, "response");
+        x.resolved_silent = rs.value("silent", false);
+      }
+      x.origin = "/examples/" + std::to_string(i);
+      x.loc = at(x.origin);
+      s.examples.push_back(x);
+    }
+    for (size_t i = 0; i < r["errata"].size(); ++i) {
+      const json& e = r["errata"][i];
+      s.errata.push_back({str(e, "id"), str(e, "section"), str(e, "kind"), str(e, "printed"), str(e, "resolved"),
+                          str(e, "why"), at("/errata/" + std::to_string(i))});
+    }
+    return s;
+  }
+
+  void build_register(Spec& s, const json& j, size_t index) {
+    const std::string p = "/registers/" + std::to_string(index);
+    Register base;
+    base.loc = at(p);
+    base.origin = p;
+    base.address = j["address"].get<uint16_t>();
+    base.name = name(j["name"]);
+    base.table = table_from(str(j, "table", "holding"));
+    std::string access = str(j, "access");
+    base.access = access == "ro" ? Access::ro : access == "wo" ? Access::wo : access == "command" ? Access::command : Access::rw;
+    std::string type = str(j, "type");
+    static const std::pair<const char*, DataType> types[] = {
+        {"u16", DataType::u16}, {"s16", DataType::s16}, {"u32", DataType::u32},     {"s32", DataType::s32},
+        {"f32", DataType::f32}, {"bitfield", DataType::bitfield}, {"enum", DataType::enumeration}, {"bit", DataType::bit}};
+    for (const auto& [n, t] : types)
+      if (type == n) base.type = t;
+    bool wide = base.type == DataType::u32 || base.type == DataType::s32 || base.type == DataType::f32;
+    base.words = j.contains("words") ? j["words"].get<int>() : (wide ? 2 : 1);
+    std::string wo = str(j, "word_order");
+    base.word_order = wo == "high_first" ? WordOrder::high_first : wo == "low_first" ? WordOrder::low_first : WordOrder::none;
+    if (j.contains("range")) base.range = Range{j["range"]["min"].get<double>(), j["range"]["max"].get<double>()};
+    if (j.contains("default") && j["default"].is_number()) base.default_value = j["default"].get<double>();
+    base.unit = str(j, "unit");
+    base.scale = j.value("scale", 1.0);
+    if (j.contains("persistence") && j["persistence"].is_object()) {
+      const json& ps = j["persistence"];
+      base.persistence.store = str(ps, "store") == "flash" ? Store::flash : Store::eeprom;
+      base.persistence.by = str(ps, "by") == "save_command" ? PersistBy::save_command : PersistBy::on_write;
+      if (ps.contains("command")) base.persistence.command = ps["command"].get<uint16_t>();
+      if (ps.contains("unless")) {
+        base.persistence.unless_register = ps["unless"]["register"].get<uint16_t>();
+        base.persistence.unless_value = ps["unless"]["value"].get<int64_t>();
+      }
+      base.persistence.section = str(ps, "section");
+    }
+    base.takes_effect = str(j, "takes_effect") == "power_cycle" ? TakesEffect::power_cycle : TakesEffect::immediate;
+    if (j.contains("enum")) {
+      if (j["enum"].is_string()) base.enum_id = j["enum"].get<std::string>();
+      else {
+        base.enum_id = "register-" + std::to_string(base.address) + "-values";
+        s.enums.push_back({base.enum_id, str(j, "section"), enum_values(j["enum"]), at(p + "/enum")});
+      }
+    }
+    base.bitfield_id = str(j, "bitfield");
+    if (j.contains("command")) {
+      const json& c = j["command"];
+      Command cmd;
+      cmd.effect = str(c, "effect");
+      if (c.contains("reads_back")) cmd.reads_back = c["reads_back"].get<int64_t>();
+      cmd.motion = c.value("motion", false);
+      cmd.eeprom = c.value("eeprom", false);
+      if (c.contains("values")) cmd.values = c["values"].get<std::vector<int64_t>>();
+      base.command = cmd;
+    }
+    if (j.contains("printed"))
+      for (const auto& [k, v] : j["printed"].items()) base.printed[k] = v.is_string() ? v.get<std::string>() : v.dump();
+    base.errata = refs(j, "erratum");
+    base.note = str(j, "note");
+    base.section = str(j, "section");
+    int count = j.value("count", 1);
+    if (count == 1) {
+      s.registers.push_back(base);
+      return;
+    }
+    // A block of `count` registers, each addressable on its own (e.g.
+    // 57HS-R 0x0090–0x009F, 16 segments).
+    for (int k = 0; k < count; ++k) {
+      uint32_t addr = uint32_t(base.address) + uint32_t(k) * uint32_t(base.words);
+      if (addr > 0xFFFF) {
+        out.push_back({file, base.loc.line, base.loc.col, "address-overflow",
+                       "block of " + std::to_string(count) + " registers starting at " + std::to_string(base.address) +
+                           " runs past address 65535"});
+        return;
+      }
+      Register r = base;
+      r.address = uint16_t(addr);
+      r.block_index = k;
+      r.name.en = base.name.en + " [" + std::to_string(k + 1) + "]";
+      if (!r.name.zh.empty()) r.name.zh = base.name.zh + " [" + std::to_string(k + 1) + "]";
+      s.registers.push_back(r);
+    }
+  }
+};
+
+bool ends_with(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+}  // namespace
+
+std::string Diagnostic::str() const {
+  return file + ":" + std::to_string(line) + ":" + std::to_string(col) + ": error: " + rule + ": " + message;
+}
+
+LoadResult load_spec_text(std::string_view text, const std::string& file) {
+  LoadResult res;
+  auto doc = yaml_to_json(text, file, res.diagnostics);
+  if (!doc) return res;
+  if (!doc->root.is_object()) {
+    res.diagnostics.push_back({file, 1, 1, "schema", "(document): a spec is a mapping with device, serial, profile, registers, examples and errata"});
+    return res;
+  }
+  try {
+    validate_schema(*doc, file, res.diagnostics);
+  } catch (const std::exception& e) {
+    res.diagnostics.push_back({file, 1, 1, "schema", std::string("validator failed: ") + e.what()});
+  }
+  if (!res.diagnostics.empty()) return res;
+  Builder b{*doc, file, res.diagnostics};
+  res.spec = b.build();
+  std::string expected_id;
+  if (ends_with(file, ".yaml") || ends_with(file, ".yml")) expected_id = std::filesystem::path(file).stem().string();
+  check_semantics(*res.spec, *doc, expected_id, res.diagnostics);
+  std::stable_sort(res.diagnostics.begin(), res.diagnostics.end(), [](const Diagnostic& a, const Diagnostic& b) {
+    return std::pair(a.line, a.col) < std::pair(b.line, b.col);
+  });
+  return res;
+}
+
+LoadResult load_spec_file(const std::string& path) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {
+    LoadResult r;
+    r.diagnostics.push_back({path, 0, 0, "io", "is a directory, not a spec file"});
+    return r;
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    LoadResult r;
+    r.diagnostics.push_back({path, 0, 0, "io", "cannot open the file"});
+    return r;
+  }
+  std::string text;
+  YamlLimits limits;
+  text.resize(limits.max_bytes + 1);
+  in.read(text.data(), std::streamsize(text.size()));
+  text.resize(size_t(in.gcount()));
+  return load_spec_text(text, path);
+}
+
+std::string spec_dir() {
+  if (const char* env = std::getenv("MBCONFORM_SPEC_DIR"); env && *env) return env;
+  std::error_code ec;
+  if (std::filesystem::is_directory(std::string(MBCONFORM_SOURCE_SPEC_DIR) + "/devices", ec))
+    return MBCONFORM_SOURCE_SPEC_DIR;
+  return "spec";
+}
+
+std::vector<std::string> spec_ids() {
+  std::vector<std::string> ids;
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(spec_dir() + "/devices", ec))
+    if (e.path().extension() == ".yaml") ids.push_back(e.path().stem().string());
+  std::sort(ids.begin(), ids.end());
+  return ids;
+}
+
+std::string spec_path(const std::string& id) { return spec_dir() + "/devices/" + id + ".yaml"; }
+
+Spec load_spec_by_id(const std::string& id) {
+  auto r = load_spec_file(spec_path(id));
+  if (!r.ok()) {
+    std::string msg = "spec '" + id + "' does not load:";
+    for (const auto& d : r.diagnostics) msg += "\n" + d.str();
+    throw std::runtime_error(msg);
+  }
+  return std::move(*r.spec);
+}
+
+}  // namespace mbc::spec

@@ -1,0 +1,294 @@
+// The resolved device spec: plain data, no behaviour. Everything the
+// reference devices, the conformance generators, the fuzz corpora and the
+// reports know about a device comes from one of these structs, loaded from
+// spec/devices/<id>.yaml by load_spec() (see spec/README.md for the language).
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace mbc::spec {
+
+struct SourceLoc {
+  int line = 0;  // 1-based; 0 = unknown
+  int col = 0;
+};
+
+struct Name {
+  std::string zh;
+  std::string en;
+};
+
+enum class Table { holding, input, coil, discrete_input };
+enum class Access { ro, rw, wo, command };
+enum class DataType { u16, s16, u32, s32, f32, bitfield, enumeration, bit };
+enum class WordOrder { none, high_first, low_first };
+enum class Store { none, eeprom, flash };
+enum class PersistBy { none, on_write, save_command };
+enum class TakesEffect { immediate, power_cycle };
+
+struct Range {
+  double min = 0;
+  double max = 0;
+};
+
+struct EnumValue {
+  int64_t value = 0;
+  Name name;
+  std::string note;
+};
+
+struct Enumeration {
+  std::string id;
+  std::string section;
+  std::vector<EnumValue> values;
+  SourceLoc loc;
+};
+
+struct BitField {
+  int lo = 0;  // lowest bit
+  int hi = 0;  // highest bit (== lo for a single bit)
+  Name name;
+  bool reserved = false;
+  std::optional<int64_t> default_value;
+  std::string enum_id;  // values of a multi-bit field, if coded
+  std::string erratum;
+};
+
+struct Bitfield {
+  std::string id;
+  std::string section;
+  std::vector<BitField> fields;
+  SourceLoc loc;
+};
+
+struct Persistence {
+  Store store = Store::none;
+  PersistBy by = PersistBy::none;
+  std::optional<uint16_t> command;  // the save register, when by == save_command
+  // Persistence is suspended while register `unless_register` holds
+  // `unless_value` (57HS-R 0x0016, "do not update EEPROM").
+  std::optional<uint16_t> unless_register;
+  int64_t unless_value = 0;
+  std::string section;
+};
+
+struct Command {
+  std::string effect;
+  std::optional<int64_t> reads_back;
+  bool motion = false;
+  bool eeprom = false;
+  std::vector<int64_t> values;
+};
+
+struct Register {
+  uint16_t address = 0;  // wire (PDU) address
+  int words = 1;         // 1 or 2
+  Table table = Table::holding;
+  Name name;
+  Access access = Access::rw;
+  DataType type = DataType::u16;
+  WordOrder word_order = WordOrder::none;
+  std::optional<Range> range;
+  std::optional<double> default_value;
+  std::string unit;
+  double scale = 1;
+  Persistence persistence;
+  TakesEffect takes_effect = TakesEffect::immediate;
+  std::string enum_id;      // for type enumeration (inline lists get a generated id)
+  std::string bitfield_id;  // for type bitfield
+  std::optional<Command> command;
+  std::map<std::string, std::string> printed;  // field -> text as printed
+  std::vector<std::string> errata;
+  std::string note;
+  std::string section;
+  int block_index = -1;  // index inside a `count:` block, -1 if not from one
+  SourceLoc loc;
+  std::string origin;  // JSON pointer of the declaration ("/registers/7")
+
+  bool is_signed() const { return type == DataType::s16 || type == DataType::s32; }
+  uint32_t last_address() const { return uint32_t(address) + uint32_t(words) - 1; }
+};
+
+// What the device answers to one kind of violation.
+struct PolicyEntry {
+  enum class Kind { exception, silent, unspecified } kind = Kind::unspecified;
+  int code = 0;  // exception code when kind == exception
+  std::string section;
+  std::string erratum;
+  SourceLoc loc;
+};
+
+// The kinds of violation, in the order reports list them.
+enum class Violation {
+  unsupported_function,
+  unmapped_address,
+  address_past_map,
+  quantity_zero,
+  quantity_over_limit,
+  value_out_of_range,
+  write_read_only,
+  read_write_only,
+  crc_error,
+  wrong_byte_count,
+};
+inline constexpr Violation kAllViolations[] = {
+    Violation::unsupported_function, Violation::unmapped_address,   Violation::address_past_map,
+    Violation::quantity_zero,        Violation::quantity_over_limit, Violation::value_out_of_range,
+    Violation::write_read_only,      Violation::read_write_only,     Violation::crc_error,
+    Violation::wrong_byte_count};
+const char* to_string(Violation v);
+
+struct FunctionCode {
+  int code = 0;
+  std::optional<int> max_quantity;
+  std::optional<int> max_read_quantity;   // FC 23
+  std::optional<int> max_write_quantity;  // FC 23
+  std::vector<int> subfunctions;          // FC 08
+  std::vector<int> mei_types;             // FC 43
+  std::string note;
+  std::string section;
+  std::string erratum;
+  SourceLoc loc;
+};
+
+struct ExceptionCodeMeaning {
+  int code = 0;
+  Name name;
+  std::string meaning;
+  std::string section;
+};
+
+struct Profile {
+  std::string section;
+  std::vector<FunctionCode> function_codes;
+  std::map<Violation, PolicyEntry> exception_policy;
+  std::vector<ExceptionCodeMeaning> exception_codes;
+
+  const FunctionCode* function(int code) const {
+    for (const auto& f : function_codes)
+      if (f.code == code) return &f;
+    return nullptr;
+  }
+  PolicyEntry policy(Violation v) const {
+    auto it = exception_policy.find(v);
+    return it == exception_policy.end() ? PolicyEntry{} : it->second;
+  }
+};
+
+struct SerialSetting {
+  uint16_t register_address = 0;
+  std::string setting;  // baud_rate | frame_format | slave_id
+  std::vector<std::pair<int64_t, std::string>> encoding;  // raw value -> meaning
+  std::string section;
+};
+
+struct Serial {
+  std::string section;
+  int slave_min = 1, slave_max = 247;
+  std::optional<int> slave_default;
+  std::string slave_set_by;
+  std::string slave_section;
+  std::optional<int> broadcast_address;
+  std::string broadcast_writes = "unspecified";  // applied | ignored | unspecified
+  std::string broadcast_reply = "unspecified";   // none | unspecified
+  std::string broadcast_section;
+  std::vector<int> baud_rates;
+  std::optional<int> baud_default;
+  std::string baud_section;
+  std::vector<std::string> frame_formats;  // "8N1", "8E1", ...
+  std::optional<std::string> frame_default;
+  std::string frame_section;
+  std::vector<SerialSetting> settings;
+};
+
+struct RegisterValue {
+  uint16_t address = 0;
+  double value = 0;
+  Table table = Table::holding;  // given:/after: default to the function code's table
+  bool table_set = false;
+};
+
+struct Example {
+  std::string id;
+  std::string section;
+  std::string does;
+  std::string request;   // uppercase hex, as printed
+  std::optional<std::string> response;  // as printed; absent when none printed
+  std::vector<RegisterValue> given;
+  std::vector<RegisterValue> after;
+  std::string sequence;
+  int step = 0;
+  std::vector<std::string> errata;
+  // The reading tests use when the printed frame is an erratum.
+  std::optional<std::string> resolved_request;
+  std::optional<std::string> resolved_response;
+  bool resolved_silent = false;
+  bool no_reply = false;  // the source says the device does not answer this frame
+  SourceLoc loc;
+  std::string origin;  // JSON pointer of the declaration ("/examples/3")
+
+  bool has_resolution() const {
+    return resolved_request || resolved_response || resolved_silent;
+  }
+};
+
+struct Erratum {
+  std::string id;
+  std::string section;
+  std::string kind;
+  std::string printed;
+  std::string resolved;
+  std::string why;
+  SourceLoc loc;
+};
+
+struct Manual {
+  std::string file;
+  std::string address_notation;  // hex | decimal
+  std::string addressing_note;
+};
+
+struct Device {
+  std::string id;
+  std::string vendor;
+  std::string title;
+  std::vector<std::string> models;
+  Manual manual;
+  std::string section;
+};
+
+struct Spec {
+  std::string path;  // file it was loaded from
+  Device device;
+  Serial serial;
+  Profile profile;
+  std::vector<Enumeration> enums;
+  std::vector<Bitfield> bitfields;
+  std::vector<Register> registers;  // resolved: blocks expanded, sorted by (table, address)
+  std::vector<Example> examples;
+  std::vector<Erratum> errata;
+
+  const Register* find_register(uint16_t address, Table table = Table::holding) const;
+  // The register whose words cover `address` (a 2-word register covers two).
+  const Register* register_covering(uint16_t address, Table table = Table::holding) const;
+  const Enumeration* find_enum(const std::string& id) const;
+  const Bitfield* find_bitfield(const std::string& id) const;
+  const Erratum* find_erratum(const std::string& id) const;
+  // Highest wire address any register of `table` covers, if any.
+  std::optional<uint16_t> last_address(Table table = Table::holding) const;
+};
+
+// The data table a function code addresses (MBAP v1.1b3 §4.3, §6); FC 07's
+// exception status outputs are coils here (modbus-standard maps them so).
+Table table_for_function(int function_code);
+
+const char* to_string(Table);
+const char* to_string(Access);
+const char* to_string(DataType);
+const char* to_string(WordOrder);
+
+}  // namespace mbc::spec

@@ -1,0 +1,248 @@
+#include "yaml_json.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <charconv>
+#include <cmath>
+#include <vector>
+
+namespace mbc::spec {
+namespace {
+
+using nlohmann::json;
+
+std::string escape_pointer_token(const std::string& s) {
+  std::string r;
+  for (char c : s) {
+    if (c == '~') r += "~0";
+    else if (c == '/') r += "~1";
+    else r += c;
+  }
+  return r;
+}
+
+// yaml-cpp's parser recurses once per nesting level; a few kilobytes of
+// "[[[[" or of ever-deeper indentation would overflow the stack before we
+// ever saw a node. So estimate the nesting from the raw text first, erring
+// on the side of rejecting: flow brackets outside quotes and comments, plus
+// the block indentation levels, plus inline "- " sequence markers.
+std::optional<Diagnostic> check_nesting(std::string_view text, const std::string& file,
+                                        int max_depth) {
+  std::vector<size_t> indents;
+  int flow = 0;
+  int line_no = 0;
+  size_t pos = 0;
+  while (pos <= text.size()) {
+    size_t end = text.find('\n', pos);
+    if (end == std::string_view::npos) end = text.size();
+    std::string_view line = text.substr(pos, end - pos);
+    ++line_no;
+    size_t indent = 0;
+    while (indent < line.size() && line[indent] == ' ') ++indent;
+    bool blank = indent == line.size() || line[indent] == '#' || line[indent] == '\r';
+    int depth = flow;
+    if (!blank && flow == 0) {
+      while (!indents.empty() && indents.back() >= indent) indents.pop_back();
+      indents.push_back(indent);
+      depth = int(indents.size());
+      // "- - - x" nests one level per marker.
+      size_t i = indent;
+      while (i + 1 < line.size() && (line[i] == '-' || line[i] == '?') && line[i + 1] == ' ') {
+        ++depth;
+        i += 2;
+        while (i < line.size() && line[i] == ' ') ++i;
+      }
+    }
+    bool dq = false, sq = false;
+    for (size_t i = indent; i < line.size(); ++i) {
+      char c = line[i];
+      char prev = i == 0 ? ' ' : line[i - 1];
+      if (dq) {
+        if (c == '\\') ++i;
+        else if (c == '"') dq = false;
+        continue;
+      }
+      if (sq) {
+        if (c == '\'') sq = false;
+        continue;
+      }
+      bool token_start = prev == ' ' || prev == '[' || prev == '{' || prev == ',' || prev == ':' || i == indent;
+      if (c == '#' && (prev == ' ' || i == indent)) break;
+      if (c == '"' && token_start) dq = true;
+      else if (c == '\'' && token_start) sq = true;
+      else if (c == '[' || c == '{') ++flow;
+      else if ((c == ']' || c == '}') && flow > 0) --flow;
+      if (depth + flow > max_depth) {
+        return Diagnostic{file, line_no, int(i) + 1, "yaml",
+                          "nesting deeper than " + std::to_string(max_depth) + " levels"};
+      }
+    }
+    if (depth > max_depth) {
+      return Diagnostic{file, line_no, int(indent) + 1, "yaml",
+                        "nesting deeper than " + std::to_string(max_depth) + " levels"};
+    }
+    pos = end + 1;
+  }
+  return std::nullopt;
+}
+
+// Plain YAML scalars get the YAML 1.2 core schema's types; quoted ones stay strings.
+json plain_scalar(const std::string& s) {
+  if (s.empty() || s == "~" || s == "null" || s == "Null" || s == "NULL") return nullptr;
+  if (s == "true" || s == "True" || s == "TRUE") return true;
+  if (s == "false" || s == "False" || s == "FALSE") return false;
+  const char* b = s.data();
+  const char* e = s.data() + s.size();
+  bool neg = false;
+  const char* p = b;
+  if (*p == '-' || *p == '+') {
+    neg = *p == '-';
+    ++p;
+  }
+  if (p < e) {
+    int base = 10;
+    if (e - p > 2 && p[0] == '0' && (p[1] == 'x' || p[1] == 'X')) {
+      base = 16;
+      p += 2;
+    } else if (e - p > 2 && p[0] == '0' && p[1] == 'o') {
+      base = 8;
+      p += 2;
+    }
+    uint64_t v = 0;
+    auto [q, ec] = std::from_chars(p, e, v, base);
+    if (ec == std::errc() && q == e) {
+      if (!neg && v <= uint64_t(INT64_MAX)) return int64_t(v);
+      if (neg && v <= uint64_t(INT64_MAX) + 1) return v == uint64_t(INT64_MAX) + 1 ? INT64_MIN : -int64_t(v);
+      return s;  // out of range: the schema reports a string where a number belongs
+    }
+    if (ec == std::errc::result_out_of_range) return s;
+  }
+  // Floats need a dot ("1.5", "2.5e3"), as in YAML 1.1: "8E1" is a frame
+  // format, not 80.
+  bool digit = false, bad = s.find('.') == std::string::npos;
+  for (const char* c = b; c < e && !bad; ++c) {
+    if (std::isdigit(static_cast<unsigned char>(*c))) digit = true;
+    else if (!(*c == '.' || *c == 'e' || *c == 'E' || *c == '-' || *c == '+')) bad = true;
+  }
+  if (digit && !bad) {
+    double d = 0;
+    auto [q, ec] = std::from_chars(b + (*b == '+'), e, d);
+    if (ec == std::errc() && q == e && std::isfinite(d)) return d;
+  }
+  return s;
+}
+
+struct Converter {
+  const std::string& file;
+  const YamlLimits& limits;
+  JsonDocument& doc;
+  Diagnostics& out;
+  size_t nodes = 0;
+
+  bool fail(const YAML::Mark& m, const std::string& msg) {
+    out.push_back({file, m.line + 1, m.column + 1, "yaml", msg});
+    return false;
+  }
+
+  bool convert(const YAML::Node& node, const std::string& pointer, int depth, json& into) {
+    if (++nodes > limits.max_nodes) return fail(node.Mark(), "document too large (too many nodes, or aliases expanding too far)");
+    if (depth > limits.max_depth) return fail(node.Mark(), "nesting deeper than " + std::to_string(limits.max_depth) + " levels");
+    doc.locations.emplace(pointer, SourceLoc{node.Mark().line + 1, node.Mark().column + 1});
+    switch (node.Type()) {
+      case YAML::NodeType::Undefined:
+      case YAML::NodeType::Null:
+        into = nullptr;
+        return true;
+      case YAML::NodeType::Scalar: {
+        const std::string& s = node.Scalar();
+        if (s.size() > limits.max_scalar_bytes)
+          return fail(node.Mark(), "scalar longer than " + std::to_string(limits.max_scalar_bytes) + " bytes");
+        into = node.Tag() == "!" ? json(s) : plain_scalar(s);
+        return true;
+      }
+      case YAML::NodeType::Sequence: {
+        into = json::array();
+        size_t i = 0;
+        for (const auto& item : node) {
+          json v;
+          if (!convert(item, pointer + "/" + std::to_string(i++), depth + 1, v)) return false;
+          into.push_back(std::move(v));
+        }
+        return true;
+      }
+      case YAML::NodeType::Map: {
+        into = json::object();
+        for (const auto& kv : node) {
+          if (!kv.first.IsScalar()) return fail(kv.first.Mark(), "mapping keys must be plain scalars");
+          const std::string& key = kv.first.Scalar();
+          if (key.size() > 200) return fail(kv.first.Mark(), "mapping key longer than 200 bytes");
+          if (into.contains(key)) return fail(kv.first.Mark(), "duplicate key '" + key + "'");
+          json v;
+          if (!convert(kv.second, pointer + "/" + escape_pointer_token(key), depth + 1, v)) return false;
+          into[key] = std::move(v);
+        }
+        return true;
+      }
+    }
+    return true;
+  }
+};
+
+}  // namespace
+
+SourceLoc JsonDocument::where(const std::string& pointer) const {
+  std::string p = pointer;
+  for (;;) {
+    auto it = locations.find(p);
+    if (it != locations.end()) return it->second;
+    if (p.empty()) return {1, 1};
+    auto slash = p.rfind('/');
+    p = slash == std::string::npos ? std::string() : p.substr(0, slash);
+  }
+}
+
+std::optional<JsonDocument> yaml_to_json(std::string_view text, const std::string& file,
+                                         Diagnostics& out, const YamlLimits& limits) {
+  if (text.size() > limits.max_bytes) {
+    out.push_back({file, 1, 1, "yaml", "file larger than " + std::to_string(limits.max_bytes) + " bytes"});
+    return std::nullopt;
+  }
+  if (text.find('\0') != std::string_view::npos) {
+    out.push_back({file, 1, 1, "yaml", "file contains NUL bytes (not a text file)"});
+    return std::nullopt;
+  }
+  if (auto d = check_nesting(text, file, limits.max_depth)) {
+    out.push_back(*d);
+    return std::nullopt;
+  }
+  YAML::Node root;
+  try {
+    std::vector<YAML::Node> docs = YAML::LoadAll(std::string(text));
+    if (docs.empty()) {
+      out.push_back({file, 1, 1, "yaml", "empty document"});
+      return std::nullopt;
+    }
+    if (docs.size() > 1) {
+      out.push_back({file, 1, 1, "yaml", "more than one YAML document in the file"});
+      return std::nullopt;
+    }
+    root = docs.front();
+  } catch (const YAML::Exception& e) {
+    out.push_back({file, e.mark.line + 1, e.mark.column + 1, "yaml", e.msg});
+    return std::nullopt;
+  } catch (const std::exception& e) {
+    out.push_back({file, 1, 1, "yaml", e.what()});
+    return std::nullopt;
+  }
+  JsonDocument doc;
+  Converter conv{file, limits, doc, out};
+  try {
+    if (!conv.convert(root, "", 0, doc.root)) return std::nullopt;
+  } catch (const std::exception& e) {
+    out.push_back({file, 1, 1, "yaml", e.what()});
+    return std::nullopt;
+  }
+  return doc;
+}
+
+}  // namespace mbc::spec

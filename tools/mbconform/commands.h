@@ -1,0 +1,17 @@
+// The mbconform subcommands. Exit codes (documented in README.md):
+//   0 success; 1 checks failed (spec errors, failing MUST cases); 2 could not run.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+namespace mbc::cli {
+
+inline constexpr int kExitOk = 0;
+inline constexpr int kExitFailed = 1;
+inline constexpr int kExitUsage = 2;
+
+// Registers `spec check|dump|errata|list` on `app`; the result code is
+// written to `exit_code` when one of them runs.
+void add_spec_commands(CLI::App& app, int& exit_code);
+
+}  // namespace mbc::cli

@@ -1,0 +1,21 @@
+#include <cstdio>
+#include <exception>
+
+#include "commands.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{"mbconform: Modbus conformance and fuzz test suite for motor drives"};
+  app.require_subcommand(1);
+  int exit_code = mbc::cli::kExitOk;
+  mbc::cli::add_spec_commands(app, exit_code);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    int rc = app.exit(e);
+    return rc == 0 ? 0 : mbc::cli::kExitUsage;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "mbconform: error: %s\n", e.what());
+    return mbc::cli::kExitUsage;
+  }
+  return exit_code;
+}

@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Installs everything mbconform builds and tests with, from Debian packages.
+# Safe to run again; needs root (or sudo) for apt-get.
+set -euo pipefail
+SUDO=""
+if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
+packages=(
+  build-essential cmake ninja-build pkg-config
+  libyaml-cpp-dev libvalijson-dev nlohmann-json3-dev libcli11-dev libfmt-dev
+  libmodbus-dev libgtest-dev libgmock-dev librapidcheck-dev libbenchmark-dev
+  clang libfuzzer-14-dev libclang-rt-14-dev
+  socat mbpoll python3 python3-pymodbus python3-yaml
+)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ "${#missing[@]}" -gt 0 ]; then
+  echo "setup: installing ${missing[*]}"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi
