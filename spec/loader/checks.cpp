@@ -65,6 +65,12 @@ struct Checker {
   }
 
   void registers() {
+    std::map<std::string, const Register*> keys;
+    for (const auto& r : s.registers) {
+      if (r.key.empty()) continue;
+      auto [it, fresh] = keys.emplace(r.key, &r);
+      if (!fresh) error(r.origin + "/key", "duplicate-id", "register key '" + r.key + "' is already used by register " + hex16(it->second->address));
+    }
     for (const auto& r : s.registers) {
       if (r.block_index > 0) continue;  // a block is checked once, at its first register
       const std::string& p = r.origin;

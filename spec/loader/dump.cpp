@@ -32,6 +32,7 @@ json policy(const PolicyEntry& e) {
 json reg(const Register& r) {
   json j;
   j["address"] = r.address;
+  if (!r.key.empty()) j["key"] = r.key;
   j["words"] = r.words;
   j["table"] = to_string(r.table);
   j["name"] = r.name.en;

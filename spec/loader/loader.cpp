@@ -167,6 +167,19 @@ struct Builder {
     s.device.manual.address_notation = str(d["manual"], "address_notation");
     s.device.manual.addressing_note = str(d["manual"], "addressing_note");
     s.device.section = str(d, "section");
+    s.device.identification.vendor_name = s.device.vendor;
+    s.device.identification.product_code = s.device.models.empty() ? s.device.id : s.device.models.front();
+    s.device.identification.additional_data = s.device.id;
+    if (d.contains("identification")) {
+      const json& idn = d["identification"];
+      auto& out = s.device.identification;
+      out.vendor_name = str(idn, "vendor_name", out.vendor_name);
+      out.product_code = str(idn, "product_code", out.product_code);
+      out.revision = str(idn, "revision", out.revision);
+      if (idn.contains("server_id")) out.server_id = idn["server_id"].get<int>();
+      out.run_indicator = idn.value("run_indicator", out.run_indicator);
+      out.additional_data = str(idn, "additional_data", out.additional_data);
+    }
 
     const json& se = r["serial"];
     s.serial.section = str(se, "section");
@@ -317,6 +330,7 @@ struct Builder {
     base.loc = at(p);
     base.origin = p;
     base.address = j["address"].get<uint16_t>();
+    base.key = str(j, "key");
     base.name = name(j["name"]);
     base.table = table_from(str(j, "table", "holding"));
     std::string access = str(j, "access");
@@ -388,6 +402,7 @@ struct Builder {
       Register r = base;
       r.address = uint16_t(addr);
       r.block_index = k;
+      if (!base.key.empty()) r.key = base.key + "[" + std::to_string(k + 1) + "]";
       r.name.en = base.name.en + " [" + std::to_string(k + 1) + "]";
       if (!r.name.zh.empty()) r.name.zh = base.name.zh + " [" + std::to_string(k + 1) + "]";
       s.registers.push_back(r);

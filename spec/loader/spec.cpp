@@ -96,6 +96,12 @@ const Register* Spec::register_covering(uint16_t address, Table table) const {
   return nullptr;
 }
 
+const Register* Spec::find_by_key(const std::string& key) const {
+  for (const auto& r : registers)
+    if (!r.key.empty() && r.key == key) return &r;
+  return nullptr;
+}
+
 const Enumeration* Spec::find_enum(const std::string& id) const {
   for (const auto& e : enums)
     if (e.id == id) return &e;

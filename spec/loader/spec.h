@@ -86,6 +86,7 @@ struct Command {
 
 struct Register {
   uint16_t address = 0;  // wire (PDU) address
+  std::string key;       // stable name for behaviour code (blocks: key[1], key[2], ...)
   int words = 1;         // 1 or 2
   Table table = Table::holding;
   Name name;
@@ -252,7 +253,16 @@ struct Manual {
   std::string addressing_note;
 };
 
+// What FC 17 and FC 43/14 return (MBAP v1.1b3 §6.13, §6.21).
+struct Identification {
+  std::string vendor_name, product_code, revision = "1.0";
+  std::optional<int> server_id;  // default: the slave id
+  int run_indicator = 0xFF;
+  std::string additional_data;
+};
+
 struct Device {
+  Identification identification;
   std::string id;
   std::string vendor;
   std::string title;
@@ -275,6 +285,7 @@ struct Spec {
   const Register* find_register(uint16_t address, Table table = Table::holding) const;
   // The register whose words cover `address` (a 2-word register covers two).
   const Register* register_covering(uint16_t address, Table table = Table::holding) const;
+  const Register* find_by_key(const std::string& key) const;
   const Enumeration* find_enum(const std::string& id) const;
   const Bitfield* find_bitfield(const std::string& id) const;
   const Erratum* find_erratum(const std::string& id) const;

@@ -1,0 +1,166 @@
+// A reference Modbus device driven by a spec: register storage, access
+// rules, ranges, per-function limits and the device's own exception policy,
+// all taken from the spec at load time. Behaviour that a register table
+// cannot state (motion, homing, save/reset commands) lives in one small
+// Behaviour per device under reference/devices/.
+//
+// The engine never sees a socket: it takes one RTU ADU (or one PDU) and
+// returns the reply, or nothing for silence. Transports live in reference/serve.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "codec/hex.h"
+#include "spec.h"
+#include "engine/virtual_axis.h"
+
+namespace mbc::ref {
+
+class Device;
+
+// Device behaviour beyond the register table. Every hook has a default that
+// does nothing, so a device whose spec says everything needs no Behaviour.
+class Behaviour {
+ public:
+  virtual ~Behaviour() = default;
+  // A write of [address, address+count) is about to be stored; the new raw
+  // words are `values`. Return an exception code to refuse it (nothing is stored).
+  virtual std::optional<uint8_t> check_write(const Device&, uint16_t address, std::span<const uint16_t> values) {
+    return std::nullopt;
+  }
+  // [address, address+count) was written and stored (commands act here).
+  virtual void on_write(Device&, uint16_t address, uint16_t count) {}
+  // [address, address+count) is about to be read: refresh computed registers.
+  virtual void before_read(Device&, uint16_t address, uint16_t count) {}
+  // The virtual clock moved forward by dt microseconds.
+  virtual void advance(Device&, uint64_t dt_us) {}
+  // After the engine restored registers on power-up (volatile = defaults,
+  // persistent = stored image).
+  virtual void power_on(Device&) {}
+};
+
+// Creates the behaviour registered for a device id (reference/devices/),
+// or a no-op one.
+std::unique_ptr<Behaviour> make_behaviour(const std::string& device_id);
+
+// Counters of MB over Serial Line v1.02 §6.1 (FC 08 sub-functions 11-18).
+struct DiagnosticCounters {
+  uint16_t bus_messages = 0;
+  uint16_t bus_comm_errors = 0;  // CRC errors
+  uint16_t exceptions = 0;
+  uint16_t server_messages = 0;
+  uint16_t no_responses = 0;
+  uint16_t nak = 0;
+  uint16_t busy = 0;
+  uint16_t overruns = 0;
+};
+
+class Device {
+ public:
+  Device(spec::Spec spec, uint8_t slave_id);
+  Device(spec::Spec spec, uint8_t slave_id, std::unique_ptr<Behaviour> behaviour);
+  ~Device();
+  Device(Device&&) noexcept;
+  Device& operator=(Device&&) noexcept;
+
+  const spec::Spec& spec() const { return spec_; }
+  uint8_t slave_id() const { return slave_id_; }
+  void set_slave_id(uint8_t id) { slave_id_ = id; }
+
+  // One RTU ADU (slave, PDU, CRC). Frames for other slave ids, broadcast
+  // frames and frames the policy answers with silence return nullopt.
+  std::optional<Bytes> handle_rtu(std::span<const uint8_t> adu);
+  // One PDU addressed to this device (broadcast = sent to address 0).
+  std::optional<Bytes> handle_pdu(std::span<const uint8_t> pdu, bool broadcast = false);
+
+  // Raw register image (holding table; the other tables below).
+  uint16_t word(uint16_t address) const;
+  void set_word(uint16_t address, uint16_t value);  // no policy checks, no hooks
+  uint16_t input_word(uint16_t address) const;
+  void set_input_word(uint16_t address, uint16_t value);
+  bool coil(uint16_t address) const;
+  void set_coil(uint16_t address, bool on);
+  bool discrete_input(uint16_t address) const;
+  void set_discrete_input(uint16_t address, bool on);
+
+  // A register's value through its type and word order (float32 as its bits).
+  int64_t value(const spec::Register& r) const;
+  void set_value(const spec::Register& r, int64_t v);
+  double float_value(const spec::Register& r) const;
+  // By address (holding table); throws std::out_of_range when unmapped.
+  int64_t value_at(uint16_t address) const;
+  void set_value_at(uint16_t address, int64_t v);
+
+  // The whole holding-register image, for "rejection changes nothing" checks.
+  std::map<uint16_t, uint16_t> holding_image() const;
+
+  // Virtual clock: behaviours move the axis only when time advances.
+  void advance(uint64_t dt_us);
+  uint64_t now_us() const { return now_us_; }
+  Axis& axis() { return axis_; }
+  const Axis& axis() const { return axis_; }
+
+  // Power cycle: volatile registers return to defaults, persistent ones keep
+  // what was stored, "after power cycle" settings take effect.
+  void power_cycle();
+  // Restores every register to the spec's default (and clears the stored image).
+  void factory_reset();
+  // Copies current persistent registers into the stored image (a save command).
+  void save_persistent();
+  // The stored (EEPROM/flash) image: address -> word.
+  const std::map<uint16_t, uint16_t>& stored_image() const { return stored_; }
+  void load_stored_image(std::map<uint16_t, uint16_t> image);
+  // Counts EEPROM/flash writes (each stored word written counts one).
+  uint64_t eeprom_writes() const { return eeprom_writes_; }
+
+  const DiagnosticCounters& counters() const { return counters_; }
+  bool listen_only() const { return listen_only_; }
+
+  // The register the spec gives `key` (a stable name behaviour code uses
+  // instead of repeating addresses); throws std::out_of_range if absent.
+  const spec::Register& reg_by_key(const std::string& key) const;
+  const spec::Register* find_by_key(const std::string& key) const;
+  int64_t value_of(const std::string& key) const { return value(reg_by_key(key)); }
+  void set_value_of(const std::string& key, int64_t v) { set_value(reg_by_key(key), v); }
+
+  // The register covering `address`, if the spec maps it.
+  const spec::Register* reg(uint16_t address, spec::Table table = spec::Table::holding) const;
+
+ private:
+  spec::Spec spec_;
+  std::vector<uint16_t> holding_, input_;  // 65536 words each
+  std::vector<uint8_t> coils_, discrete_;  // 65536 bits each, one byte per bit
+  uint8_t slave_id_;
+  std::unique_ptr<Behaviour> behaviour_;
+  Axis axis_;
+  uint64_t now_us_ = 0;
+  std::map<uint16_t, uint16_t> stored_;
+  uint64_t eeprom_writes_ = 0;
+  DiagnosticCounters counters_;
+  bool listen_only_ = false;
+  friend struct Engine;
+};
+
+// Several devices on one RS-485 line: broadcast reaches every device and is
+// never answered; frames for absent ids and corrupted frames get silence.
+class Bus {
+ public:
+  void add(std::unique_ptr<Device> d) { devices_.push_back(std::move(d)); }
+  std::optional<Bytes> handle_rtu(std::span<const uint8_t> adu);
+  // Modbus TCP / RTU-over-TCP unit addressing: the unit id picks the device.
+  std::optional<Bytes> handle_pdu(uint8_t unit, std::span<const uint8_t> pdu);
+  Device* find(uint8_t slave_id);
+  std::vector<std::unique_ptr<Device>>& devices() { return devices_; }
+  void advance(uint64_t dt_us);
+
+ private:
+  std::vector<std::unique_ptr<Device>> devices_;
+};
+
+}  // namespace mbc::ref
