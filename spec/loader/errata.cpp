@@ -12,6 +12,22 @@ namespace {
 
 using nlohmann::json;
 
+// The length an RTU frame of this function code must have (MB-SL v1.02
+// §2.5.1.1 with MBAP v1.1b3 §6), or 0 when it depends on more than we know.
+size_t expected_length(const Bytes& b, bool request) {
+  if (b.size() < 2) return 0;
+  uint8_t fc = b[1];
+  if (fc & 0x80) return 5;  // address, fc|0x80, code, CRC
+  if (request) {
+    if (fc >= 1 && fc <= 6) return 8;
+    if ((fc == 15 || fc == 16) && b.size() > 6) return 9 + size_t(b[6]);
+    return 0;
+  }
+  if (fc >= 1 && fc <= 4 && b.size() > 2) return 5 + size_t(b[2]);
+  if (fc == 5 || fc == 6 || fc == 15 || fc == 16) return 8;
+  return 0;
+}
+
 json frame_entry(const Example& e, const std::string& role, const std::string& hex) {
   json f{{"example", e.id}, {"section", e.section}, {"role", role}, {"hex", hex}};
   auto bytes = parse_hex(hex);
@@ -37,6 +53,11 @@ json frame_entry(const Example& e, const std::string& role, const std::string& h
     // Printed with the two CRC bytes swapped?
     if ((*bytes)[bytes->size() - 2] == hi && (*bytes)[bytes->size() - 1] == lo) f["problem"] = "CRC bytes printed high byte first";
   }
+  size_t want = expected_length(*bytes, role == "request");
+  f["length_ok"] = want == 0 || want == bytes->size();
+  if (want && want != bytes->size())
+    f["problem"] = std::to_string(bytes->size()) + " bytes where a function " + std::to_string((*bytes)[1] & 0x7F) + " " +
+                   role + " has " + std::to_string(want) + ": the CRC check is meaningless until the missing or extra bytes are known";
   f["errata"] = e.errata;
   return f;
 }
@@ -145,7 +166,8 @@ nlohmann::json errata_report(const Spec& d, const Spec& standard) {
   r["errata"] = contradictions;
   r["deviations"] = deviations(d, standard);
   size_t bad = std::count_if(frames.begin(), frames.end(), [](const json& f) { return !f["crc_ok"].get<bool>(); });
-  r["summary"] = {{"frames", frames.size()}, {"frames_bad_crc", bad}, {"errata", d.errata.size()},
+  size_t bad_len = std::count_if(frames.begin(), frames.end(), [](const json& f) { return !f.value("length_ok", true); });
+  r["summary"] = {{"frames", frames.size()}, {"frames_bad_crc", bad}, {"frames_bad_length", bad_len}, {"errata", d.errata.size()},
                   {"deviations", r["deviations"].size()}, {"registers", d.registers.size()}, {"examples", d.examples.size()}};
   return r;
 }
@@ -166,7 +188,8 @@ std::string errata_markdown(const nlohmann::json& r) {
   if (!r["manual"]["addressing_note"].get<std::string>().empty())
     o << "- Addressing: " << r["manual"]["addressing_note"].get<std::string>() << "\n";
   const json& s = r["summary"];
-  o << "- " << s["frames"] << " printed frames, " << s["frames_bad_crc"] << " with a wrong CRC; " << s["errata"]
+  o << "- " << s["frames"] << " printed frames, " << s["frames_bad_crc"] << " with a wrong CRC, " << s["frames_bad_length"]
+    << " with a wrong length; " << s["errata"]
     << " errata; " << s["deviations"] << " deviations from modbus-standard\n\n";
 
   o << "## Printed frames, CRC checked\n\n| example | section | role | frame as printed | CRC | correct CRC |\n|---|---|---|---|---|---|\n";
