@@ -136,24 +136,25 @@ struct Checker {
       if (r.persistence.by == PersistBy::save_command && !r.persistence.command)
         error(p + "/persistence", "unknown-reference", label + ": persistence by save_command names no command register");
     }
-    // Overlap, per table; blocks and 2-word registers cover several addresses.
-    for (size_t i = 1; i < s.registers.size(); ++i) {
-      const Register& a = s.registers[i - 1];
-      const Register& b = s.registers[i];
-      if (a.table != b.table) continue;
-      if (a.last_address() >= b.address) {
-        const Register& later = a.origin > b.origin && a.loc.line > b.loc.line ? a : b;
-        const Register& earlier = &later == &a ? b : a;
-        if (!later.errata.empty() && !earlier.errata.empty()) continue;  // an overlap the manual prints, recorded
-        error(later.origin + "/address", "register-overlap",
-              "register " + hex16(later.address) + " (" + later.name.en + ") overlaps register " + hex16(earlier.address) +
-                  " (" + earlier.name.en + ", line " + std::to_string(earlier.loc.line) + ")");
+    // Overlap, per table; blocks and 2-word registers cover several
+    // addresses, so compare each register with the widest-reaching one before it.
+    const Register* reach = nullptr;
+    for (const auto& b : s.registers) {
+      if (reach && reach->table != b.table) reach = nullptr;
+      if (reach && reach->last_address() >= b.address) {
+        const Register& a = *reach;
+        bool b_later = b.loc.line > a.loc.line || (b.loc.line == a.loc.line && b.loc.col > a.loc.col);
+        const Register& later = b_later ? b : a;
+        const Register& earlier = b_later ? a : b;
+        if (later.errata.empty() || earlier.errata.empty())  // an overlap the manual prints is recorded, not an error
+          error(later.origin + "/address", "register-overlap",
+                "register " + hex16(later.address) + " (" + later.name.en + ") overlaps register " + hex16(earlier.address) +
+                    " (" + earlier.name.en + ", line " + std::to_string(earlier.loc.line) + ")");
       }
       if (b.last_address() > 0xFFFF)
         error(b.origin + "/address", "address-overflow", "register " + hex16(b.address) + " runs past address 0xFFFF");
+      if (!reach || b.last_address() > reach->last_address()) reach = &b;
     }
-    if (!s.registers.empty() && s.registers.front().last_address() > 0xFFFF)
-      error(s.registers.front().origin, "address-overflow", "register runs past address 0xFFFF");
   }
 
   void bitfields() {
@@ -217,6 +218,22 @@ struct Checker {
       if (!s.register_covering(se.settings[i].register_address))
         error("/serial/settings/" + std::to_string(i) + "/register", "unknown-reference",
               "register " + hex16(se.settings[i].register_address) + " is not in registers:");
+    // Erratum references the structs do not keep: check them on the document.
+    auto refs_at = [&](const nlohmann::json& j, const std::string& p) {
+      if (!j.is_object() || !j.contains("erratum")) return;
+      const auto& e = j["erratum"];
+      std::vector<std::string> ids;
+      if (e.is_string()) ids.push_back(e.get<std::string>());
+      else if (e.is_array())
+        for (const auto& x : e) ids.push_back(x.get<std::string>());
+      erratum_refs(p + "/erratum", ids);
+    };
+    for (const char* list : {"enums", "bitfields"})
+      if (doc.root.contains(list))
+        for (size_t i = 0; i < doc.root[list].size(); ++i) refs_at(doc.root[list][i], std::string("/") + list + "/" + std::to_string(i));
+    if (doc.root["serial"].contains("settings"))
+      for (size_t i = 0; i < doc.root["serial"]["settings"].size(); ++i)
+        refs_at(doc.root["serial"]["settings"][i], "/serial/settings/" + std::to_string(i));
     for (const char* part : {"slave_id", "broadcast", "baud_rates", "frame_formats"}) {
       std::string p = std::string("/serial/") + part + "/erratum";
       if (!doc.root["serial"][part].contains("erratum")) continue;
@@ -265,7 +282,7 @@ struct Checker {
         continue;
       }
       auto u16 = [&](size_t at) { return unsigned((*req)[at] << 8 | (*req)[at + 1]); };
-      Table table = fc == 1 ? Table::coil : fc == 2 ? Table::discrete_input : fc == 4 ? Table::input : Table::holding;
+      Table table = table_for_function(fc);
       unsigned start = 0, qty = 0;
       if ((fc >= 1 && fc <= 4) || fc == 15 || fc == 16) {
         if (req->size() < 6) continue;
@@ -278,7 +295,6 @@ struct Checker {
       } else {
         continue;
       }
-      if (fc == 5) table = Table::coil;
       for (unsigned a = start; a < start + qty && a <= 0xFFFF; ++a) {
         const Register* r = s.register_covering(uint16_t(a), table);
         if (!r) {
