@@ -13,5 +13,7 @@ inline constexpr int kExitUsage = 2;
 // Registers `spec check|dump|errata|list` on `app`; the result code is
 // written to `exit_code` when one of them runs.
 void add_spec_commands(CLI::App& app, int& exit_code);
+// `serve`: reference devices on Modbus TCP, RTU over TCP and a pty (cmd_serve.cpp).
+void add_serve_command(CLI::App& app, int& exit_code);
 
 }  // namespace mbc::cli

@@ -1,0 +1,141 @@
+// HSC60 (manual 001_f56de7e2fd70f1f6.txt, 四 MODBUS寄存器地址定义): the motion
+// command (70) with fixed-length and continuous moves, the status (75) and
+// control (73) words, the counters (39~42) and the save (90) / factory reset
+// (91) commands. Registers are reached through the keys of spec/devices/hsc60.yaml.
+//
+// Judgements where the manual is silent:
+// * Moves start from standstill (the manual has no start speed); an
+//   acceleration or deceleration of 0 means no ramp.
+// * Absolute mode (72 = 1): command 1 moves to +travel, command 2 to -travel.
+// * Save and reset take kCommandTime of virtual time: 90/91 read 1 until
+//   then, and the effect (Device::save_persistent / factory_reset) happens
+//   when they complete.
+// * The simulation has no pulse input, so the "external" pulse counter 39/40
+//   counts the drive's own pulses (axis position since the last clear).
+// * Limits: the Axis inputs are the physical switches, and the optocoupler
+//   conducts while one is active. Register 73 says which state is "limit"
+//   (bit = 1: conducting). The drive refuses to travel towards a limit it
+//   sees; with bit = 1 the Axis stops exactly at the switch.
+#include <cmath>
+#include <cstdint>
+
+#include "engine/device.h"
+
+namespace mbc::ref {
+namespace {
+
+// 四 驱动器状态寄存器 (75).
+constexpr uint16_t kPositiveLimitBit = 1u << 4, kNegativeLimitBit = 1u << 5, kMotionCompleteBit = 1u << 7;
+// 四 驱动器控制寄存器 (73): limit signal levels.
+constexpr uint16_t kPositiveLevelBit = 1u << 0, kNegativeLevelBit = 1u << 1;
+// 四 register 70 commands.
+enum Command { kDecelStop = 0, kForwardLength, kReverseLength, kForwardRun, kReverseRun, kImmediateStop };
+constexpr int kAbsoluteMode = 1;  // register 72
+// Register 30's note "1000表示90度" with the 1000-line default of register 29:
+// the encoder is read in quadrature, 4 counts per line.
+constexpr int kCountsPerLine = 4;
+constexpr uint64_t kCommandTime = 10'000;  // us: how long a save or reset reads "in progress"
+
+class Hsc60 : public Behaviour {
+ public:
+  void power_on(Device& d) override {
+    pulse_origin_ = 0;
+    save_left_ = reset_left_ = 0;
+    publish(d);
+  }
+
+  void on_write(Device& d, uint16_t address, uint16_t count) override {
+    auto wrote = [&](const char* key) {
+      const auto& r = d.reg_by_key(key);
+      return r.address < address + count && r.last_address() >= address;
+    };
+    if (wrote("motion_command")) command(d, int(d.value_of("motion_command")));
+    if (wrote("pulse_count_high") && d.value_of("pulse_count_high") == 1)
+      pulse_origin_ = std::llround(d.axis().position());  // "写入1清除计数器"
+    if (wrote("save") && d.value_of("save") == 1) save_left_ = kCommandTime;
+    if (wrote("factory_reset") && d.value_of("factory_reset") == 1) reset_left_ = kCommandTime;
+    publish(d);
+  }
+
+  void before_read(Device& d, uint16_t, uint16_t) override { publish(d); }
+
+  void advance(Device& d, uint64_t dt_us) override {
+    refuse_limited_travel(d);
+    d.axis().advance(double(dt_us) * 1e-6);
+    refuse_limited_travel(d);
+    auto completes = [&](uint64_t& left) {
+      if (left == 0) return false;
+      left = left > dt_us ? left - dt_us : 0;
+      return left == 0;
+    };
+    if (completes(save_left_)) d.save_persistent();
+    if (completes(reset_left_)) d.factory_reset();
+    publish(d);
+  }
+
+ private:
+  void command(Device& d, int c) {
+    Axis& axis = d.axis();
+    double speed = double(d.value_of("speed")), accel = double(d.value_of("accel"));
+    double decel = double(d.value_of("decel"));
+    switch (c) {
+      case kDecelStop:
+        axis.stop(decel);
+        break;
+      case kForwardLength:
+      case kReverseLength: {
+        double travel = double(d.value_of("travel")) * (c == kForwardLength ? 1 : -1);
+        double from = d.value_of("move_mode") == kAbsoluteMode ? 0 : std::round(axis.position());
+        axis.move_to(from + travel, 0, speed, accel, decel);
+        break;
+      }
+      case kForwardRun:
+      case kReverseRun:
+        axis.run_at(c == kForwardRun ? speed : -speed, 0, accel);
+        break;
+      case kImmediateStop:
+        axis.emergency_stop();
+        break;
+    }
+    refuse_limited_travel(d);
+  }
+
+  // The limit signals as the drive sees them through the levels of 73.
+  bool positive_limit(const Device& d) const {
+    bool conducting = d.axis().positive_limit_active();
+    return (d.value_of("control") & kPositiveLevelBit) ? conducting : !conducting;
+  }
+  bool negative_limit(const Device& d) const {
+    bool conducting = d.axis().negative_limit_active();
+    return (d.value_of("control") & kNegativeLevelBit) ? conducting : !conducting;
+  }
+  void refuse_limited_travel(Device& d) {
+    int dir = d.axis().direction();
+    if ((dir > 0 && positive_limit(d)) || (dir < 0 && negative_limit(d))) d.axis().emergency_stop();
+  }
+
+  void publish(Device& d) {
+    const Axis& axis = d.axis();
+    uint16_t status = (axis.moving() ? 0 : kMotionCompleteBit) | (positive_limit(d) ? kPositiveLimitBit : 0) |
+                      (negative_limit(d) ? kNegativeLimitBit : 0);
+    d.set_value_of("status", status);
+    // 32-bit counters, two's complement when the axis is below its origin.
+    auto pulses = uint32_t(std::llround(axis.position()) - pulse_origin_);
+    d.set_value_of("pulse_count_low", pulses & 0xFFFF);
+    d.set_value_of("pulse_count_high", pulses >> 16);
+    double counts_per_pulse =
+        double(kCountsPerLine * d.value_of("encoder_lines")) / double(d.value_of("microstep"));
+    d.set_value_of("encoder_count", uint32_t(std::llround(axis.position() * counts_per_pulse)));
+    d.set_value_of("save", save_left_ ? 1 : 0);
+    d.set_value_of("factory_reset", reset_left_ ? 1 : 0);
+  }
+
+  int64_t pulse_origin_ = 0;
+  uint64_t save_left_ = 0, reset_left_ = 0;
+};
+
+}  // namespace
+
+std::unique_ptr<Behaviour> make_hsc60_behaviour() { return std::make_unique<Hsc60>(); }
+
+}  // namespace mbc::ref

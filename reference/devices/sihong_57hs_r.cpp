@@ -1,0 +1,276 @@
+// SIHONG 57HS-R (manual 000_6950555f7a269f5a.txt): position and speed moves
+// (§7.1, §7.2), start/stop commands (§7.6), homing (§7.5), the save/reset
+// command (§6.1 0x002B) and the status words 0x0003~0x000C. Registers are
+// reached through the keys of spec/devices/sihong-57hs-r.yaml.
+//
+// Judgements where the manual is silent:
+// * Ramps: 0x0021/0x0022 are the times from the start speed (0x0020) to the
+//   max speed (0x0023) and back; a time of 0 means no ramp.
+// * Homing (§7.5) ramps from standstill to 0x0032/0x0033 in 0x0034 ms; "后退一段
+//   距离" (back off a distance) is 1/10 revolution past the switch edge; the
+//   origin offsets 0x0035 (CCW, +) / 0x0036 (CW, -) are travelled after the
+//   switch is found and that point becomes position 0. In modes 2/3 the
+//   limit itself stops the axis at once (the Axis stops at limit switches).
+// * The Axis inputs stand for switches wired to X inputs configured for
+//   them (0x0043~0x0046); 0x0008 shows them on the inputs so configured, but
+//   motion does not require the configuration. Limits always stop at once
+//   (0x0017's coast/disable choices are not modelled).
+// * A released motor (0x0029 = 0) stops and ignores start and homing commands.
+#include <cmath>
+#include <cstdlib>
+#include <string>
+
+#include "engine/device.h"
+
+namespace mbc::ref {
+namespace {
+
+// §6.1 0x0007 motion status bits; bit 4 is 1 when the motor is RELEASED.
+constexpr uint16_t kInPositionBit = 1u << 0, kHomedBit = 1u << 1, kRunningBit = 1u << 2,
+                   kAlarmBit = 1u << 3, kReleasedBit = 1u << 4;
+// §6.1 0x0003 work modes.
+constexpr int kWorkPositionSpeed = 0, kWorkHoming = 1;
+// §6.1 / §7.6.1 0x0027: bits 0-1 select the mode, bit 2 an absolute position.
+constexpr int kModeMask = 0x3, kPositionMode = 1, kSpeedMode = 2, kAbsoluteBit = 1 << 2;
+// §7.6.2 0x0028 bit 0: emergency stop.
+constexpr int kEmergencyBit = 1;
+// §6.1 0x002B.
+constexpr int kFactoryReset = 1, kSaveParams = 2;
+// §6.1 0x0043~0x0046 input functions.
+constexpr int kHomeInput = 1, kPositiveLimitInput = 2, kNegativeLimitInput = 3;
+// §6.1 0x0005: 0 = counter-clockwise (positive), 1 = clockwise (negative).
+constexpr int kNegativeDirection = 1;
+constexpr int kInputs = 4;  // X0~X3 (§4.2.2)
+
+class Sihong57hsR : public Behaviour {
+ public:
+  void power_on(Device& d) override {
+    enabled_ = true;
+    homed_ = false;
+    alarm_ = 0;
+    homing_ = Homing::off;
+    stop_decel_ = ramp(d, "decel_time");
+    publish(d);
+  }
+
+  void on_write(Device& d, uint16_t address, uint16_t count) override {
+    auto wrote = [&](const char* key) {
+      const auto& r = d.reg_by_key(key);
+      return r.address < address + count && r.last_address() >= address;
+    };
+    if (wrote("start_command")) start(d, int(d.value_of("start_command")));
+    if (wrote("stop_command")) {
+      homing_ = Homing::off;
+      if (d.value_of("stop_command") & kEmergencyBit)
+        d.axis().emergency_stop();
+      else
+        d.axis().stop(stop_decel_);  // §7.6.2 注意: the decel time set before the move
+    }
+    if (wrote("enable")) {
+      enabled_ = d.value_of("enable") == 1;
+      if (!enabled_) {
+        homing_ = Homing::off;
+        d.axis().emergency_stop();
+      }
+    }
+    if (wrote("alarm_clear") && d.value_of("alarm_clear") == 1) alarm_ = 0;
+    if (wrote("position_clear") && d.value_of("position_clear") == 1) d.axis().set_position(0);
+    if (wrote("homing_command") && d.value_of("homing_command") == 1) start_homing(d);
+    if (wrote("param_command")) {
+      // The EEPROM-sync switch 0x0016 is the engine's (persistence.unless).
+      if (d.value_of("param_command") == kFactoryReset) d.factory_reset();
+      if (d.value_of("param_command") == kSaveParams) d.save_persistent();
+    }
+    publish(d);
+  }
+
+  void before_read(Device& d, uint16_t, uint16_t) override { publish(d); }
+
+  void advance(Device& d, uint64_t dt_us) override {
+    double left = double(dt_us) * 1e-6;
+    for (int events = 0; left > 0 && events < 10000; ++events) {
+      Axis::Step step = d.axis().advance_until(left);
+      left -= step.elapsed;
+      if (step.event == Axis::Event::none) break;
+      if (homing_ != Homing::off) on_homing_event(d, step.event);
+    }
+    publish(d);
+  }
+
+ private:
+  // §7.6.1: bits 0-1 = 1 position move of 0x0024 pulses (relative, or to
+  // 0x0024 with bit 2), = 2 speed move at 0x0023 (its sign the direction, §7.2).
+  void start(Device& d, int command) {
+    if (!enabled_) return;
+    homing_ = Homing::off;
+    double start = pulses_per_s(d, double(d.value_of("start_speed")));
+    double max = pulses_per_s(d, std::abs(double(d.value_of("max_speed"))));
+    double accel = ramp(d, "accel_time");
+    stop_decel_ = ramp(d, "decel_time");
+    if ((command & kModeMask) == kPositionMode) {
+      double pulses = double(d.value_of("total_pulses"));
+      double from = (command & kAbsoluteBit) ? 0 : std::round(d.axis().position());
+      d.axis().move_to(from + pulses, start, max, accel, stop_decel_);
+    } else if ((command & kModeMask) == kSpeedMode) {
+      d.axis().run_at(d.value_of("max_speed") < 0 ? -max : max, start, accel);
+    }
+  }
+
+  // §7.5. The final approach is always slow and positive in modes 0/1 ("以慢速
+  // 正向查找原点"), towards the limit in modes 2/3; the switch ("sensor") is
+  // the home switch in modes 0/1 and that limit in modes 2/3.
+  enum class Homing { off, search, brake, leave, back_off, approach, offset };
+
+  void start_homing(Device& d) {
+    if (!enabled_) return;
+    int mode = int(d.value_of("homing_mode"));
+    on_limits_ = mode >= 2;
+    approach_dir_ = mode == 3 ? -1 : 1;
+    search_dir_ = (mode == 0 || mode == 2) ? 1 : -1;
+    reversed_ = false;
+    homed_ = false;
+    bool on_sensor = on_limits_ ? (approach_dir_ > 0 ? d.axis().positive_limit_active()
+                                                      : d.axis().negative_limit_active())
+                                : d.axis().home_active();
+    if (on_sensor) {
+      leave(d);
+    } else {
+      homing_ = Homing::search;
+      d.axis().run_at(search_dir_ * fast(d), 0, fast(d) / ramp_s(d));
+    }
+  }
+
+  void on_homing_event(Device& d, Axis::Event e) {
+    Axis& axis = d.axis();
+    bool sensor_found = on_limits_ ? e == Axis::Event::limit : e == Axis::Event::home_on;
+    switch (homing_) {
+      case Homing::search:
+        if (sensor_found && on_limits_) {
+          leave(d);  // the limit already stopped the axis
+        } else if (sensor_found) {
+          homing_ = Homing::brake;  // "遇到原点后，减速停止"
+          axis.stop(fast(d) / ramp_s(d));
+        } else if (e == Axis::Event::limit && !reversed_) {
+          // Modes 0/1: "碰到正限位后，反向运动继续查找原点".
+          reversed_ = true;
+          search_dir_ = -search_dir_;
+          axis.run_at(search_dir_ * fast(d), 0, fast(d) / ramp_s(d));
+        } else if (e == Axis::Event::limit) {
+          homing_ = Homing::off;  // no home switch between the limits
+        }
+        return;
+      case Homing::brake:
+        if (e == Axis::Event::finished) {
+          // Overshot past the switch towards the approach side: approach now.
+          if (!axis.home_active() && search_dir_ != approach_dir_)
+            approach(d);
+          else
+            leave(d);
+        }
+        break;
+      case Homing::leave:
+        if (e == Axis::Event::home_off) back_off(d);
+        break;
+      case Homing::back_off:
+        if (e == Axis::Event::finished) approach(d);
+        break;
+      case Homing::approach:
+        if (sensor_found) {
+          axis.emergency_stop();  // "找到后停止": at the switch edge
+          int offset = int(d.value_of("home_offset_ccw") - d.value_of("home_offset_cw"));
+          if (offset == 0) return homed(d);
+          homing_ = Homing::offset;
+          axis.move_to(axis.position() + offset, 0, slow(d), slow(d) / ramp_s(d), slow(d) / ramp_s(d));
+          return;
+        }
+        break;
+      case Homing::offset:
+        if (e == Axis::Event::finished) return homed(d);
+        break;
+      case Homing::off:
+        return;
+    }
+    if (e == Axis::Event::limit) homing_ = Homing::off;  // an unexpected limit aborts
+  }
+
+  // Off the sensor, onto the side the slow approach starts from.
+  void leave(Device& d) {
+    if (on_limits_) return back_off(d);
+    homing_ = Homing::leave;
+    d.axis().run_at(-approach_dir_ * slow(d), 0, slow(d) / ramp_s(d));
+  }
+  void back_off(Device& d) {
+    homing_ = Homing::back_off;
+    double margin = pulses_per_rev(d) / 10;
+    d.axis().move_to(std::round(d.axis().position()) - approach_dir_ * margin, 0, slow(d), slow(d) / ramp_s(d),
+                     slow(d) / ramp_s(d));
+  }
+  void approach(Device& d) {
+    homing_ = Homing::approach;
+    d.axis().run_at(approach_dir_ * slow(d), 0, slow(d) / ramp_s(d));
+  }
+  void homed(Device& d) {
+    homing_ = Homing::off;
+    homed_ = true;
+    d.axis().set_position(0);
+    d.axis().move_to(0, 0, 1, 0, 0);  // standing on the origin: in position
+  }
+
+  // Status words §6.1 0x0002~0x000C.
+  void publish(Device& d) {
+    const Axis& axis = d.axis();
+    d.set_value_of("current_slave_id", d.slave_id());
+    d.set_value_of("work_mode", homing_ != Homing::off ? kWorkHoming : kWorkPositionSpeed);
+    d.set_value_of("motion_state", axis.moving() ? 1 : 0);
+    if (axis.direction() != 0) direction_ = axis.direction();
+    d.set_value_of("motion_direction", direction_ < 0 ? kNegativeDirection : 0);
+    d.set_value_of("alarm_code", alarm_);
+    uint16_t status = (axis.in_position() ? kInPositionBit : 0) | (homed_ ? kHomedBit : 0) |
+                      (axis.moving() ? kRunningBit : 0) | (alarm_ ? kAlarmBit : 0) |
+                      (enabled_ ? 0 : kReleasedBit);
+    d.set_value_of("motion_status", status);
+    uint16_t inputs = 0;
+    for (int x = 0; x < kInputs; ++x) {
+      int64_t function = d.value_of("input_function.x" + std::to_string(x));
+      bool active = (function == kHomeInput && axis.home_active()) ||
+                    (function == kPositiveLimitInput && axis.positive_limit_active()) ||
+                    (function == kNegativeLimitInput && axis.negative_limit_active());
+      if (active) inputs |= uint16_t(1u << x);
+    }
+    d.set_value_of("input_state", inputs);
+    d.set_value_of("current_position", std::llround(axis.position()));
+    d.set_value_of("current_speed", std::llround(std::abs(axis.speed()) * 60 / pulses_per_rev(d)));
+  }
+
+  // §6.1 0x0011: the microstep enum names its pulses per revolution
+  // ("1000 pulses/rev"), so the number comes from the spec.
+  static double pulses_per_rev(const Device& d) {
+    const auto& r = d.reg_by_key("microstep");
+    int64_t code = d.value(r);
+    for (const auto& v : d.spec().find_enum(r.enum_id)->values)
+      if (v.value == code) return std::stod(v.name.en);
+    return 1000;  // unreachable: the engine range-checks 0x0011
+  }
+  static double pulses_per_s(const Device& d, double rpm) { return rpm * pulses_per_rev(d) / 60; }
+  // Acceleration (pulses/s^2) from the start speed to the max speed in the
+  // time held by `time_key` (ms); 0 = no ramp.
+  static double ramp(const Device& d, const char* time_key) {
+    double ms = double(d.value_of(time_key));
+    double span = pulses_per_s(d, std::abs(double(d.value_of("max_speed"))) - double(d.value_of("start_speed")));
+    return ms > 0 && span > 0 ? span / (ms / 1000) : 0;
+  }
+  static double fast(const Device& d) { return pulses_per_s(d, double(d.value_of("homing_speed"))); }
+  static double slow(const Device& d) { return pulses_per_s(d, double(d.value_of("homing_slow_speed"))); }
+  static double ramp_s(const Device& d) { return double(d.value_of("homing_ramp_time")) / 1000; }
+
+  bool enabled_ = true, homed_ = false, on_limits_ = false, reversed_ = false;
+  int alarm_ = 0, direction_ = 1, search_dir_ = 1, approach_dir_ = 1;
+  Homing homing_ = Homing::off;
+  double stop_decel_ = 0;
+};
+
+}  // namespace
+
+std::unique_ptr<Behaviour> make_sihong_57hs_r_behaviour() { return std::make_unique<Sihong57hsR>(); }
+
+}  // namespace mbc::ref

@@ -1,0 +1,521 @@
+#include "serve/server.h"
+
+#include <arpa/inet.h>
+#include <fcntl.h>
+#include <netdb.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <poll.h>
+#include <pty.h>
+#include <signal.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <cstring>
+#include <deque>
+#include <filesystem>
+#include <stdexcept>
+
+#include <fmt/core.h>
+
+#include "codec/crc16.h"
+#include "serve/eeprom_store.h"
+#include "serve/mbap.h"
+#include "serve/rtu_framing.h"
+#include "serve/trace.h"
+
+namespace mbc::serve {
+
+using Clock = std::chrono::steady_clock;
+using std::chrono::duration_cast;
+using std::chrono::microseconds;
+using std::chrono::milliseconds;
+
+const char* to_string(Transport t) {
+  switch (t) {
+    case Transport::tcp: return "tcp";
+    case Transport::rtu_tcp: return "rtu-tcp";
+    case Transport::pty: return "pty";
+  }
+  return "?";
+}
+
+Endpoint parse_endpoint(Transport t, const std::string& text) {
+  Endpoint e;
+  e.transport = t;
+  if (t == Transport::pty) {
+    if (text.empty()) throw std::invalid_argument("--pty needs a path");
+    e.path = text;
+    return e;
+  }
+  std::string host, port = text;
+  if (!text.empty() && text.front() == '[') {  // [v6]:PORT
+    auto close = text.find("]:");
+    if (close == std::string::npos) throw std::invalid_argument("'" + text + "': expected [HOST]:PORT");
+    host = text.substr(1, close - 1);
+    port = text.substr(close + 2);
+  } else if (auto colon = text.rfind(':'); colon != std::string::npos) {
+    host = text.substr(0, colon);
+    port = text.substr(colon + 1);
+  }
+  if (!host.empty()) e.host = host;
+  if (port.empty() || port.size() > 5 || port.find_first_not_of("0123456789") != std::string::npos ||
+      std::stoul(port) > 65535)
+    throw std::invalid_argument("'" + text + "': expected [HOST:]PORT with PORT 0..65535");
+  e.port = uint16_t(std::stoul(port));
+  return e;
+}
+
+DeviceArg parse_device_arg(const std::string& text) {
+  DeviceArg d;
+  auto at = text.find('@');
+  d.id = text.substr(0, at);
+  if (d.id.empty()) throw std::invalid_argument("'" + text + "': expected ID[@SLAVE]");
+  if (at != std::string::npos) {
+    std::string s = text.substr(at + 1);
+    // MB-SL v1.02 §2.2: individual slave addresses are 1..247.
+    if (s.empty() || s.size() > 3 || s.find_first_not_of("0123456789") != std::string::npos || std::stoi(s) < 1 ||
+        std::stoi(s) > 247)
+      throw std::invalid_argument("'" + text + "': the slave id must be 1..247");
+    d.slave = uint8_t(std::stoi(s));
+  }
+  return d;
+}
+
+namespace {
+
+// A master may hand RTU-over-TCP bytes to the network in more than one
+// segment; a frame whose length the function code does not settle is taken
+// complete after this much silence (t3.5 at serial rates is too short for TCP).
+constexpr milliseconds kTcpFrameGap{10};
+// The loop wakes at least this often so the virtual clock drives the axes.
+constexpr milliseconds kMaxSleep{50};
+
+volatile sig_atomic_t g_stop = 0;
+extern "C" void on_stop_signal(int) { g_stop = 1; }
+
+[[noreturn]] void fail(const std::string& what) {
+  throw std::runtime_error(fmt::format("{}: {}", what, std::strerror(errno)));
+}
+
+void set_nonblocking(int fd) {
+  int flags = fcntl(fd, F_GETFL);
+  if (flags < 0 || fcntl(fd, F_SETFL, flags | O_NONBLOCK) < 0) fail("fcntl");
+  fcntl(fd, F_SETFD, FD_CLOEXEC);
+}
+
+std::string sockaddr_text(const sockaddr_storage& ss) {
+  char host[INET6_ADDRSTRLEN] = "?";
+  if (ss.ss_family == AF_INET) {
+    auto* a = reinterpret_cast<const sockaddr_in*>(&ss);
+    inet_ntop(AF_INET, &a->sin_addr, host, sizeof host);
+    return fmt::format("{}:{}", host, ntohs(a->sin_port));
+  }
+  auto* a = reinterpret_cast<const sockaddr_in6*>(&ss);
+  inet_ntop(AF_INET6, &a->sin6_addr, host, sizeof host);
+  return fmt::format("[{}]:{}", host, ntohs(a->sin6_port));
+}
+
+struct Outgoing {
+  Bytes bytes;
+  Clock::time_point not_before;
+};
+
+// One byte stream carrying frames: an accepted TCP connection or a pty master.
+struct Link {
+  Link(int fd, Transport t, std::string name) : fd(fd), transport(t), name(std::move(name)) {}
+
+  int fd = -1;
+  Transport transport = Transport::tcp;
+  std::string name;  // "tcp 127.0.0.1:40112", for the trace
+  Bytes in;
+  size_t overflow = 0;  // bytes past kMaxRtuAdu in the current RTU frame
+  Clock::time_point last_rx;
+  std::deque<Outgoing> out;
+  size_t out_offset = 0;  // bytes of out.front() already sent
+  bool closed = false;
+
+  bool rtu() const { return transport != Transport::tcp; }
+  bool socket() const { return transport != Transport::pty; }
+};
+
+struct Listener {
+  int fd = -1;
+  Transport transport = Transport::tcp;
+};
+
+struct PtyEndpoint {
+  int slave = -1;  // kept open so the master never sees a hang-up between clients
+  std::string link_path;
+  std::string device_path;
+};
+
+}  // namespace
+
+struct Server::Impl {
+  ref::Bus bus;
+  Options opt;
+  std::vector<Listener> listeners;
+  std::vector<PtyEndpoint> ptys;
+  std::vector<Link> links;
+  std::vector<std::string> listening;  // "listening ..." lines, in endpoint order
+  std::vector<StoredImage> saved;      // per device: the image last written to disk
+  Clock::time_point clock_at;          // the bus clock stands at this real time
+  sigset_t run_mask;                   // the mask ppoll waits with (stop signals open)
+
+  Impl(ref::Bus b, Options o) : bus(std::move(b)), opt(std::move(o)) {}
+
+  ~Impl() {
+    for (auto& l : listeners) ::close(l.fd);
+    for (auto& l : links)
+      if (!l.closed) ::close(l.fd);
+    for (auto& p : ptys) {
+      std::error_code ec;
+      if (std::filesystem::read_symlink(p.link_path, ec) == p.device_path) std::filesystem::remove(p.link_path, ec);
+      ::close(p.slave);
+    }
+  }
+
+  // ---- EEPROM ----
+
+  std::string eeprom_path(const ref::Device& d) const { return eeprom_file(opt.eeprom_dir, d.spec().device.id, d.slave_id()); }
+
+  void restore_eeprom() {
+    if (opt.eeprom_dir.empty()) return;
+    std::filesystem::create_directories(opt.eeprom_dir);
+    for (auto& d : bus.devices()) {
+      if (auto image = load_eeprom(eeprom_path(*d))) {
+        d->load_stored_image(*image);
+        d->power_cycle();  // persistent registers come back from the stored image
+      }
+      saved.push_back(d->stored_image());
+    }
+  }
+
+  // Writes the images that changed since the last save (or all of them).
+  void save_eeprom_images(bool all) {
+    if (opt.eeprom_dir.empty()) return;
+    auto& devices = bus.devices();
+    for (size_t i = 0; i < devices.size(); ++i) {
+      const auto& d = *devices[i];
+      if (!all && d.stored_image() == saved[i]) continue;
+      save_eeprom(eeprom_path(d), d.spec().device.id, d.slave_id(), d.stored_image());
+      saved[i] = d.stored_image();
+    }
+  }
+
+  // ---- endpoints ----
+
+  void open_socket(const Endpoint& e) {
+    addrinfo hints{}, *res = nullptr;
+    hints.ai_family = AF_UNSPEC;
+    hints.ai_socktype = SOCK_STREAM;
+    hints.ai_flags = AI_PASSIVE | AI_NUMERICSERV;
+    std::string port = std::to_string(e.port);
+    if (int rc = getaddrinfo(e.host.c_str(), port.c_str(), &hints, &res); rc != 0)
+      throw std::runtime_error(fmt::format("{} {}:{}: {}", to_string(e.transport), e.host, e.port, gai_strerror(rc)));
+    int fd = ::socket(res->ai_family, res->ai_socktype | SOCK_CLOEXEC, 0);
+    int one = 1;
+    if (fd >= 0) setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+    bool ok = fd >= 0 && ::bind(fd, res->ai_addr, res->ai_addrlen) == 0 && ::listen(fd, SOMAXCONN) == 0;
+    freeaddrinfo(res);
+    if (!ok) fail(fmt::format("{} {}:{}", to_string(e.transport), e.host, e.port));
+    set_nonblocking(fd);
+    listeners.push_back({fd, e.transport});
+    sockaddr_storage ss{};
+    socklen_t len = sizeof ss;
+    getsockname(fd, reinterpret_cast<sockaddr*>(&ss), &len);
+    listening.push_back(fmt::format("listening {} {}", to_string(e.transport), sockaddr_text(ss)));
+  }
+
+  void open_pty(const Endpoint& e) {
+    int master = -1, slave = -1;
+    if (openpty(&master, &slave, nullptr, nullptr, nullptr) != 0) fail("openpty");
+    char name[256];
+    if (ttyname_r(slave, name, sizeof name) != 0) fail("ttyname");
+    // Raw, like a serial port a Modbus master opens: no echo, no line editing,
+    // no CR/LF translation, 8 data bits.
+    termios t{};
+    tcgetattr(slave, &t);
+    cfmakeraw(&t);
+    tcsetattr(slave, TCSANOW, &t);
+    set_nonblocking(master);
+    fcntl(slave, F_SETFD, FD_CLOEXEC);
+    ptys.push_back({slave, e.path, name});  // before the symlink, so ~Impl cleans up
+    struct stat st{};
+    if (lstat(e.path.c_str(), &st) == 0) {
+      if (!S_ISLNK(st.st_mode)) throw std::runtime_error(fmt::format("pty {}: exists and is not a symlink", e.path));
+      ::unlink(e.path.c_str());
+    }
+    if (symlink(name, e.path.c_str()) != 0) fail("pty symlink " + e.path);
+    links.emplace_back(master, Transport::pty, "pty " + e.path);
+    listening.push_back(fmt::format("listening pty {}", e.path));
+  }
+
+  void open() {
+    // Stop signals are held until ppoll opens them, so one that arrives
+    // between two polls is never lost; a peer that closed must not kill us.
+    sigset_t stop;
+    sigemptyset(&stop);
+    sigaddset(&stop, SIGINT);
+    sigaddset(&stop, SIGTERM);
+    sigprocmask(SIG_BLOCK, &stop, &run_mask);
+    sigdelset(&run_mask, SIGINT);
+    sigdelset(&run_mask, SIGTERM);
+    struct sigaction sa{};
+    sa.sa_handler = on_stop_signal;
+    sigaction(SIGINT, &sa, nullptr);
+    sigaction(SIGTERM, &sa, nullptr);
+    std::signal(SIGPIPE, SIG_IGN);
+
+    for (const auto& e : opt.endpoints) {
+      if (e.transport == Transport::pty)
+        open_pty(e);
+      else
+        open_socket(e);
+    }
+    for (const auto& line : listening) std::fputs((line + "\n").c_str(), stdout);
+    std::fflush(stdout);
+  }
+
+  // ---- frames ----
+
+  void trace(const Link& l, const char* dir, std::span<const uint8_t> bytes, const std::string& what) {
+    if (!opt.trace) return;
+    std::fputs(fmt::format("{} {} {} | {}\n", l.name, dir, to_hex(bytes), what).c_str(), stderr);
+  }
+
+  // The engine's reply leaves after the line time a real RS-485 bus would
+  // take: the reply's characters plus the inter-frame gap (MB-SL §2.5.1.1).
+  void send_reply(Link& l, Bytes bytes, Clock::time_point now) {
+    Clock::time_point at = now;
+    if (l.rtu() && opt.line_rate) at += wire_time(bytes.size(), *opt.line_rate) + frame_gap(*opt.line_rate);
+    l.out.push_back({std::move(bytes), at});
+  }
+
+  void handle_rtu_frame(Link& l, Clock::time_point now) {
+    if (l.overflow) {
+      trace(l, "rx", l.in, fmt::format("dropped: {} bytes, over the {}-byte RTU limit", l.in.size() + l.overflow, kMaxRtuAdu));
+    } else {
+      trace(l, "rx", l.in, describe_rtu(l.in, Direction::request));
+      auto reply = bus.handle_rtu(l.in);
+      if (reply) {
+        trace(l, "tx", *reply, describe_rtu(*reply, Direction::reply));
+        send_reply(l, std::move(*reply), now);
+      } else {
+        trace(l, "--", {}, "no reply");
+      }
+    }
+    l.in.clear();
+    l.overflow = 0;
+  }
+
+  // Modbus TCP: frames are delimited by the MBAP length, never by timing.
+  void handle_mbap_frames(Link& l, Clock::time_point now) {
+    while (auto h = parse_mbap(l.in)) {
+      if (!h->length_ok()) {  // the stream cannot be re-synchronised: drop the connection
+        trace(l, "rx", l.in, fmt::format("MBAP length {} out of 2..254: closing", h->length));
+        l.closed = true;
+        return;
+      }
+      if (l.in.size() < h->adu_size()) return;
+      std::span<const uint8_t> adu(l.in.data(), h->adu_size());
+      auto pdu = adu.subspan(kMbapHeader);
+      std::string head = fmt::format("tid {} unit {} ", h->transaction, h->unit);
+      if (h->protocol != 0) {  // MB TCP §3.1.3: protocol 0 is Modbus; anything else is not ours
+        trace(l, "rx", adu, fmt::format("{}protocol {}: not Modbus, ignored", head, h->protocol));
+      } else {
+        trace(l, "rx", adu, head + describe_pdu(pdu, Direction::request));
+        auto reply = bus.handle_pdu(h->unit, pdu);
+        if (reply) {
+          Bytes out = mbap_reply(*h, *reply);
+          trace(l, "tx", out, head + describe_pdu(*reply, Direction::reply));
+          send_reply(l, std::move(out), now);
+        } else {
+          trace(l, "--", {}, "no reply");
+        }
+      }
+      l.in.erase(l.in.begin(), l.in.begin() + ptrdiff_t(h->adu_size()));
+    }
+  }
+
+  microseconds rtu_gap(const Link& l) const {
+    microseconds gap = frame_gap(opt.baud);
+    return l.transport == Transport::rtu_tcp ? std::max<microseconds>(gap, kTcpFrameGap) : gap;
+  }
+
+  // An RTU frame is complete after t3.5 of silence; on TCP also as soon as
+  // the bytes form exactly the request the function code announces.
+  bool rtu_frame_complete(const Link& l, Clock::time_point now) const {
+    if (l.in.empty() && !l.overflow) return false;
+    if (now - l.last_rx >= rtu_gap(l)) return true;
+    if (l.transport != Transport::rtu_tcp || l.overflow) return false;
+    auto n = rtu_request_length(l.in);
+    return n && *n == l.in.size() && crc_ok(l.in);
+  }
+
+  void process_input(Clock::time_point now) {
+    bool handled = false;
+    for (auto& l : links) {
+      if (l.closed) continue;
+      if (l.rtu()) {
+        if (rtu_frame_complete(l, now)) {
+          handle_rtu_frame(l, now);
+          handled = true;
+        }
+      } else if (!l.in.empty()) {
+        handle_mbap_frames(l, now);
+        handled = true;
+      }
+    }
+    if (handled) save_changed_images();
+  }
+
+  void save_changed_images() {
+    try {
+      save_eeprom_images(false);
+    } catch (const std::exception& e) {  // keep serving; the shutdown save reports again
+      std::fprintf(stderr, "mbconform serve: %s\n", e.what());
+    }
+  }
+
+  // ---- I/O ----
+
+  void read_link(Link& l, Clock::time_point now) {
+    uint8_t buf[4096];
+    for (;;) {
+      ssize_t n = ::read(l.fd, buf, sizeof buf);
+      if (n > 0) {
+        l.last_rx = now;
+        for (ssize_t i = 0; i < n; ++i) {
+          if (l.rtu() && l.in.size() >= kMaxRtuAdu)
+            ++l.overflow;
+          else
+            l.in.push_back(buf[i]);
+        }
+        continue;
+      }
+      if (n < 0 && errno == EINTR) continue;
+      if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) return;
+      // 0 = the peer closed; an error on a pty master (EIO) means no client: wait for the next.
+      if (l.socket()) l.closed = true;
+      return;
+    }
+  }
+
+  void write_link(Link& l, Clock::time_point now) {
+    while (!l.out.empty() && l.out.front().not_before <= now) {
+      const Bytes& b = l.out.front().bytes;
+      ssize_t n = l.socket() ? ::send(l.fd, b.data() + l.out_offset, b.size() - l.out_offset, MSG_NOSIGNAL)
+                             : ::write(l.fd, b.data() + l.out_offset, b.size() - l.out_offset);
+      if (n < 0) {
+        if (errno == EINTR) continue;
+        if (errno == EAGAIN || errno == EWOULDBLOCK) return;
+        if (l.socket()) l.closed = true;
+        l.out.clear();  // pty without a reader: the reply is lost, as on a bus nobody listens to
+        l.out_offset = 0;
+        return;
+      }
+      l.out_offset += size_t(n);
+      if (l.out_offset == b.size()) {
+        l.out.pop_front();
+        l.out_offset = 0;
+      }
+    }
+  }
+
+  void accept_all(const Listener& s, Clock::time_point now) {
+    for (;;) {
+      sockaddr_storage ss{};
+      socklen_t len = sizeof ss;
+      int fd = accept4(s.fd, reinterpret_cast<sockaddr*>(&ss), &len, SOCK_NONBLOCK | SOCK_CLOEXEC);
+      if (fd < 0) return;  // EAGAIN, or an aborted connection
+      int one = 1;
+      setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);  // replies are small and wanted now
+      Link l(fd, s.transport, fmt::format("{} {}", to_string(s.transport), sockaddr_text(ss)));
+      l.last_rx = now;
+      if (opt.trace) std::fputs((l.name + " connected\n").c_str(), stderr);
+      links.push_back(std::move(l));
+    }
+  }
+
+  void drop_closed_links() {
+    std::erase_if(links, [&](Link& l) {
+      if (!l.closed) return false;
+      if (opt.trace) std::fputs((l.name + " closed\n").c_str(), stderr);
+      ::close(l.fd);
+      return true;
+    });
+  }
+
+  // The next moment something is due: an RTU gap ending or a paced reply.
+  int poll_timeout_ms(Clock::time_point now) const {
+    Clock::time_point wake = now + kMaxSleep;
+    for (const auto& l : links) {
+      if (l.rtu() && (!l.in.empty() || l.overflow)) wake = std::min(wake, l.last_rx + rtu_gap(l));
+      if (!l.out.empty()) wake = std::min(wake, l.out.front().not_before);
+    }
+    auto us = duration_cast<microseconds>(wake - now).count();
+    return us <= 0 ? 0 : int((us + 999) / 1000);
+  }
+
+  void advance_clock(Clock::time_point now) {
+    auto dt = duration_cast<microseconds>(now - clock_at);
+    if (dt.count() <= 0) return;
+    bus.advance(uint64_t(dt.count()));
+    clock_at += dt;
+  }
+
+  int run() {
+    clock_at = Clock::now();
+    while (!g_stop) {
+      Clock::time_point now = Clock::now();
+      advance_clock(now);
+      process_input(now);
+      for (auto& l : links)
+        if (!l.closed) write_link(l, now);
+      drop_closed_links();
+
+      std::vector<pollfd> fds;
+      for (const auto& s : listeners) fds.push_back({s.fd, POLLIN, 0});
+      for (const auto& l : links) {
+        bool due = !l.out.empty() && l.out.front().not_before <= now;
+        fds.push_back({l.fd, short(POLLIN | (due ? POLLOUT : 0)), 0});
+      }
+      int timeout = poll_timeout_ms(now);
+      timespec ts{timeout / 1000, long(timeout % 1000) * 1000000L};
+      int rc = ppoll(fds.data(), fds.size(), &ts, &run_mask);
+      if (rc < 0) {
+        if (errno == EINTR) continue;
+        fail("poll");
+      }
+      now = Clock::now();
+      size_t i = 0;
+      for (const auto& s : listeners)
+        if (fds[i++].revents & POLLIN) accept_all(s, now);
+      // accept_all appended new links after the polled ones; index only those polled.
+      for (size_t k = 0; i < fds.size(); ++k, ++i) {
+        Link& l = links[k];
+        if (fds[i].revents & (POLLIN | POLLHUP | POLLERR)) read_link(l, now);
+        if (!l.closed && (fds[i].revents & POLLOUT)) write_link(l, now);
+      }
+    }
+    save_eeprom_images(true);
+    return 0;
+  }
+};
+
+Server::Server(ref::Bus bus, Options options) : impl_(std::make_unique<Impl>(std::move(bus), std::move(options))) {
+  impl_->restore_eeprom();
+}
+Server::~Server() = default;
+void Server::open() { impl_->open(); }
+int Server::run() { return impl_->run(); }
+
+}  // namespace mbc::serve

@@ -1,0 +1,66 @@
+// `mbconform serve`: reference devices on real transports. One thread, one
+// poll loop, non-blocking descriptors: Modbus TCP (MBAP), RTU over TCP, and
+// RTU on a pseudo-terminal a master opens like a serial port. Framing lives
+// here; every protocol decision (broadcast, foreign slave ids, bad CRC,
+// exceptions) is the engine's, through ref::Bus.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "engine/device.h"
+
+namespace mbc::serve {
+
+enum class Transport { tcp, rtu_tcp, pty };
+const char* to_string(Transport t);  // "tcp", "rtu-tcp", "pty"
+
+struct Endpoint {
+  Transport transport = Transport::tcp;
+  std::string host = "127.0.0.1";  // tcp, rtu-tcp
+  uint16_t port = 0;               // 0: the system picks one
+  std::string path;                // pty: the symlink a master opens
+};
+
+// "HOST:PORT", ":PORT", "PORT" or "[v6]:PORT" for tcp and rtu-tcp; a path for
+// pty. Throws std::invalid_argument saying what is wrong.
+Endpoint parse_endpoint(Transport t, const std::string& text);
+
+// "hsc60@2" -> {"hsc60", 2}; "hsc60" -> slave 1. Throws std::invalid_argument.
+struct DeviceArg {
+  std::string id;
+  uint8_t slave = 1;
+};
+DeviceArg parse_device_arg(const std::string& text);
+
+struct Options {
+  std::vector<Endpoint> endpoints;
+  std::string eeprom_dir;        // empty: no persistence across restarts
+  int baud = 19200;              // the pty's nominal rate: sets the frame gap
+  std::optional<int> line_rate;  // pace RTU replies at this rate's wire time
+  bool trace = false;            // every frame to stderr
+};
+
+class Server {
+ public:
+  // Restores each device's EEPROM image from options.eeprom_dir (then power-cycles it).
+  Server(ref::Bus bus, Options options);
+  ~Server();  // closes descriptors, removes pty symlinks
+  Server(const Server&) = delete;
+  Server& operator=(const Server&) = delete;
+
+  // Opens every endpoint, then prints "listening <transport> <address>" per
+  // endpoint on stdout. Throws std::runtime_error when one cannot be opened.
+  void open();
+  // Serves until SIGINT or SIGTERM, then saves the EEPROM images. Returns 0.
+  int run();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace mbc::serve

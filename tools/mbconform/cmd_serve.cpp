@@ -1,0 +1,87 @@
+// mbconform serve: reference devices on Modbus TCP, RTU over TCP and a pty.
+#include <iostream>
+
+#include <fmt/core.h>
+
+#include "commands.h"
+#include "loader.h"
+#include "serve/server.h"
+
+namespace mbc::cli {
+namespace {
+
+struct ServeArgs {
+  std::vector<std::string> devices, tcp, rtu_tcp, pty;
+  std::string eeprom_dir;
+  std::optional<int> baud, line_rate;
+  bool trace = false;
+};
+
+// Argument mistakes become CLI::ValidationError: message + exit 2.
+serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_baud) {
+  serve::Options o;
+  try {
+    for (const auto& t : a.tcp) o.endpoints.push_back(serve::parse_endpoint(serve::Transport::tcp, t));
+    for (const auto& t : a.rtu_tcp) o.endpoints.push_back(serve::parse_endpoint(serve::Transport::rtu_tcp, t));
+    for (const auto& t : a.pty) o.endpoints.push_back(serve::parse_endpoint(serve::Transport::pty, t));
+  } catch (const std::invalid_argument& e) {
+    throw CLI::ValidationError("endpoint", e.what());
+  }
+  if (o.endpoints.empty()) throw CLI::ValidationError("serve", "give at least one of --tcp, --rtu-tcp, --pty");
+  o.eeprom_dir = a.eeprom_dir;
+  o.trace = a.trace;
+  o.line_rate = a.line_rate;
+  // The nominal pty rate: as given, else the first device's default (its
+  // manual's), else the standard's required default 19200 (MB-SL v1.02 §3.2).
+  o.baud = a.baud.value_or(first_device_baud.value_or(19200));
+  return o;
+}
+
+ref::Bus bus_from(const std::vector<std::string>& args) {
+  if (args.empty()) throw CLI::ValidationError("--device", "give at least one --device ID[@SLAVE]");
+  ref::Bus bus;
+  for (const auto& text : args) {
+    serve::DeviceArg d;
+    try {
+      d = serve::parse_device_arg(text);
+    } catch (const std::invalid_argument& e) {
+      throw CLI::ValidationError("--device", e.what());
+    }
+    if (bus.find(d.slave)) throw CLI::ValidationError("--device", fmt::format("two devices with slave id {}", d.slave));
+    spec::Spec s;
+    try {
+      s = spec::load_spec_by_id(d.id);
+    } catch (const std::exception& e) {
+      throw CLI::ValidationError("--device", fmt::format("'{}': {}", d.id, e.what()));
+    }
+    bus.add(std::make_unique<ref::Device>(std::move(s), d.slave));
+  }
+  return bus;
+}
+
+}  // namespace
+
+void add_serve_command(CLI::App& app, int& exit_code) {
+  static ServeArgs a;
+  auto* cmd = app.add_subcommand("serve", "Serve reference devices on Modbus TCP, RTU over TCP and a pty");
+  cmd->add_option("--device", a.devices, "ID[@SLAVE]: a device on the bus (slave 1 if omitted); repeatable")
+      ->required();
+  cmd->add_option("--tcp", a.tcp, "[HOST:]PORT: Modbus TCP (HOST 127.0.0.1 if omitted; PORT 0 picks one)");
+  cmd->add_option("--rtu-tcp", a.rtu_tcp, "[HOST:]PORT: RTU frames over TCP");
+  cmd->add_option("--pty", a.pty, "PATH: RTU on a pseudo-terminal, PATH a symlink to it");
+  cmd->add_option("--eeprom", a.eeprom_dir, "DIR: keep persistent registers in DIR/<id>@<slave>.json");
+  cmd->add_option("--baud", a.baud, "nominal pty baud rate: the frame gap (default: the first device's)")
+      ->check(CLI::Range(300, 4000000));
+  cmd->add_option("--line-rate", a.line_rate, "pace RTU replies at the wire time of this baud rate")
+      ->check(CLI::Range(300, 4000000));
+  cmd->add_flag("--trace", a.trace, "log every frame to stderr");
+  cmd->callback([&] {
+    ref::Bus bus = bus_from(a.devices);
+    serve::Options o = options_from(a, bus.devices().front()->spec().serial.baud_default);
+    serve::Server server(std::move(bus), std::move(o));
+    server.open();
+    exit_code = server.run();
+  });
+}
+
+}  // namespace mbc::cli
