@@ -24,9 +24,10 @@
 //   negative_limit when M02 bit 7 reverses the motor), DW the other one. The
 //   drive counts steps from its own origin: position = ±(axis - origin).
 // * A limit stops the Axis at the switch at once where the manual says
-//   "减速停止"; the alarm is the same. The 到位 edge is looked for every 50 us
-//   (one step at the 20 kHz maximum of 表一), and the motor decelerates from
-//   there. A 到位 forward/reverse of 0 steps runs until the edge.
+//   "减速停止"; the alarm is the same. In 到位 mode the switch turning active
+//   is the edge that counts (碰到, "meets"); it is looked for every 50 us (one
+//   step at the 20 kHz maximum of 表一), and the motor decelerates from there.
+//   A 到位 forward/reverse of 0 steps runs until the edge.
 // * 表 M01: bits 2:0 read 1 while running (1-7 all mean "running"). The alarm
 //   nibble is cleared by the next command that starts motion. The status is
 //   written when the state changes, so it reads 0xFF until the first motion
@@ -94,7 +95,8 @@ class Hanstar7trsm5740q : public Behaviour {
     if (wrote("speed_rpm_command")) {
       // 2010: rpm as a float; steps/s = 1e6 / period = rpm * 细分 * 1e6 / 300000 (§5.7).
       double rpm = d.float_value(d.reg_by_key("speed_rpm_command"));
-      if (std::isfinite(rpm) && rpm > 0) change_speed(d, rpm * double(d.value_of("microstep")) * 1e6 / kRpmPeriodProduct);
+      if (std::isfinite(rpm) && rpm > 0)
+        change_speed(d, rpm * double(d.value_of("microstep")) * 1e6 / kRpmPeriodProduct);
     }
     if (wrote("save_command")) d.save_persistent();  // 4002: 参数存储到内部 flash
     refuse_seen_limit(d);
@@ -110,8 +112,9 @@ class Hanstar7trsm5740q : public Behaviour {
       bool signal_was = arrival_signal(d);
       Axis::Step step = step_axis(d, arrival_ != Arrival::off ? std::min(left, kArrivalSlice) : left);
       left -= step.elapsed;
-      // §5.5: in 到位 mode the chosen switch's edge stops the motor, with no alarm.
-      if (arrival_ != Arrival::off && !arrival_edge_seen_ && arrival_signal(d) != signal_was) {
+      // §5.5 / 表 17: in 到位 mode meeting the chosen switch ("碰到 ... 边沿触发开关")
+      // decelerates the motor to a stop, with no alarm.
+      if (arrival_ != Arrival::off && !arrival_edge_seen_ && arrival_signal(d) && !signal_was) {
         arrival_edge_seen_ = true;
         axis.stop(decel(d));
       }

@@ -123,8 +123,7 @@ class Hsc60 : public Behaviour {
     auto pulses = uint32_t(std::llround(axis.position()) - pulse_origin_);
     d.set_value_of("pulse_count_low", pulses & 0xFFFF);
     d.set_value_of("pulse_count_high", pulses >> 16);
-    double counts_per_pulse =
-        double(kCountsPerLine * d.value_of("encoder_lines")) / double(d.value_of("microstep"));
+    double counts_per_pulse = double(kCountsPerLine * d.value_of("encoder_lines")) / double(d.value_of("microstep"));
     d.set_value_of("encoder_count", uint32_t(std::llround(axis.position() * counts_per_pulse)));
     d.set_value_of("save", save_left_ ? 1 : 0);
     d.set_value_of("factory_reset", reset_left_ ? 1 : 0);

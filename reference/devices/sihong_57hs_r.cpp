@@ -1,6 +1,6 @@
 // SIHONG 57HS-R (manual 000_6950555f7a269f5a.txt): position and speed moves
 // (§7.1, §7.2), start/stop commands (§7.6), homing (§7.5), the save/reset
-// command (§6.1 0x002B) and the status words 0x0003~0x000C. Registers are
+// command (§6.1 0x002B) and the status words 0x0002~0x000C. Registers are
 // reached through the keys of spec/devices/sihong-57hs-r.yaml.
 //
 // Judgements where the manual is silent:
@@ -18,6 +18,7 @@
 // * A released motor (0x0029 = 0) stops and ignores start and homing commands.
 #include <cmath>
 #include <cstdlib>
+#include <stdexcept>
 #include <string>
 
 #include "engine/device.h"
@@ -26,8 +27,8 @@ namespace mbc::ref {
 namespace {
 
 // §6.1 0x0007 motion status bits; bit 4 is 1 when the motor is RELEASED.
-constexpr uint16_t kInPositionBit = 1u << 0, kHomedBit = 1u << 1, kRunningBit = 1u << 2,
-                   kAlarmBit = 1u << 3, kReleasedBit = 1u << 4;
+constexpr uint16_t kInPositionBit = 1u << 0, kHomedBit = 1u << 1, kRunningBit = 1u << 2, kAlarmBit = 1u << 3,
+                   kReleasedBit = 1u << 4;
 // §6.1 0x0003 work modes.
 constexpr int kWorkPositionSpeed = 0, kWorkHoming = 1;
 // §6.1 / §7.6.1 0x0027: bits 0-1 select the mode, bit 2 an absolute position.
@@ -36,11 +37,13 @@ constexpr int kModeMask = 0x3, kPositionMode = 1, kSpeedMode = 2, kAbsoluteBit =
 constexpr int kEmergencyBit = 1;
 // §6.1 0x002B.
 constexpr int kFactoryReset = 1, kSaveParams = 2;
-// §6.1 0x0043~0x0046 input functions.
+// §6.1 0x0043~0x0046 input functions and 0x004C/0x004D output functions
+// (output 2, "驱动器状态信号", is not explained and is left inactive).
 constexpr int kHomeInput = 1, kPositiveLimitInput = 2, kNegativeLimitInput = 3;
+constexpr int kAlarmOutput = 1, kHomedOutput = 3, kInPositionOutput = 4;
 // §6.1 0x0005: 0 = counter-clockwise (positive), 1 = clockwise (negative).
 constexpr int kNegativeDirection = 1;
-constexpr int kInputs = 4;  // X0~X3 (§4.2.2)
+constexpr int kInputs = 4, kOutputs = 2;  // X0~X3, Y0~Y1 (§4.2.2)
 
 class Sihong57hsR : public Behaviour {
  public:
@@ -129,9 +132,9 @@ class Sihong57hsR : public Behaviour {
     search_dir_ = (mode == 0 || mode == 2) ? 1 : -1;
     reversed_ = false;
     homed_ = false;
-    bool on_sensor = on_limits_ ? (approach_dir_ > 0 ? d.axis().positive_limit_active()
-                                                      : d.axis().negative_limit_active())
-                                : d.axis().home_active();
+    bool on_sensor = on_limits_
+                         ? (approach_dir_ > 0 ? d.axis().positive_limit_active() : d.axis().negative_limit_active())
+                         : d.axis().home_active();
     if (on_sensor) {
       leave(d);
     } else {
@@ -226,8 +229,7 @@ class Sihong57hsR : public Behaviour {
     d.set_value_of("motion_direction", direction_ < 0 ? kNegativeDirection : 0);
     d.set_value_of("alarm_code", alarm_);
     uint16_t status = (axis.in_position() ? kInPositionBit : 0) | (homed_ ? kHomedBit : 0) |
-                      (axis.moving() ? kRunningBit : 0) | (alarm_ ? kAlarmBit : 0) |
-                      (enabled_ ? 0 : kReleasedBit);
+                      (axis.moving() ? kRunningBit : 0) | (alarm_ ? kAlarmBit : 0) | (enabled_ ? 0 : kReleasedBit);
     d.set_value_of("motion_status", status);
     uint16_t inputs = 0;
     for (int x = 0; x < kInputs; ++x) {
@@ -238,6 +240,14 @@ class Sihong57hsR : public Behaviour {
       if (active) inputs |= uint16_t(1u << x);
     }
     d.set_value_of("input_state", inputs);
+    uint16_t outputs = 0;
+    for (int y = 0; y < kOutputs; ++y) {
+      int64_t function = d.value_of("output_function.y" + std::to_string(y));
+      bool active = (function == kAlarmOutput && alarm_) || (function == kHomedOutput && homed_) ||
+                    (function == kInPositionOutput && axis.in_position());
+      if (active) outputs |= uint16_t(1u << y);
+    }
+    d.set_value_of("output_state", outputs);
     d.set_value_of("current_position", std::llround(axis.position()));
     d.set_value_of("current_speed", std::llround(std::abs(axis.speed()) * 60 / pulses_per_rev(d)));
   }
@@ -249,7 +259,7 @@ class Sihong57hsR : public Behaviour {
     int64_t code = d.value(r);
     for (const auto& v : d.spec().find_enum(r.enum_id)->values)
       if (v.value == code) return std::stod(v.name.en);
-    return 1000;  // unreachable: the engine range-checks 0x0011
+    throw std::logic_error("0x0011 holds a microstep code the spec does not list");
   }
   static double pulses_per_s(const Device& d, double rpm) { return rpm * pulses_per_rev(d) / 60; }
   // Acceleration (pulses/s^2) from the start speed to the max speed in the

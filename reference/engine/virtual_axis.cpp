@@ -102,8 +102,7 @@ void Axis::emergency_stop() {
 void Axis::set_position(double p) { origin_ = position_ - p; }
 
 bool Axis::home_active() const {
-  return inputs.home_position &&
-         std::abs(position_ - double(*inputs.home_position)) <= double(inputs.home_width);
+  return inputs.home_position && std::abs(position_ - double(*inputs.home_position)) <= double(inputs.home_width);
 }
 bool Axis::positive_limit_active() const {
   return inputs.positive_limit && position_ >= double(*inputs.positive_limit);

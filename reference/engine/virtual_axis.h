@@ -36,9 +36,7 @@ class Axis {
   double speed() const { return speed_; }  // signed
   bool moving() const { return mode_ != Mode::idle; }
   bool in_position() const { return mode_ == Mode::idle && reached_target_; }
-  std::optional<double> target() const {
-    return target_ ? std::optional<double>(*target_ - origin_) : std::nullopt;
-  }
+  std::optional<double> target() const { return target_ ? std::optional<double>(*target_ - origin_) : std::nullopt; }
   // +1 or -1 while moving (the sign of travel), 0 at standstill.
   int direction() const;
 
@@ -83,7 +81,7 @@ class Axis {
   enum class Mode { idle, position, velocity, stopping };
   // One phase of constant acceleration along the direction of travel.
   struct Phase {
-    int dir = 0;       // +1 / -1
+    int dir = 0;        // +1 / -1
     double accel = 0;   // along dir, pulses/s^2
     double length = 0;  // seconds until the profile changes by itself
   };

@@ -81,18 +81,8 @@ class Hanstar : public ::testing::Test {
   }
   void wait_s(double s) { dev.advance(uint64_t(s * 1e6)); }
 
-  void configure(uint32_t accel_steps = 0) {
-    write("microstep", kMicrostep);
-    write("homing_period", kHomingPeriod);
-    write("run_period", kRunPeriod);
-    write32("accel_steps", accel_steps);
-    write32("homing_max_steps", 20000);
-    write32("release_steps", 500);
-    dev.power_cycle();  // 3009 is the running speed from power-on
-    for (const char* key : {"microstep", "homing_period", "run_period"}) dev.set_value_of(key, dev.value_of(key));
-  }
   // Parameters survive the power cycle only when saved (4002); save them.
-  void configure_and_save(uint32_t accel_steps = 0) {
+  void configure(uint32_t accel_steps = 0) {
     write("microstep", kMicrostep);
     write("homing_period", kHomingPeriod);
     write("run_period", kRunPeriod);
@@ -108,7 +98,7 @@ class Hanstar : public ::testing::Test {
 TEST_F(Hanstar, StatusIsUndefinedAfterPowerOn) {
   EXPECT_EQ(status(), kUndefined);
   EXPECT_EQ(int64_t(*dev.reg_by_key("motor_status").default_value), kUndefined);
-  configure_and_save();
+  configure();
   write32("forward_command", 10);
   wait_s(1);
   EXPECT_EQ(status(), kIdle);
@@ -119,7 +109,7 @@ TEST_F(Hanstar, StatusIsUndefinedAfterPowerOn) {
 // 表 15 / §5.2: positioning only "步进一体机正确复位情况下". The write is
 // acknowledged (no exception reply is printed) but the motor does not move.
 TEST_F(Hanstar, PositioningIsRefusedBeforeHoming) {
-  configure_and_save();
+  configure();
   write32("position_command", 5000);
   wait_s(5);
   EXPECT_EQ(position(), 0);
@@ -130,7 +120,7 @@ TEST_F(Hanstar, PositioningIsRefusedBeforeHoming) {
 // §5.2 figure 5: home signal inactive at the start; the drive runs in reverse
 // at the homing speed until the signal turns active, and that point is zero.
 TEST_F(Hanstar, HomingSearchesInReverseAndZeroesAtTheSwitch) {
-  configure_and_save();
+  configure();
   dev.axis().inputs.home_position = -3000;  // active from -3050 to -2950
   write("home_command", 0x1234);            // "写任何值"
   wait_s(0.5);
@@ -161,7 +151,7 @@ TEST_F(Hanstar, HomingSearchesInReverseAndZeroesAtTheSwitch) {
 // §5.2 figure 6: signal active at the start: forward the release steps
 // (3014), then the reverse search finds the switch's upper edge.
 TEST_F(Hanstar, HomingOnTheSwitchFirstRunsTheReleaseSteps) {
-  configure_and_save();
+  configure();
   dev.axis().inputs.home_position = 0;  // active from -50 to +50
   write("home_command", 1);
   wait_s(0.2);  // 400 of the 500 release steps
@@ -175,7 +165,7 @@ TEST_F(Hanstar, HomingOnTheSwitchFirstRunsTheReleaseSteps) {
 
 // §5.2: still on the switch after the release steps: homing error (表 M01 0x1).
 TEST_F(Hanstar, HomingFailsWhenTheReleaseStepsDoNotLeaveTheSwitch) {
-  configure_and_save();
+  configure();
   dev.axis().inputs.home_position = 0;
   dev.axis().inputs.home_width = 1000;
   write("home_command", 1);
@@ -189,7 +179,7 @@ TEST_F(Hanstar, HomingFailsWhenTheReleaseStepsDoNotLeaveTheSwitch) {
 // §5.2: no signal within the maximum search steps (3010): stop with the
 // homing error alarm.
 TEST_F(Hanstar, HomingFailsAfterTheMaximumSearchSteps) {
-  configure_and_save();
+  configure();
   write("home_command", 1);
   wait_s(20000 / kHomingSpeed + 1);
   EXPECT_EQ(status(), kHomingFailed);
@@ -199,7 +189,7 @@ TEST_F(Hanstar, HomingFailsAfterTheMaximumSearchSteps) {
 // §6.3.3: 01 10 07 D4 00 02 04 00 00 03 E8 D9 8E, "正转 1000 步". 表 15: works
 // in any state and forces "correctly homed", so positioning works afterwards.
 TEST_F(Hanstar, ForwardThousandStepsFromTheManualFrame) {
-  configure_and_save();
+  configure();
   replay("forward-1000-steps");
   EXPECT_EQ(read32("target_position"), 1000);
   wait_s(0.05);
@@ -214,7 +204,7 @@ TEST_F(Hanstar, ForwardThousandStepsFromTheManualFrame) {
 
 // §6.2: the four values are one 8-register read from 1000.
 TEST_F(Hanstar, StatusBlockReadsAsEightRegisters) {
-  configure_and_save();
+  configure();
   write32("reverse_command", 0);
   wait_s(0.01);
   auto w = read_words(1000, 8);
@@ -225,7 +215,7 @@ TEST_F(Hanstar, StatusBlockReadsAsEightRegisters) {
 
 // §5.4: 0 steps runs on (speed mode); §6.3.2: 2001 stops it.
 TEST_F(Hanstar, ZeroStepsRunsUntilStopped) {
-  configure_and_save();
+  configure();
   write32("reverse_command", 0);
   wait_s(1);
   EXPECT_EQ(position(), -int32_t(kRunSpeed));
@@ -240,7 +230,7 @@ TEST_F(Hanstar, ZeroStepsRunsUntilStopped) {
 // In forward/reverse mode the drive takes the next command; with the limit
 // still there it does not move in that direction, but moves away from it.
 TEST_F(Hanstar, LimitAlarmsInForwardReverseMode) {
-  configure_and_save();
+  configure();
   dev.axis().inputs.positive_limit = 2000;
   dev.axis().inputs.negative_limit = -1000;
   write32("forward_command", 0);
@@ -261,7 +251,7 @@ TEST_F(Hanstar, LimitAlarmsInForwardReverseMode) {
 // takes no positioning command ("步进一体机不响应定位指令"); §5.3 "在定位模式下，
 // 这两种情况，步进一体机都不动作".
 TEST_F(Hanstar, LimitDuringPositioningBlocksPositioning) {
-  configure_and_save();
+  configure();
   dev.axis().inputs.home_position = -100;
   dev.axis().inputs.positive_limit = 2000;
   write("home_command", 1);
@@ -277,10 +267,11 @@ TEST_F(Hanstar, LimitDuringPositioningBlocksPositioning) {
   EXPECT_EQ(position(), stopped);
 }
 
-// §5.5 / 表 17: 到位 commands turn UP/DW into arrival signals: the motor stops
-// on the chosen signal's edge with no alarm, and neither stops it as a limit.
-TEST_F(Hanstar, ArrivalCommandsStopOnTheEdgeWithoutAlarm) {
-  configure_and_save();
+// §5.5 / 表 17: 到位 commands turn UP/DW into arrival signals: the motor
+// stops where it meets ("碰到") the chosen signal, with no alarm, and neither
+// signal stops it as a limit.
+TEST_F(Hanstar, ArrivalCommandsStopOnTheSignalWithoutAlarm) {
+  configure();
   dev.axis().inputs.positive_limit = 2000;
   dev.axis().inputs.negative_limit = -1000;
   write32("forward_command", 1);  // forces "correctly homed" (表 15)
@@ -288,14 +279,19 @@ TEST_F(Hanstar, ArrivalCommandsStopOnTheEdgeWithoutAlarm) {
   write32("arrival_forward_up", 10000);
   wait_s(2);
   EXPECT_EQ(status(), kIdle);
-  EXPECT_NEAR(position(), 2000, 1);  // the edge, seen within one step
-  // 2206: reverse, stopping on UP: DW is not a limit now and is passed.
+  EXPECT_NEAR(position(), 2000, 1);  // met within one step
+  // 2206: reverse, stopping on UP: DW is no limit now and is passed.
   write32("arrival_reverse_up", 6000);
   wait_s(1);
   EXPECT_EQ(status(), kIdle);
   EXPECT_NEAR(position(), -4000, 1);
-  // 2402: positioning, stopping on the DW edge (crossed at -1000).
-  write32("arrival_position_dw", 5000);
+  // 2202: positioning, stopping on UP: ends on the target short of UP.
+  write32("arrival_position_up", 0);
+  wait_s(1);
+  EXPECT_EQ(status(), kIdle);
+  EXPECT_EQ(position(), 0);
+  // 2406: reverse, stopping on DW (met at -1000).
+  write32("arrival_reverse_dw", 5000);
   wait_s(1);
   EXPECT_EQ(status(), kIdle);
   EXPECT_NEAR(position(), -1000, 1);
@@ -303,7 +299,7 @@ TEST_F(Hanstar, ArrivalCommandsStopOnTheEdgeWithoutAlarm) {
 
 // 表 17: "到位功能均在步进一体机正确复位情况下".
 TEST_F(Hanstar, ArrivalCommandsNeedHoming) {
-  configure_and_save();
+  configure();
   write32("arrival_forward_up", 1000);
   wait_s(1);
   EXPECT_EQ(position(), 0);
@@ -313,7 +309,7 @@ TEST_F(Hanstar, ArrivalCommandsNeedHoming) {
 // 表 16 and §5.7: 2008 is the pulse period; 2010 an IEEE-754 rpm with
 // rpm = 300000 / (period * 细分), so 375 rpm at 细分 16 is a 50 us period.
 TEST_F(Hanstar, SpeedChangesByPeriodAndByRpm) {
-  configure_and_save();
+  configure();
   write32("forward_command", 0);
   wait_s(0.1);
   write("speed_period_command", 200);
@@ -330,7 +326,7 @@ TEST_F(Hanstar, SpeedChangesByPeriodAndByRpm) {
 // §5.7: the start speed (3008) ramps to the running speed over
 // (PlusStartTime + PlusConstantTime) * AccSteps * 0.5 us = (500 + 100) * 100 * 0.5 us = 30 ms.
 TEST_F(Hanstar, AccelerationTimeFollowsTheSCurveParameters) {
-  configure_and_save(100);
+  configure(100);
   write32("forward_command", 0);
   wait_s(0.001);
   EXPECT_GT(read("current_period"), kRunPeriod * 2);
@@ -343,7 +339,7 @@ TEST_F(Hanstar, AccelerationTimeFollowsTheSCurveParameters) {
 // 表 M02 bit 0: UP active high. With no switch wired the line floats high, so
 // the drive sees UP everywhere: forward does not move and alarms.
 TEST_F(Hanstar, InvertedUpPolarityBlocksForward) {
-  configure_and_save();
+  configure();
   write("hw_config", kUpActiveHigh);
   write32("forward_command", 100);
   wait_s(1);
@@ -356,7 +352,7 @@ TEST_F(Hanstar, InvertedUpPolarityBlocksForward) {
 
 // 表 M02 bit 7: the motor turns the other way; the drive's count does not care.
 TEST_F(Hanstar, ReversedMotorMovesTheMachineTheOtherWay) {
-  configure_and_save();
+  configure();
   write("hw_config", kReverseMotor);
   write32("forward_command", 1000);
   wait_s(1);

@@ -40,8 +40,8 @@ class Sihong57hsR : public ::testing::Test {
   void write32(const char* key, int32_t value) {
     uint16_t a = address(key);
     auto u = uint32_t(value);
-    auto reply = send({1, 16, uint8_t(a >> 8), uint8_t(a), 0, 2, 4, uint8_t(u >> 24), uint8_t(u >> 16),
-                       uint8_t(u >> 8), uint8_t(u)});
+    auto reply = send(
+        {1, 16, uint8_t(a >> 8), uint8_t(a), 0, 2, 4, uint8_t(u >> 24), uint8_t(u >> 16), uint8_t(u >> 8), uint8_t(u)});
     ASSERT_TRUE(reply);
     EXPECT_EQ((*reply)[1], 16) << to_hex(*reply);
   }
@@ -241,6 +241,22 @@ TEST_F(Sihong57hsR, HomingMode0FindsTheHomeSwitch) {
   EXPECT_EQ(read("input_state") & 1, 1);
   // Approached forward, it stops where the switch turns on.
   EXPECT_EQ(dev.axis().machine_position(), 5000.0 - dev.axis().inputs.home_width);
+}
+
+// §6.1 0x0009 / 0x004C~0x004D: Y0 as the in-position output, Y1 as the
+// homing-complete output.
+TEST_F(Sihong57hsR, OutputsFollowTheirFunctions) {
+  write("output_function.y0", 4);
+  write("output_function.y1", 3);
+  EXPECT_EQ(read("output_state"), 0b01);  // in position at power-on, not homed
+  write("start_command", 1);
+  wait_ms(100);
+  EXPECT_EQ(read("output_state"), 0b00);
+  dev.axis().inputs.home_position = -100;
+  write("homing_mode", 1);
+  write("homing_command", 1);
+  wait_until([&] { return status(kHomed); }, 20000);
+  EXPECT_EQ(read("output_state"), 0b11);
 }
 
 // §7.5 mode 0: "碰到正限位后，反向运动继续查找原点".
