@@ -83,7 +83,7 @@ struct Engine {
 
   // Address check of [start, start+qty) in `table`; nullopt when fine.
   std::optional<Violation> check_addresses(Table table, uint32_t start, uint32_t qty, bool reading) {
-    auto last = d.spec_.last_address(table);
+    const auto& last = d.last_address_[int(table)];
     for (uint32_t a = start; a < start + qty; ++a) {
       if (a > 0xFFFF || !last || a > *last) return Violation::address_past_map;
       const Register* r = d.spec_.register_covering(uint16_t(a), table);
@@ -404,6 +404,7 @@ Device::Device(spec::Spec s, uint8_t slave_id, std::unique_ptr<Behaviour> behavi
       discrete_(65536),
       slave_id_(slave_id),
       behaviour_(behaviour ? std::move(behaviour) : std::make_unique<Behaviour>()) {
+  for (Table t : {Table::holding, Table::input, Table::coil, Table::discrete_input}) last_address_[int(t)] = spec_.last_address(t);
   power_cycle();
 }
 

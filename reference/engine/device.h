@@ -136,6 +136,7 @@ class Device {
   spec::Spec spec_;
   std::vector<uint16_t> holding_, input_;  // 65536 words each
   std::vector<uint8_t> coils_, discrete_;  // 65536 bits each, one byte per bit
+  std::optional<uint16_t> last_address_[4];  // per table, from the spec (hot path)
   uint8_t slave_id_;
   std::unique_ptr<Behaviour> behaviour_;
   Axis axis_;
