@@ -288,7 +288,9 @@ struct Server::Impl {
 
   void trace(const Link& l, const char* dir, std::span<const uint8_t> bytes, const std::string& what) {
     if (!opt.trace) return;
-    std::fputs(fmt::format("{} {} {} | {}\n", l.name, dir, to_hex(bytes), what).c_str(), stderr);
+    std::string line = bytes.empty() ? fmt::format("{} {} {}\n", l.name, dir, what)
+                                     : fmt::format("{} {} {} | {}\n", l.name, dir, to_hex(bytes), what);
+    std::fputs(line.c_str(), stderr);
   }
 
   // The engine's reply leaves after the line time a real RS-485 bus would

@@ -12,6 +12,7 @@ namespace {
 
 struct ServeArgs {
   std::vector<std::string> devices, tcp, rtu_tcp, pty;
+  std::vector<std::pair<serve::Transport, std::string>> endpoints;  // in command-line order
   std::string eeprom_dir;
   std::optional<int> baud, line_rate;
   bool trace = false;
@@ -21,9 +22,7 @@ struct ServeArgs {
 serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_baud) {
   serve::Options o;
   try {
-    for (const auto& t : a.tcp) o.endpoints.push_back(serve::parse_endpoint(serve::Transport::tcp, t));
-    for (const auto& t : a.rtu_tcp) o.endpoints.push_back(serve::parse_endpoint(serve::Transport::rtu_tcp, t));
-    for (const auto& t : a.pty) o.endpoints.push_back(serve::parse_endpoint(serve::Transport::pty, t));
+    for (const auto& [transport, text] : a.endpoints) o.endpoints.push_back(serve::parse_endpoint(transport, text));
   } catch (const std::invalid_argument& e) {
     throw CLI::ValidationError("endpoint", e.what());
   }
@@ -66,16 +65,23 @@ void add_serve_command(CLI::App& app, int& exit_code) {
   auto* cmd = app.add_subcommand("serve", "Serve reference devices on Modbus TCP, RTU over TCP and a pty");
   cmd->add_option("--device", a.devices, "ID[@SLAVE]: a device on the bus (slave 1 if omitted); repeatable")
       ->required();
-  cmd->add_option("--tcp", a.tcp, "[HOST:]PORT: Modbus TCP (HOST 127.0.0.1 if omitted; PORT 0 picks one)");
-  cmd->add_option("--rtu-tcp", a.rtu_tcp, "[HOST:]PORT: RTU frames over TCP");
-  cmd->add_option("--pty", a.pty, "PATH: RTU on a pseudo-terminal, PATH a symlink to it");
+  auto* tcp = cmd->add_option("--tcp", a.tcp, "[HOST:]PORT: Modbus TCP (HOST 127.0.0.1 if omitted; PORT 0 picks one)");
+  auto* rtu_tcp = cmd->add_option("--rtu-tcp", a.rtu_tcp, "[HOST:]PORT: RTU frames over TCP");
+  auto* pty = cmd->add_option("--pty", a.pty, "PATH: RTU on a pseudo-terminal, PATH a symlink to it");
   cmd->add_option("--eeprom", a.eeprom_dir, "DIR: keep persistent registers in DIR/<id>@<slave>.json");
   cmd->add_option("--baud", a.baud, "nominal pty baud rate: the frame gap (default: the first device's)")
       ->check(CLI::Range(300, 4000000));
   cmd->add_option("--line-rate", a.line_rate, "pace RTU replies at the wire time of this baud rate")
       ->check(CLI::Range(300, 4000000));
   cmd->add_flag("--trace", a.trace, "log every frame to stderr");
-  cmd->callback([&] {
+  cmd->callback([&exit_code, cmd, tcp, rtu_tcp, pty] {
+    // Endpoints open and print their "listening" lines in command-line order.
+    size_t next_tcp = 0, next_rtu_tcp = 0, next_pty = 0;
+    for (const CLI::Option* opt : cmd->parse_order()) {
+      if (opt == tcp) a.endpoints.emplace_back(serve::Transport::tcp, a.tcp.at(next_tcp++));
+      if (opt == rtu_tcp) a.endpoints.emplace_back(serve::Transport::rtu_tcp, a.rtu_tcp.at(next_rtu_tcp++));
+      if (opt == pty) a.endpoints.emplace_back(serve::Transport::pty, a.pty.at(next_pty++));
+    }
     ref::Bus bus = bus_from(a.devices);
     serve::Options o = options_from(a, bus.devices().front()->spec().serial.baud_default);
     serve::Server server(std::move(bus), std::move(o));
