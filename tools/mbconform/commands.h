@@ -15,5 +15,11 @@ inline constexpr int kExitUsage = 2;
 void add_spec_commands(CLI::App& app, int& exit_code);
 // `serve`: reference devices on Modbus TCP, RTU over TCP and a pty (cmd_serve.cpp).
 void add_serve_command(CLI::App& app, int& exit_code);
+// `run`: conformance cases against any target, reports (cmd_run.cpp).
+void add_run_command(CLI::App& app, int& exit_code);
+// `props`: RapidCheck properties of the profile invariants against any target (cmd_props.cpp).
+void add_props_command(CLI::App& app, int& exit_code);
+// `fuzz`: black-box structure-aware fuzzing of any target (cmd_fuzz.cpp).
+void add_fuzz_command(CLI::App& app, int& exit_code);
 
 }  // namespace mbc::cli

@@ -9,6 +9,9 @@ int main(int argc, char** argv) {
   int exit_code = mbc::cli::kExitOk;
   mbc::cli::add_spec_commands(app, exit_code);
   mbc::cli::add_serve_command(app, exit_code);
+  mbc::cli::add_run_command(app, exit_code);
+  mbc::cli::add_props_command(app, exit_code);
+  mbc::cli::add_fuzz_command(app, exit_code);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,103 @@
+#include "targets/target.h"
+
+#include <fmt/core.h>
+
+#include <charconv>
+#include <stdexcept>
+
+#include "codec/crc16.h"
+#include "targets/kinds.h"
+
+namespace mbc::conf {
+
+std::optional<std::string> Uri::param(const std::string& key) const {
+  for (const auto& [k, v] : query)
+    if (k == key) return v;
+  return std::nullopt;
+}
+
+Uri parse_uri(const std::string& text) {
+  Uri u;
+  auto colon = text.find(':');
+  if (colon == std::string::npos || colon == 0)
+    throw std::invalid_argument(fmt::format("target '{}': expected SCHEME:..., e.g. ref:hsc60 or tcp://127.0.0.1:502", text));
+  u.scheme = text.substr(0, colon);
+  std::string rest = text.substr(colon + 1);
+  auto q = rest.find('?');
+  std::string query = q == std::string::npos ? "" : rest.substr(q + 1);
+  rest = rest.substr(0, q);
+  if (rest.rfind("//", 0) == 0) {
+    rest = rest.substr(2);
+    auto slash = rest.find('/');
+    std::string authority = rest.substr(0, slash);
+    u.path = slash == std::string::npos ? "" : rest.substr(slash);
+    if (!authority.empty()) {
+      std::string host = authority, port;
+      if (authority.front() == '[') {
+        auto close = authority.find(']');
+        if (close == std::string::npos) throw std::invalid_argument(fmt::format("target '{}': unclosed '['", text));
+        host = authority.substr(1, close - 1);
+        if (close + 1 < authority.size() && authority[close + 1] == ':') port = authority.substr(close + 2);
+      } else if (auto c = authority.rfind(':'); c != std::string::npos) {
+        host = authority.substr(0, c);
+        port = authority.substr(c + 1);
+      }
+      u.host = host;
+      if (!port.empty()) {
+        unsigned p = 0;
+        auto [end, ec] = std::from_chars(port.data(), port.data() + port.size(), p);
+        if (ec != std::errc{} || end != port.data() + port.size() || p == 0 || p > 65535)
+          throw std::invalid_argument(fmt::format("target '{}': bad port '{}'", text, port));
+        u.port = uint16_t(p);
+      }
+    }
+  } else {
+    u.path = rest;
+  }
+  size_t at = 0;
+  while (at < query.size()) {
+    auto amp = query.find('&', at);
+    std::string kv = query.substr(at, amp == std::string::npos ? std::string::npos : amp - at);
+    at = amp == std::string::npos ? query.size() : amp + 1;
+    if (kv.empty()) continue;
+    auto eq = kv.find('=');
+    u.query.emplace_back(kv.substr(0, eq), eq == std::string::npos ? "" : kv.substr(eq + 1));
+  }
+  return u;
+}
+
+std::unique_ptr<Target> open_target(const std::string& text) {
+  Uri u = parse_uri(text);
+  if (u.scheme == "ref") return make_ref_target(u);
+  if (u.scheme == "tcp" || u.scheme == "rtu-tcp" || u.scheme == "rtu") return make_modbus_target(u);
+  if (u.scheme == "plugin") return make_plugin_target(u);
+  throw std::invalid_argument(
+      fmt::format("target '{}': unknown scheme '{}' (ref, tcp, rtu-tcp, rtu, plugin)", text, u.scheme));
+}
+
+void decode_rtu_reply(Reply& r, uint8_t slave) {
+  r.pdu.reset();
+  r.framing_error.clear();
+  if (r.frame.empty()) return;
+  if (r.frame.size() < 4) {
+    r.framing_error = fmt::format("reply of {} bytes is shorter than the 4 of an RTU frame", r.frame.size());
+    return;
+  }
+  if (r.frame.size() > 256) {
+    r.framing_error = fmt::format("reply of {} bytes exceeds the 256 of MB-SL v1.02 §2.5.1.1", r.frame.size());
+    return;
+  }
+  if (!crc_ok(r.frame)) {
+    uint16_t want = crc16(std::span(r.frame).first(r.frame.size() - 2));
+    r.framing_error = fmt::format("reply CRC {:02X} {:02X}, correct is {:02X} {:02X}", r.frame[r.frame.size() - 2],
+                                  r.frame.back(), want & 0xFF, want >> 8);
+    return;
+  }
+  if (r.frame[0] != slave) {
+    r.framing_error = fmt::format("reply from slave {}, request went to {}", r.frame[0], slave);
+    return;
+  }
+  r.pdu = Bytes(r.frame.begin() + 1, r.frame.end() - 2);
+}
+
+}  // namespace mbc::conf

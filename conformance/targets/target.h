@@ -1,0 +1,96 @@
+// The one seam between conformance code and the thing under test. Cases,
+// properties and the black-box fuzzer speak PDUs (and, for framing cases, raw
+// ADUs) to a Target; they never know whether it is the in-process reference,
+// a drive behind libmodbus on a serial line, Modbus TCP, RTU over TCP or a
+// vendor stack loaded as a plugin. One file per kind under conformance/targets/.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "codec/hex.h"
+
+namespace mbc::conf {
+
+// How frames travel: RTU kinds carry slave + PDU + CRC; MBAP kinds carry the
+// Modbus TCP header + PDU.
+enum class Framing { rtu, mbap };
+
+struct TargetInfo {
+  std::string uri;        // as given (normalised)
+  std::string kind;       // ref | tcp | rtu-tcp | rtu | plugin
+  Framing framing = Framing::rtu;
+  uint8_t unit = 1;       // the slave id / unit id cases address
+  bool live = false;      // a real device: the safety rules apply
+  bool virtual_clock = false;  // advance() moves the device's time
+  bool power_cycle = false;    // power_cycle() is available
+  bool raw = false;            // send_raw() is available (malformed frames)
+  std::optional<int> baud;     // serial line rate, for the wire-time bound
+  std::string device_id;       // the spec a ref: target carries, else empty
+};
+
+// One exchange. `frame` is what came back, as received (RTU: slave..CRC;
+// MBAP: header..PDU), empty on silence. `pdu` is set when a frame arrived
+// whose framing was valid (CRC right, slave/unit and transaction matching);
+// otherwise `framing_error` says what was wrong with it.
+struct Reply {
+  Bytes request;   // the bytes sent, as framed on the wire
+  Bytes frame;
+  std::optional<Bytes> pdu;
+  std::string framing_error;
+  std::chrono::microseconds latency{0};  // request sent -> last byte received (or timeout)
+  bool silent() const { return frame.empty(); }
+};
+
+class Target {
+ public:
+  virtual ~Target() = default;
+  virtual const TargetInfo& info() const = 0;
+
+  // Sends a well-formed request `pdu` to `unit` (0 = broadcast) and waits for
+  // the reply; on silence returns a Reply with an empty frame once the silence
+  // window has passed.
+  virtual Reply transact(uint8_t unit, std::span<const uint8_t> pdu) = 0;
+  Reply transact(std::span<const uint8_t> pdu) { return transact(info().unit, pdu); }
+
+  // Sends `bytes` exactly as given (for RTU framing: a whole ADU, possibly
+  // malformed; `gap_after` splits it by an inter-character pause after that
+  // many bytes). Only when info().raw; throws std::logic_error otherwise.
+  virtual Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after = std::nullopt) = 0;
+
+  // How long a negative case waits for silence. Live targets measure their
+  // latency and keep this a bounded multiple of it.
+  virtual std::chrono::microseconds silence_window() const { return std::chrono::microseconds(0); }
+
+  // Virtual time and power (ref and plugin targets); throw std::logic_error
+  // when the info() flag is false.
+  virtual void advance(std::chrono::microseconds dt) = 0;
+  virtual void power_cycle() = 0;
+};
+
+// Opens a target by URI:
+//   ref:<device-id>[?unit=N&fault=NAME[,NAME]]
+//   tcp://HOST:PORT?unit=N   rtu-tcp://HOST:PORT?unit=N
+//   rtu:///dev/ttyUSB0?baud=115200&parity=N&data=8&stop=1&unit=N
+//   plugin:PATH.so[?device=ID&unit=N]
+// Throws std::invalid_argument (bad URI) or std::runtime_error (cannot open).
+std::unique_ptr<Target> open_target(const std::string& uri);
+
+// The URI split into its parts ("rtu:///dev/ttyUSB0?baud=9600" ->
+// scheme rtu, path /dev/ttyUSB0, query {baud: 9600}).
+struct Uri {
+  std::string scheme;
+  std::string host;
+  uint16_t port = 0;
+  std::string path;
+  std::vector<std::pair<std::string, std::string>> query;
+  std::optional<std::string> param(const std::string& key) const;
+};
+Uri parse_uri(const std::string& text);  // throws std::invalid_argument
+
+}  // namespace mbc::conf

@@ -1,0 +1,6 @@
+// mbconform run (being written).
+#include "commands.h"
+
+namespace mbc::cli {
+void add_run_command(CLI::App& app, int& exit_code) {}
+}  // namespace mbc::cli
