@@ -1,0 +1,74 @@
+// What a run found: plain data shared by the runner (`mbconform run`), the
+// property tests (`mbconform props`) and the black-box fuzzer, and written by
+// the report writers (report/*.cpp: JUnit XML, JSON, HTML, terminal).
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "codec/hex.h"
+
+namespace mbc::conf {
+
+// MUST: the manual's or the standard's requirement; SHOULD: a recommendation;
+// OBSERVED: behaviour the manual leaves open, recorded, never failed.
+enum class Level { must, should, observed };
+enum class Outcome { pass, fail, skip, observed };
+const char* to_string(Level);
+const char* to_string(Outcome);
+
+// One frame exchanged by a case, kept for the report.
+struct FrameRecord {
+  std::string step;                 // what the step does ("write 0x0020 = 1000")
+  Bytes request;                    // as sent on the wire (framed)
+  std::optional<Bytes> expected;    // the exact reply expected, when one is
+  std::string expected_text;        // the expectation in words ("exception 03", "silence")
+  std::optional<Bytes> actual;      // as received; nullopt = silence
+  std::string request_decoded, actual_decoded;
+  double latency_us = 0;
+};
+
+struct CaseResult {
+  std::string id;           // stable: "<device>/<family>/<...>", "prop.<invariant>.<device>"
+  std::string family;       // examples | registers | function-codes | framing | deviations | properties | ...
+  std::string clause;       // manual section ("57HS-R §6.2.4") or standard clause ("MBAP v1.1b3 §6.3")
+  Level level = Level::must;
+  std::string title;
+  std::string requirement;  // the sentence checked, quoted where possible
+  Outcome outcome = Outcome::skip;
+  std::string message;      // why it failed / was skipped / what was observed
+  std::optional<uint16_t> register_address;  // for the per-register table
+  std::vector<FrameRecord> frames;
+  std::vector<std::string> errata;  // erratum ids the case relies on
+  double duration_ms = 0;
+  nlohmann::json extra = nlohmann::json::object();  // e.g. props: cases, seed, counterexample
+};
+
+// One device (one target) in a run.
+struct DeviceRun {
+  std::string device_id;
+  std::string target_uri;
+  std::string spec_path;
+  std::vector<CaseResult> cases;
+  std::vector<double> latencies_us;  // every answered exchange
+  uint64_t frames_sent = 0, bytes_sent = 0, bytes_received = 0;
+  double wall_seconds = 0;
+  std::optional<int> baud;          // for the wire-time bound
+  double wire_time_bound_seconds = 0;  // bytes at the baud rate + 3.5 char gaps
+  std::vector<std::string> restore_failures;  // registers a live run could not put back
+  bool interrupted = false;
+};
+
+struct RunReport {
+  std::string command;      // "run" | "props" | "fuzz"
+  std::string started_at;   // ISO 8601 UTC
+  std::string version;
+  std::vector<DeviceRun> devices;
+  bool interrupted = false;
+};
+
+}  // namespace mbc::conf
