@@ -1,12 +1,15 @@
 // ref:<device-id>: the reference device in-process, behind the same RTU
 // framing a serial master uses (so the ADU path, CRC and slave filtering are
-// exercised), on a virtual clock the caller advances.
+// exercised), on a virtual clock the caller advances. `fault=NAME[,NAME]`
+// serves a deliberately broken device (reference/faults/faults.h), the
+// target that shows a case or property can fail.
 #include <fmt/core.h>
 
 #include <charconv>
 #include <stdexcept>
 
 #include "engine/device.h"
+#include "faults/faults.h"
 #include "loader.h"
 #include "master/pdu.h"
 #include "targets/kinds.h"
@@ -43,8 +46,19 @@ class RefTarget final : public Target {
     info_.raw = true;
     info_.baud = s.serial.baud_default;
     info_.device_id = s.device.id;
+    faults::FaultSet faults;
+    if (auto f = u.param("fault")) {
+      try {
+        faults = faults::parse_faults(*f);
+      } catch (const std::invalid_argument& e) {
+        throw std::invalid_argument(fmt::format("target parameter fault={}: {}", *f, e.what()));
+      }
+    }
     info_.uri = fmt::format("ref:{}?unit={}", s.device.id, unit);
-    bus_.add(std::make_unique<ref::Device>(std::move(s), uint8_t(unit)));
+    if (!faults.empty()) info_.uri += "&fault=" + faults.names();
+    ref::Bus bus;
+    bus.add(std::make_unique<ref::Device>(std::move(s), uint8_t(unit)));
+    bus_ = faults::FaultyBus(std::move(bus), faults);
   }
 
   const TargetInfo& info() const override { return info_; }
@@ -85,7 +99,7 @@ class RefTarget final : public Target {
   }
 
   TargetInfo info_;
-  ref::Bus bus_;
+  faults::FaultyBus bus_;  // the correct device when no fault= was given
 };
 
 }  // namespace

@@ -159,7 +159,7 @@ struct PtyEndpoint {
 }  // namespace
 
 struct Server::Impl {
-  ref::Bus bus;
+  faults::FaultyBus bus;  // the correct devices when opt.faults is empty
   Options opt;
   std::vector<Listener> listeners;
   std::vector<PtyEndpoint> ptys;
@@ -169,7 +169,7 @@ struct Server::Impl {
   Clock::time_point clock_at;          // the bus clock stands at this real time
   sigset_t run_mask;                   // the mask ppoll waits with (stop signals open)
 
-  Impl(ref::Bus b, Options o) : bus(std::move(b)), opt(std::move(o)) {}
+  Impl(ref::Bus b, Options o) : bus(std::move(b), o.faults), opt(std::move(o)) {}
 
   ~Impl() {
     for (auto& l : listeners) ::close(l.fd);

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "engine/device.h"
+#include "faults/faults.h"
 
 namespace mbc::serve {
 
@@ -42,6 +43,7 @@ struct Options {
   int baud = 19200;              // the pty's nominal rate: sets the frame gap
   std::optional<int> line_rate;  // pace RTU replies at this rate's wire time
   bool trace = false;            // every frame to stderr
+  faults::FaultSet faults;       // injected into every device served (empty: correct devices)
 };
 
 class Server {

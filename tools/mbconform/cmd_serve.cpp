@@ -5,6 +5,7 @@
 
 #include "commands.h"
 #include "loader.h"
+#include "faults/faults.h"
 #include "serve/server.h"
 
 namespace mbc::cli {
@@ -16,6 +17,8 @@ struct ServeArgs {
   std::string eeprom_dir;
   std::optional<int> baud, line_rate;
   bool trace = false;
+  std::vector<std::string> faults;  // --fault NAME[,NAME], repeatable
+  bool list_faults = false;
 };
 
 // Argument mistakes become CLI::ValidationError: message + exit 2.
@@ -30,6 +33,12 @@ serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_
   o.eeprom_dir = a.eeprom_dir;
   o.trace = a.trace;
   o.line_rate = a.line_rate;
+  try {
+    for (const auto& f : a.faults)
+      for (auto x : faults::parse_faults(f).list()) o.faults.add(x);
+  } catch (const std::invalid_argument& e) {
+    throw CLI::ValidationError("--fault", e.what());
+  }
   // The nominal pty rate: as given, else the first device's default (its
   // manual's), else the standard's required default 19200 (MB-SL v1.02 §3.2).
   o.baud = a.baud.value_or(first_device_baud.value_or(19200));
@@ -63,8 +72,8 @@ ref::Bus bus_from(const std::vector<std::string>& args) {
 void add_serve_command(CLI::App& app, int& exit_code) {
   static ServeArgs a;
   auto* cmd = app.add_subcommand("serve", "Serve reference devices on Modbus TCP, RTU over TCP and a pty");
-  cmd->add_option("--device", a.devices, "ID[@SLAVE]: a device on the bus (slave 1 if omitted); repeatable")
-      ->required();
+  // Required unless --list-faults: bus_from() says so.
+  cmd->add_option("--device", a.devices, "ID[@SLAVE]: a device on the bus (slave 1 if omitted); repeatable");
   auto* tcp = cmd->add_option("--tcp", a.tcp, "[HOST:]PORT: Modbus TCP (HOST 127.0.0.1 if omitted; PORT 0 picks one)");
   auto* rtu_tcp = cmd->add_option("--rtu-tcp", a.rtu_tcp, "[HOST:]PORT: RTU frames over TCP");
   auto* pty = cmd->add_option("--pty", a.pty, "PATH: RTU on a pseudo-terminal, PATH a symlink to it");
@@ -74,7 +83,15 @@ void add_serve_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--line-rate", a.line_rate, "pace RTU replies at the wire time of this baud rate")
       ->check(CLI::Range(300, 4000000));
   cmd->add_flag("--trace", a.trace, "log every frame to stderr");
+  cmd->add_option("--fault", a.faults,
+                  "NAME[,NAME]: serve deliberately broken devices (every device served); repeatable; see --list-faults");
+  cmd->add_flag("--list-faults", a.list_faults, "print the faults --fault takes, one per line, and exit");
   cmd->callback([&exit_code, cmd, tcp, rtu_tcp, pty] {
+    if (a.list_faults) {
+      for (const auto& f : faults::all_faults()) fmt::print("{:<22} {}\n", f.name, f.description);
+      exit_code = 0;
+      return;
+    }
     // Endpoints open and print their "listening" lines in command-line order.
     size_t next_tcp = 0, next_rtu_tcp = 0, next_pty = 0;
     for (const CLI::Option* opt : cmd->parse_order()) {
