@@ -1,6 +1,241 @@
-// mbconform run (being written).
+// mbconform run: the conformance cases generated from a spec, against any
+// target, with reports for people (HTML, terminal) and CI (JUnit, JSON).
+//
+//   mbconform run                                   # every reference device in-process
+//   mbconform run --target tcp://10.0.0.5:502?unit=3 --device hsc60 --allow-motion
+//   mbconform run --target ref:hsc60 --filter '*/registers/*' --plan
+//
+// Exit codes: 0 every MUST case passed; 1 a MUST case failed; 2 the run could
+// not be done (bad target, bad spec, bad arguments, interrupted).
+#include <fmt/core.h>
+#include <fnmatch.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <csignal>
+#include <ctime>
+#include <filesystem>
+#include <fstream>
+#include <regex>
+
+#include "cases/case.h"
 #include "commands.h"
+#include "loader.h"
+#include "report/report.h"
+#include "runner/runner.h"
+#include "targets/target.h"
 
 namespace mbc::cli {
-void add_run_command(CLI::App& app, int& exit_code) {}
+namespace {
+
+std::atomic<bool> g_stop{false};
+extern "C" void on_signal(int) { g_stop.store(true); }
+
+// The reference drives `run` tests when no target is named (README: the main job).
+const char* const kDefaultTargets[] = {"ref:sihong-57hs-r", "ref:hsc60", "ref:hanstar-7trsm5740q", "ref:rieding-dhe",
+                                       "ref:modbus-standard"};
+
+struct RunArgs {
+  std::vector<std::string> targets;
+  std::string device, spec_file, filter, out, summary_dir;
+  bool list = false, plan = false, junit_only = false, quiet = false;
+  conf::WritePolicy policy;
+};
+
+std::string utc_now(const char* fmt_) {
+  std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[64];
+  std::strftime(buf, sizeof buf, fmt_, &tm);
+  return buf;
+}
+
+// GLOB (fnmatch, '*' crosses '/') or, when it has regex syntax, an ECMAScript
+// regex searched in the id; a plain word matches as a substring.
+std::function<bool(const std::string&)> make_filter(const std::string& f) {
+  if (f.empty()) return [](const std::string&) { return true; };
+  if (f.find_first_of("^$()|+[]\\{}") != std::string::npos) {
+    std::regex re(f, std::regex::ECMAScript);
+    return [re](const std::string& id) { return std::regex_search(id, re); };
+  }
+  if (f.find_first_of("*?") != std::string::npos)
+    return [f](const std::string& id) { return fnmatch(f.c_str(), id.c_str(), 0) == 0; };
+  return [f](const std::string& id) { return id.find(f) != std::string::npos; };
+}
+
+// What a target will be, without opening it (for --list and --plan on live
+// targets: nothing is connected, nothing is sent).
+conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
+  conf::Uri u = conf::parse_uri(uri);
+  conf::TargetInfo i;
+  i.uri = uri;
+  i.kind = u.scheme;
+  i.framing = u.scheme == "tcp" ? conf::Framing::mbap : conf::Framing::rtu;
+  i.live = u.scheme != "ref" && u.scheme != "plugin";
+  i.raw = u.scheme != "tcp";
+  i.unit = uint8_t(std::stoi(u.param("unit").value_or(std::to_string(s.serial.slave_default.value_or(1)))));
+  if (auto b = u.param("baud")) i.baud = std::stoi(*b);
+  else if (u.scheme == "ref") i.baud = s.serial.baud_default;
+  return i;
+}
+
+int run(const RunArgs& a) {
+  std::vector<std::string> targets = a.targets;
+  if (targets.empty()) targets.assign(std::begin(kDefaultTargets), std::end(kDefaultTargets));
+
+  std::optional<spec::Spec> standard;
+  try {
+    standard = spec::load_spec_by_id("modbus-standard");
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "mbconform run: warning: no modbus-standard spec ({}); deviations are not checked\n", e.what());
+  }
+  std::optional<spec::Spec> named;
+  try {
+    if (!a.spec_file.empty()) {
+      auto lr = spec::load_spec_file(a.spec_file);
+      if (!lr.ok()) {
+        for (const auto& d : lr.diagnostics) fmt::print(stderr, "{}\n", d.str());
+        fmt::print(stderr, "mbconform run: error: {}: not a valid spec\n", a.spec_file);
+        return kExitUsage;
+      }
+      named = std::move(*lr.spec);
+    } else if (!a.device.empty()) {
+      named = spec::load_spec_by_id(a.device);
+    }
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "mbconform run: error: {}\n", e.what());
+    return kExitUsage;
+  }
+
+  auto keep = make_filter(a.filter);
+  conf::RunReport report;
+  report.command = "run";
+  report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
+  report.version = "mbconform 0.1";
+
+  std::signal(SIGINT, on_signal);
+  std::signal(SIGTERM, on_signal);
+  bool dry = a.list || a.plan;
+  bool tty = isatty(STDOUT_FILENO) && !a.quiet;
+  for (const auto& uri : targets) {
+    spec::Spec s;
+    try {
+      conf::Uri u = conf::parse_uri(uri);
+      if (named) s = *named;
+      else if (u.scheme == "ref") s = spec::load_spec_by_id(u.path);
+      else {
+        fmt::print(stderr, "mbconform run: error: target {}: name its spec with --device ID or --spec FILE\n", uri);
+        return kExitUsage;
+      }
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "mbconform run: error: target {}: {}\n", uri, e.what());
+      return kExitUsage;
+    }
+    std::unique_ptr<conf::Target> target;
+    conf::TargetInfo info;
+    try {
+      if (!dry || uri.rfind("ref:", 0) == 0) {
+        target = conf::open_target(uri);
+        info = target->info();
+      } else {
+        info = planned_info(uri, s);
+      }
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "mbconform run: error: cannot open target {}: {}\n", uri, e.what());
+      return kExitUsage;
+    }
+
+    conf::GenContext g{s, info, a.policy, standard ? &*standard : nullptr};
+    std::vector<conf::Case> cases;
+    for (auto& c : conf::all_cases(g))
+      if (keep(c.id)) cases.push_back(std::move(c));
+
+    if (a.list) {
+      for (const auto& c : cases)
+        fmt::print("{}  {}  {}  {}{}\n", c.id, conf::to_string(c.level), c.clause, c.title,
+                   c.skip_reason.empty() ? "" : "  [skip: " + c.skip_reason + "]");
+      continue;
+    }
+    if (a.plan) {
+      fmt::print("# {} ({} cases, unit {}, {})\n", info.uri, cases.size(), info.unit,
+                 info.framing == conf::Framing::rtu ? "RTU frames" : "MBAP PDUs");
+      for (const auto& c : cases) {
+        fmt::print("{}  [{}] {}\n", c.id, conf::to_string(c.level), c.clause);
+        if (!c.skip_reason.empty()) fmt::print("  (skip: {})\n", c.skip_reason);
+        for (const auto& l : conf::plan_lines(c, info)) fmt::print("{}\n", l);
+      }
+      continue;
+    }
+
+    fmt::print("{}: {} cases against {}\n", s.device.id, cases.size(), info.uri);
+    std::fflush(stdout);
+    conf::RunOptions opt;
+    opt.stop = &g_stop;
+    opt.on_case = [&](const conf::CaseResult& r, size_t done, size_t total) {
+      if (r.outcome == conf::Outcome::fail) {
+        fmt::print("{}{}\n", tty ? "\r\033[K" : "", conf::progress_line(r, done, total));
+      } else if (tty) {
+        fmt::print("\r\033[K{}", conf::progress_line(r, done, total));
+      }
+      std::fflush(stdout);
+    };
+    conf::DeviceRun dr = conf::run_cases(*target, s, cases, opt);
+    if (tty) fmt::print("\r\033[K");
+    report.devices.push_back(std::move(dr));
+    if (g_stop.load()) {
+      report.interrupted = true;
+      report.devices.back().interrupted = true;
+      break;
+    }
+  }
+  std::signal(SIGINT, SIG_DFL);
+  std::signal(SIGTERM, SIG_DFL);
+  if (dry) return kExitOk;
+
+  std::string out = a.out.empty() ? "reports/runs/" + utc_now("%Y%m%dT%H%M%SZ") : a.out;
+  try {
+    conf::write_reports(report, out, a.junit_only);
+    if (!a.summary_dir.empty()) {
+      std::filesystem::create_directories(a.summary_dir);
+      auto sj = conf::stable_summary(report);
+      std::ofstream(a.summary_dir + "/summary.json") << sj.dump(1) << "\n";
+      std::ofstream(a.summary_dir + "/summary.md") << conf::summary_markdown(sj);
+    }
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "mbconform run: error: {}\n", e.what());
+    return kExitUsage;
+  }
+  fmt::print("{}", conf::summary_table(report));
+  fmt::print("reports: {}\n", out);
+  bool must_failed = false;
+  for (const auto& d : report.devices) must_failed |= conf::count(d).must_failed > 0;
+  if (must_failed) return kExitFailed;
+  if (report.interrupted) return kExitUsage;
+  return kExitOk;
+}
+
+}  // namespace
+
+void add_run_command(CLI::App& app, int& exit_code) {
+  auto a = std::make_shared<RunArgs>();
+  auto* cmd = app.add_subcommand("run", "Run the conformance cases generated from a spec against targets; write reports");
+  cmd->add_option("--target", a->targets,
+                  "ref:ID | tcp://HOST:PORT?unit=N | rtu-tcp://HOST:PORT?unit=N | rtu:///dev/tty?baud=B&unit=N | plugin:PATH.so "
+                  "(repeatable; default: every reference device)");
+  cmd->add_option("--device", a->device, "the spec (spec/devices/ID.yaml) a live target is tested against");
+  cmd->add_option("--spec", a->spec_file, "a spec file a live target is tested against");
+  cmd->add_flag("--list", a->list, "print the cases (id, level, clause, title) and exit");
+  cmd->add_option("--filter", a->filter, "select cases by id: a glob ('*/registers/*'), a regex, or a substring");
+  cmd->add_flag("--plan", a->plan, "print every frame the cases would send, without sending anything");
+  cmd->add_option("--out", a->out, "report directory (default reports/runs/<UTC date-time>/)");
+  cmd->add_option("--summary", a->summary_dir, "also write the stable summary.md and summary.json into this directory");
+  cmd->add_flag("--allow-motion", a->policy.allow_motion, "live targets: allow writes to command and motion registers");
+  cmd->add_flag("--allow-eeprom-writes", a->policy.allow_eeprom_writes, "live targets: allow writes that wear EEPROM/flash");
+  cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
+  cmd->add_flag("--quiet", a->quiet, "no progress line");
+  cmd->callback([a, &exit_code] { exit_code = run(*a); });
+}
+
 }  // namespace mbc::cli

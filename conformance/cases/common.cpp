@@ -1,0 +1,226 @@
+#include "cases/common.h"
+
+#include <fmt/core.h>
+
+#include <bit>
+#include <cmath>
+#include <limits>
+
+#include "master/pdu.h"
+
+// Until safety/safety.cpp lands (helper A), may_write is weak: live targets
+// then write nothing, reference targets never call it.
+namespace mbc::conf {
+WriteDecision may_write(const spec::Spec&, const spec::Register&, const TargetInfo&, const WritePolicy&)
+    __attribute__((weak));
+}
+
+namespace mbc::conf::cases {
+
+bool safety_available() { return &mbc::conf::may_write != nullptr; }
+
+using spec::Access;
+using spec::DataType;
+using spec::Register;
+using spec::Table;
+using spec::Violation;
+
+std::string clause(const spec::Spec& s, const std::string& section) {
+  if (section.rfind("MBAP", 0) == 0 || section.rfind("MB-SL", 0) == 0) return section;
+  if (section.empty()) return s.device.id;
+  return fmt::format("{} §{}", s.device.id, section);
+}
+
+std::string hex16(unsigned v) { return fmt::format("0x{:04X}", v); }
+
+int64_t type_min(const Register& r) {
+  switch (r.type) {
+    case DataType::s16: return -32768;
+    case DataType::s32: return std::numeric_limits<int32_t>::min();
+    case DataType::bit: return 0;
+    case DataType::f32: return std::numeric_limits<int32_t>::min();
+    default: return 0;
+  }
+}
+
+int64_t type_max(const Register& r) {
+  switch (r.type) {
+    case DataType::s16: return 32767;
+    case DataType::s32: return std::numeric_limits<int32_t>::max();
+    case DataType::bit: return 1;
+    case DataType::f32: return std::numeric_limits<int32_t>::max();
+    default: return r.words == 2 ? int64_t(0xFFFFFFFF) : 0xFFFF;
+  }
+}
+
+std::vector<uint16_t> encode(const Register& r, int64_t raw) {
+  if (r.words == 1) return {uint16_t(uint64_t(raw) & 0xFFFF)};
+  uint32_t v = uint32_t(uint64_t(raw) & 0xFFFFFFFF);
+  uint16_t hi = uint16_t(v >> 16), lo = uint16_t(v & 0xFFFF);
+  // word_order names the word at the LOWER address (spec/README.md).
+  if (r.word_order == spec::WordOrder::low_first) return {lo, hi};
+  return {hi, lo};
+}
+
+bool has_fc(const spec::Spec& s, int fc) { return s.profile.function(fc) != nullptr; }
+
+std::optional<Step> read_range_step(const GenContext& g, Table t, uint16_t address, uint16_t quantity, Expect e) {
+  int fc = t == Table::holding ? 3 : t == Table::input ? 4 : t == Table::coil ? 1 : 2;
+  if (!has_fc(g.spec, fc)) return std::nullopt;
+  Step s;
+  s.unit = g.target.unit;
+  s.pdu = read_request(uint8_t(fc), address, quantity);
+  s.what = fmt::format("read {} x{} (FC {:02})", hex16(address), quantity, fc);
+  s.expect = std::move(e);
+  return s;
+}
+
+std::optional<Step> read_step(const GenContext& g, const Register& r, Expect e) {
+  return read_range_step(g, r.table, r.address, uint16_t(r.words), std::move(e));
+}
+
+Expect write_echo(const Bytes& req) {
+  Expect e;
+  e.kind = Expect::Kind::exact;
+  uint8_t fc = req.empty() ? 0 : req[0];
+  if (fc == 5 || fc == 6 || fc == 22) {
+    e.pdu = req;  // MBAP v1.1b3 §6.5, §6.6, §6.16: the response is an echo of the request
+    e.text = "echo of the request";
+  } else {
+    e.pdu.assign(req.begin(), req.begin() + std::min<size_t>(5, req.size()));  // §6.11, §6.12: FC, address, quantity
+    e.text = "FC, address and quantity of the request";
+  }
+  return e;
+}
+
+std::optional<Step> write_step(const GenContext& g, const Register& r, const std::vector<uint16_t>& words,
+                               std::optional<Expect> e) {
+  Step s;
+  s.unit = g.target.unit;
+  if (r.table == Table::coil) {
+    if (words.size() == 1 && has_fc(g.spec, 5)) {
+      s.pdu = write_single_coil(r.address, words[0] != 0);
+    } else if (has_fc(g.spec, 15)) {
+      std::vector<bool> bits;
+      for (auto w : words) bits.push_back(w != 0);
+      bool arr[2000];
+      for (size_t i = 0; i < bits.size(); ++i) arr[i] = bits[i];
+      s.pdu = write_multiple_coils(r.address, std::span<const bool>(arr, bits.size()));
+    } else {
+      return std::nullopt;
+    }
+  } else if (r.table == Table::holding) {
+    if (words.size() == 1 && has_fc(g.spec, 6)) {
+      s.pdu = write_single_register(r.address, words[0]);
+    } else if (has_fc(g.spec, 16)) {
+      s.pdu = write_multiple_registers(r.address, words);
+    } else {
+      return std::nullopt;
+    }
+  } else {
+    return std::nullopt;
+  }
+  std::string vals;
+  for (auto w : words) vals += fmt::format("{}{:04X}", vals.empty() ? "" : " ", w);
+  s.what = fmt::format("write {} = [{}] (FC {:02})", hex16(r.address), vals, s.pdu[0]);
+  s.expect = e ? std::move(*e) : write_echo(s.pdu);
+  return s;
+}
+
+PolicyExpect policy_expect(const GenContext& g, Violation v) {
+  PolicyExpect out;
+  spec::PolicyEntry p = g.spec.profile.policy(v);
+  out.erratum = p.erratum;
+  if (p.kind == spec::PolicyEntry::Kind::unspecified) {
+    out.level = Level::observed;
+    // The manual is silent: record what the device does beside the standard's answer.
+    spec::PolicyEntry std_p = g.standard ? g.standard->profile.policy(v) : spec::PolicyEntry{};
+    out.clause = g.standard ? clause(*g.standard, std_p.section) : "MBAP v1.1b3 §7";
+    if (std_p.kind == spec::PolicyEntry::Kind::exception)
+      out.expect = exception(uint8_t(std_p.code), fmt::format("the standard's exception {:02X} ({} is not stated in the manual)", std_p.code, spec::to_string(v)));
+    else if (std_p.kind == spec::PolicyEntry::Kind::silent)
+      out.expect = silence(fmt::format("silence, as the standard ({} is not stated in the manual)", spec::to_string(v)));
+    else
+      out.expect.text = "not stated";
+    return out;
+  }
+  out.clause = clause(g.spec, p.section.empty() ? g.spec.profile.section : p.section);
+  if (p.kind == spec::PolicyEntry::Kind::exception)
+    out.expect = exception(uint8_t(p.code), fmt::format("exception {:02X} (policy {})", p.code, spec::to_string(v)));
+  else
+    out.expect = silence(fmt::format("silence (policy {})", spec::to_string(v)));
+  return out;
+}
+
+std::string write_forbidden(const GenContext& g, const Register& r) {
+  // A line setting that takes effect at once would cut the run off from the device.
+  for (const auto& st : g.spec.serial.settings)
+    if (st.register_address == r.address && r.table == Table::holding &&
+        r.takes_effect == spec::TakesEffect::immediate)
+      return fmt::format("{} sets the {} at once; writing it would lose the device for the rest of the run",
+                         hex16(r.address), st.setting);
+  if (g.target.live) {
+    if (!safety_available()) return "live target: the safety module (safety/safety.cpp) is not built, nothing is written";
+    WriteDecision d = may_write(g.spec, r, g.target, g.policy);
+    if (!d.allowed) return d.reason;
+  }
+  return "";
+}
+
+const Register* plain_register(const GenContext& g) {
+  for (const auto& r : g.spec.registers) {
+    if (r.table != Table::holding || r.access != Access::rw || r.words != 1) continue;
+    if (!write_forbidden(g, r).empty()) continue;
+    if (r.persistence.store != spec::Store::none && g.target.live && !g.policy.allow_eeprom_writes) continue;
+    if (!r.range || r.range->max <= r.range->min) continue;
+    return &r;
+  }
+  return nullptr;
+}
+
+std::string describe(const Expect& e) {
+  if (!e.text.empty()) return e.text;
+  switch (e.kind) {
+    case Expect::Kind::none: return "anything (recorded)";
+    case Expect::Kind::exact: return "exactly " + to_hex(e.pdu);
+    case Expect::Kind::exception: return fmt::format("exception {:02X}", e.code);
+    case Expect::Kind::silence: return "silence";
+    case Expect::Kind::normal: return "a well-formed normal reply";
+    case Expect::Kind::registers: {
+      std::string s;
+      for (auto w : e.words) s += fmt::format("{}{:04X}", s.empty() ? "" : " ", w);
+      return "registers [" + s + "]";
+    }
+    case Expect::Kind::unchanged: return "the value read before the write (unchanged)";
+  }
+  return "";
+}
+
+Expect exact(Bytes pdu, std::string text) {
+  Expect e;
+  e.kind = Expect::Kind::exact;
+  e.pdu = std::move(pdu);
+  e.text = std::move(text);
+  return e;
+}
+Expect exception(uint8_t code, std::string text) {
+  Expect e;
+  e.kind = Expect::Kind::exception;
+  e.code = code;
+  e.text = text.empty() ? fmt::format("exception {:02X}", code) : std::move(text);
+  return e;
+}
+Expect silence(std::string text) {
+  Expect e;
+  e.kind = Expect::Kind::silence;
+  e.text = text.empty() ? "silence" : std::move(text);
+  return e;
+}
+Expect normal(std::string text) {
+  Expect e;
+  e.kind = Expect::Kind::normal;
+  e.text = text.empty() ? "a well-formed normal reply" : std::move(text);
+  return e;
+}
+
+}  // namespace mbc::conf::cases

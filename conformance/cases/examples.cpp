@@ -1,0 +1,221 @@
+// Family "examples": every frame the manual prints, replayed in the state the
+// manual implies (given:), with the effect it states checked (after:), worked
+// sequences in step order. The expected bytes are the printed response (or an
+// erratum's resolved reading, whose id the case records); where no response is
+// printed the standard's (MBAP v1.1b3 §6) echo or a well-formed reply is
+// expected. A printed frame addressed to another slave id is re-framed for the
+// target's unit; a deliberately corrupted CRC keeps its corruption.
+#include <fmt/core.h>
+
+#include <algorithm>
+#include <map>
+
+#include "cases/common.h"
+#include "codec/crc16.h"
+#include "master/pdu.h"
+
+namespace mbc::conf {
+namespace {
+
+using cases::clause;
+using cases::hex16;
+
+std::string slug(const std::string& s) {
+  std::string out;
+  for (char c : s) out += (c == ' ' || c == '/' || c == ';' || c == ',') ? '_' : c;
+  while (out.find("__") != std::string::npos) out.replace(out.find("__"), 2, "_");
+  return out.empty() ? "-" : out;
+}
+
+// The registers a write request PDU covers (FC 05/06/15/16/22/23), for
+// per-case restore and the safety check.
+std::vector<std::pair<uint16_t, int>> written_by(const Bytes& pdu) {
+  if (pdu.size() < 5) return {};
+  auto be = [&](size_t at) { return uint16_t(pdu[at] << 8 | pdu[at + 1]); };
+  switch (pdu[0]) {
+    case 6: case 22: return {{be(1), 1}};
+    case 16: return {{be(1), std::min<int>(be(3), 125)}};
+    case 23: return pdu.size() >= 9 ? std::vector<std::pair<uint16_t, int>>{{be(5), std::min<int>(be(7), 125)}}
+                                    : std::vector<std::pair<uint16_t, int>>{};
+    default: return {};
+  }
+}
+
+struct Built {
+  std::vector<Step> steps;
+  std::string skip;
+  bool given_unsettable = false;
+  std::string note;
+};
+
+// Steps that set `given` values through the bus (setup).
+void add_given(const GenContext& g, const spec::Example& ex, Built& b, std::vector<std::pair<uint16_t, int>>& touches) {
+  for (const auto& v : ex.given) {
+    const spec::Register* r = g.spec.find_register(v.address, v.table);
+    if (!r) r = g.spec.register_covering(v.address, v.table);
+    if (!r || (r->access != spec::Access::rw)) {
+      // Status the manual prints but the bus cannot set: the reply is recorded, not failed.
+      b.given_unsettable = true;
+      b.note += fmt::format("given {} = {} cannot be set through the bus; ", hex16(v.address), v.value);
+      continue;
+    }
+    if (auto why = cases::write_forbidden(g, *r); !why.empty()) {
+      b.skip = "given state: " + why;
+      return;
+    }
+    auto st = cases::write_step(g, *r, cases::encode(*r, int64_t(v.value)));
+    if (!st) {
+      b.given_unsettable = true;
+      b.note += fmt::format("given {}: the profile has no function to write it; ", hex16(v.address));
+      continue;
+    }
+    st->setup = true;
+    st->what = "given: " + st->what;
+    if (r->table == spec::Table::holding) touches.push_back({r->address, r->words});
+    b.steps.push_back(std::move(*st));
+  }
+}
+
+void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::vector<std::pair<uint16_t, int>>& touches,
+                 std::vector<std::string>& errata) {
+  for (const auto& e : ex.errata)
+    if (std::find(errata.begin(), errata.end(), e) == errata.end()) errata.push_back(e);
+  add_given(g, ex, b, touches);
+  if (!b.skip.empty()) return;
+
+  auto req = parse_hex(ex.resolved_request.value_or(ex.request));
+  if (!req || req->size() < 2) {
+    b.skip = "the printed request is not a frame (erratum without a resolved reading)";
+    return;
+  }
+  uint8_t printed_slave = (*req)[0];
+  bool broadcast = printed_slave == 0;
+  uint8_t unit = broadcast ? 0 : g.target.unit;
+  bool crc_valid = req->size() >= 4 && crc_ok(*req);
+
+  // Expected reply.
+  Expect e;
+  std::optional<std::string> resp_hex = ex.resolved_response ? ex.resolved_response : ex.response;
+  if (ex.resolved_silent || ex.no_reply || broadcast) {
+    e = cases::silence(ex.resolved_silent ? "silence (resolved reading of the erratum)"
+                                          : broadcast ? "silence (broadcast: MB-SL v1.02 §2.1)" : "silence (the source says no reply)");
+  } else if (resp_hex) {
+    auto resp = parse_hex(*resp_hex);
+    if (!resp || resp->size() < 4) {
+      b.skip = "the printed response is not a frame";
+      return;
+    }
+    Bytes pdu(resp->begin() + 1, resp->end() - 2);
+    e = cases::exact(pdu, "the printed response");
+    if (crc_ok(*resp)) e.adu = rtu_frame(unit, pdu);
+    else b.note += "printed response CRC is wrong; the PDU is compared; ";
+  } else {
+    Bytes pdu(req->begin() + 1, req->end() - (crc_valid ? 2 : 0));
+    uint8_t fc = pdu.empty() ? 0 : pdu[0];
+    if (fc == 5 || fc == 6 || fc == 15 || fc == 16) e = cases::write_echo(pdu);
+    else e = cases::normal("a well-formed normal reply (no response printed)");
+  }
+
+  Step s;
+  s.what = fmt::format("{} ({})", ex.id, ex.does.empty() ? "printed frame" : ex.does.substr(0, 80));
+  if (crc_valid) {
+    s.kind = Step::Kind::pdu;
+    s.unit = unit;
+    s.pdu.assign(req->begin() + 1, req->end() - 2);
+  } else {
+    // A frame the manual corrupts on purpose: it goes out raw, re-addressed to
+    // the target with the same CRC error (the XOR from the correct CRC is kept).
+    if (!g.target.raw || g.target.framing != Framing::rtu) {
+      b.skip = "the printed request has a wrong CRC and the target cannot send raw RTU frames";
+      return;
+    }
+    Bytes adu = *req;
+    if (adu.size() >= 4) {
+      uint16_t printed = uint16_t(adu[adu.size() - 2] | adu.back() << 8);
+      uint16_t right = crc16(std::span(adu).first(adu.size() - 2));
+      adu[0] = unit;
+      uint16_t now = crc16(std::span(adu).first(adu.size() - 2)) ^ uint16_t(printed ^ right);
+      adu[adu.size() - 2] = uint8_t(now & 0xFF);
+      adu.back() = uint8_t(now >> 8);
+    }
+    s.kind = Step::Kind::raw;
+    s.adu = std::move(adu);
+  }
+  s.expect = std::move(e);
+  if (s.kind == Step::Kind::pdu) {
+    for (auto [addr, n] : written_by(s.pdu)) {
+      touches.push_back({addr, n});
+      if (const spec::Register* r = g.spec.register_covering(addr))
+        if (auto why = cases::write_forbidden(g, *r); !why.empty() && g.target.live) {
+          b.skip = why;
+          return;
+        }
+    }
+  }
+  b.steps.push_back(std::move(s));
+
+  for (const auto& v : ex.after) {
+    const spec::Register* r = g.spec.find_register(v.address, v.table);
+    if (!r) continue;
+    Expect want;
+    want.kind = Expect::Kind::registers;
+    want.words = cases::encode(*r, int64_t(v.value));
+    want.text = fmt::format("{} = {} (after: the effect the manual states)", hex16(v.address), v.value);
+    if (r->table == spec::Table::coil || r->table == spec::Table::discrete_input) want.words = {uint16_t(v.value != 0)};
+    if (auto rd = cases::read_step(g, *r, want)) b.steps.push_back(std::move(*rd));
+  }
+}
+
+}  // namespace
+
+std::vector<Case> examples_cases(const GenContext& g) {
+  std::vector<Case> out;
+  std::map<std::string, std::vector<const spec::Example*>> sequences;
+  std::vector<std::vector<const spec::Example*>> groups;
+  std::map<std::string, size_t> seq_group;
+  for (const auto& ex : g.spec.examples) {
+    if (ex.sequence.empty()) {
+      groups.push_back({&ex});
+    } else {
+      auto [it, fresh] = seq_group.emplace(ex.sequence, groups.size());
+      if (fresh) groups.push_back({});
+      groups[it->second].push_back(&ex);
+    }
+  }
+  for (auto& grp : groups) {
+    std::stable_sort(grp.begin(), grp.end(), [](auto* a, auto* b) { return a->step < b->step; });
+    const spec::Example& first = *grp.front();
+    Case c;
+    c.family = "examples";
+    bool seq = !first.sequence.empty();
+    c.id = fmt::format("{}/examples/{}/{}", g.spec.device.id, slug(first.section), seq ? first.sequence : first.id);
+    c.clause = clause(g.spec, first.section);
+    c.level = Level::must;
+    c.title = seq ? fmt::format("sequence {} ({} steps) as printed", first.sequence, grp.size())
+                  : fmt::format("printed frame {}", first.id);
+    c.requirement = seq ? fmt::format("The worked sequence of §{} gives these replies in step order.", first.section)
+                        : (first.does.empty() ? "The device answers the printed request with the printed response." : first.does);
+    Built b;
+    for (const auto* ex : grp) {
+      add_example(g, *ex, b, c.touches, c.errata);
+      if (!b.skip.empty()) break;
+    }
+    c.steps = std::move(b.steps);
+    c.skip_reason = b.skip;
+    if (b.given_unsettable) {
+      // The manual's state cannot be reached through the bus: what the device
+      // answers is recorded, not judged.
+      c.level = Level::observed;
+      c.requirement += " [" + b.note + "reply recorded]";
+    } else if (!b.note.empty()) {
+      c.requirement += " [" + b.note.substr(0, b.note.size() - 2) + "]";
+    }
+    if (auto req = parse_hex(first.request); req && req->size() >= 6 && crc_ok(*req) &&
+                                             (req->at(1) == 3 || req->at(1) == 6 || req->at(1) == 4))
+      c.register_address = uint16_t(req->at(2) << 8 | req->at(3));
+    out.push_back(std::move(c));
+  }
+  return out;
+}
+
+}  // namespace mbc::conf

@@ -1,0 +1,319 @@
+// Family "function-codes": per supported function code, the quantity field at
+// 0, 1, the limit and the limit + 1 (the manual's max_quantity, else the
+// standard's: MBAP v1.1b3 §6.1-6.4, §6.11, §6.12, then OBSERVED), ranges that
+// run past the end of the map or through a gap, and every public function
+// code (MBAP v1.1b3 §5.1) the profile does not list.
+#include <fmt/core.h>
+
+#include <algorithm>
+
+#include "cases/common.h"
+#include "master/pdu.h"
+
+namespace mbc::conf {
+namespace {
+
+using cases::clause;
+using cases::hex16;
+using spec::Access;
+using spec::Register;
+using spec::Table;
+using spec::Violation;
+
+// MBAP v1.1b3 §5.1 Figure 10: the public function codes, plus two from the
+// user-defined ranges 65-72 and 100-110 (§5).
+constexpr int kPublicCodes[] = {1, 2, 3, 4, 5, 6, 7, 8, 11, 12, 15, 16, 17, 20, 21, 22, 23, 24, 43, 65, 100};
+// MBAP v1.1b3 §4.1: a PDU is at most 253 bytes.
+constexpr size_t kMaxPdu = 253;
+
+bool readable(const Register* r) { return r && r->access != Access::wo && r->access != Access::command; }
+
+struct Gen {
+  const GenContext& g;
+  std::vector<Case>& out;
+
+  Case base(int fc, const std::string& what, const std::string& section) {
+    Case c;
+    c.family = "function-codes";
+    c.id = fmt::format("{}/function-codes/fc{:02}/{}", g.spec.device.id, fc, what);
+    c.clause = clause(g.spec, section);
+    return c;
+  }
+
+  void add(Case c, std::optional<Step> st) {
+    if (!st) return;
+    c.steps.push_back(std::move(*st));
+    out.push_back(std::move(c));
+  }
+
+  // The limit the case tests and whether the manual states it.
+  std::pair<int, bool> limit_of(const spec::FunctionCode& f) {
+    if (f.max_quantity) return {*f.max_quantity, true};
+    if (g.standard)
+      if (const auto* s = g.standard->profile.function(f.code); s && s->max_quantity) return {*s->max_quantity, false};
+    return {0, false};
+  }
+
+  // The first address where `n` consecutive addresses of `t` are all readable.
+  std::optional<uint16_t> readable_run(Table t, int n) {
+    int run = 0;
+    std::optional<uint32_t> start;
+    std::optional<uint16_t> last = g.spec.last_address(t);
+    if (!last) return std::nullopt;
+    for (uint32_t a = 0; a <= *last; ++a) {
+      if (readable(g.spec.register_covering(uint16_t(a), t))) {
+        if (run == 0) start = a;
+        if (++run >= n) return uint16_t(*start);
+      } else {
+        run = 0;
+      }
+    }
+    return std::nullopt;
+  }
+
+  // The first unmapped address with mapped registers on both sides, and the
+  // readable register just below it.
+  std::optional<std::pair<uint16_t, const Register*>> gap(Table t) {
+    std::optional<uint16_t> last = g.spec.last_address(t);
+    if (!last) return std::nullopt;
+    const Register* prev = nullptr;
+    for (uint32_t a = 0; a < *last; ++a) {
+      const Register* r = g.spec.register_covering(uint16_t(a), t);
+      if (r) {
+        prev = r;
+        continue;
+      }
+      if (prev && readable(prev) && prev->last_address() + 1 == a) return std::make_pair(uint16_t(a), prev);
+    }
+    return std::nullopt;
+  }
+
+  const Register* last_register(Table t) {
+    const Register* last = nullptr;
+    for (const auto& r : g.spec.registers)
+      if (r.table == t) last = &r;
+    return last;
+  }
+
+  Case with_policy(Case c, Violation v) {
+    auto pe = cases::policy_expect(g, v);
+    c.level = pe.level;
+    c.clause = pe.clause;
+    if (!pe.erratum.empty()) c.errata.push_back(pe.erratum);
+    return c;
+  }
+
+  void reads(const spec::FunctionCode& f) {
+    Table t = spec::table_for_function(f.code);
+    auto [limit, stated] = limit_of(f);
+    std::optional<uint16_t> first = readable_run(t, 1);
+    if (!first) return;
+    {
+      auto pe = cases::policy_expect(g, Violation::quantity_zero);
+      Case c = with_policy(base(f.code, "quantity-0", f.section), Violation::quantity_zero);
+      c.title = fmt::format("FC {:02} with quantity 0", f.code);
+      c.requirement = fmt::format("Quantity 0 is outside 1..N (MBAP v1.1b3 §6.{}): {}.", f.code, pe.expect.text);
+      add(std::move(c), cases::read_range_step(g, t, *first, 0, pe.expect));
+    }
+    {
+      Case c = base(f.code, "quantity-1", f.section);
+      c.title = fmt::format("FC {:02} reads 1 item at {}", f.code, hex16(*first));
+      c.requirement = "A read of one mapped, readable item gets a normal reply.";
+      add(std::move(c), cases::read_range_step(g, t, *first, 1, cases::normal("a normal reply with 1 item")));
+    }
+    if (limit > 0) {
+      Case c = base(f.code, "quantity-limit", f.section);
+      c.level = stated ? Level::must : Level::observed;
+      c.title = fmt::format("FC {:02} reads the limit of {} items", f.code, limit);
+      c.requirement = stated ? fmt::format("The manual allows up to {} items per request.", limit)
+                             : fmt::format("The manual states no limit; the standard's is {}.", limit);
+      std::optional<uint16_t> at = readable_run(t, limit);
+      if (!at) {
+        c.skip_reason = fmt::format("no run of {} consecutive readable addresses in the map", limit);
+        out.push_back(std::move(c));
+      } else {
+        add(std::move(c), cases::read_range_step(g, t, *at, uint16_t(limit), cases::normal(fmt::format("a normal reply with {} items", limit))));
+      }
+      auto pe = cases::policy_expect(g, Violation::quantity_over_limit);
+      Case o = with_policy(base(f.code, "quantity-limit+1", f.section), Violation::quantity_over_limit);
+      if (!stated) o.level = Level::observed;
+      o.title = fmt::format("FC {:02} reads {} items, one over the limit", f.code, limit + 1);
+      o.requirement = fmt::format("Over the limit of {}: {}.", limit, pe.expect.text);
+      add(std::move(o), cases::read_range_step(g, t, at.value_or(*first), uint16_t(limit + 1), pe.expect));
+    }
+    address_cases(f.code, t, [&](uint16_t a, uint16_t n, Expect e) { return cases::read_range_step(g, t, a, n, e); });
+  }
+
+  // Past the end of the map and through a gap, for a read or write builder.
+  template <class Build>
+  void address_cases(int fc, Table t, Build build) {
+    if (const Register* last = last_register(t)) {
+      auto pe = cases::policy_expect(g, Violation::address_past_map);
+      Case c = with_policy(base(fc, "past-map", g.spec.profile.section), Violation::address_past_map);
+      uint32_t beyond = last->last_address() + 1;
+      if (beyond <= 0xFFFF) {
+        c.title = fmt::format("FC {:02} at {}, after the last mapped address", fc, hex16(beyond));
+        c.requirement = fmt::format("An address beyond the map: {}.", pe.expect.text);
+        add(c, build(uint16_t(beyond), 1, pe.expect));
+        if (readable(last) && fc != 6 && fc != 5) {  // a single write cannot run past anything
+          Case r = c;
+          r.id = fmt::format("{}/function-codes/fc{:02}/runs-past-map", g.spec.device.id, fc);
+          r.title = fmt::format("FC {:02} from the last register {} for {} items, one past the map", fc, hex16(last->address), last->words + 1);
+          r.requirement = fmt::format("A range that runs past the end of the map: {}.", pe.expect.text);
+          add(std::move(r), build(last->address, uint16_t(last->words + 1), pe.expect));
+        }
+      }
+    }
+    if (auto gp = gap(t)) {
+      auto pe = cases::policy_expect(g, Violation::unmapped_address);
+      Case c = with_policy(base(fc, "gap", g.spec.profile.section), Violation::unmapped_address);
+      c.title = fmt::format("FC {:02} at {}, a gap in the map", fc, hex16(gp->first));
+      c.requirement = fmt::format("An unmapped address inside the map: {}.", pe.expect.text);
+      add(c, build(gp->first, 1, pe.expect));
+      if (fc <= 4) {
+        Case r = c;
+        r.id = fmt::format("{}/function-codes/fc{:02}/through-gap", g.spec.device.id, fc);
+        r.title = fmt::format("FC {:02} from {} through the gap at {}", fc, hex16(gp->second->address), hex16(gp->first));
+        r.requirement = fmt::format("A range that runs through a gap: {}.", pe.expect.text);
+        add(std::move(r), build(gp->second->address, uint16_t(gp->second->words + 1), pe.expect));
+      }
+    }
+  }
+
+  // A run of `n` holding registers the case may write whole, with in-range values.
+  std::optional<std::pair<uint16_t, std::vector<uint16_t>>> writable_run(int n) {
+    std::vector<uint16_t> words;
+    std::optional<uint16_t> start;
+    uint32_t next = 0;
+    for (const auto& r : g.spec.registers) {
+      if (r.table != Table::holding) continue;
+      bool ok = r.access == Access::rw && cases::write_forbidden(g, r).empty() && r.type != spec::DataType::f32;
+      if (!ok || (start && r.address != next)) {
+        words.clear();
+        start.reset();
+        if (!ok) continue;
+      }
+      if (!start) start = r.address;
+      double v = r.range ? r.range->min : r.default_value.value_or(0);
+      for (auto w : cases::encode(r, int64_t(v))) words.push_back(w);
+      next = r.last_address() + 1;
+      if (int(words.size()) >= n) {
+        words.resize(n);
+        // A run must not end inside a 2-word register.
+        if (const Register* end = g.spec.register_covering(uint16_t(*start + n - 1)); end && end->last_address() == uint32_t(*start + n - 1))
+          return std::make_pair(*start, words);
+        // Slide: restart from this register.
+        words.clear();
+        start = r.address;
+        for (auto w : cases::encode(r, int64_t(v))) words.push_back(w);
+      }
+    }
+    return std::nullopt;
+  }
+
+  void write_multiple(const spec::FunctionCode& f) {
+    auto [limit, stated] = limit_of(f);
+    auto touches = [](uint16_t a, size_t n) { return std::vector<std::pair<uint16_t, int>>{{a, int(n)}}; };
+    {
+      auto pe = cases::policy_expect(g, Violation::quantity_zero);
+      Case c = with_policy(base(16, "quantity-0", f.section), Violation::quantity_zero);
+      c.title = "FC 16 with quantity 0 and byte count 0";
+      c.requirement = fmt::format("Quantity 0 is outside 1..123 (MBAP v1.1b3 §6.12): {}.", pe.expect.text);
+      auto run = writable_run(1);
+      Step s;
+      s.unit = g.target.unit;
+      s.pdu = {16, uint8_t(run ? run->first >> 8 : 0), uint8_t(run ? run->first & 0xFF : 0), 0, 0, 0};
+      s.what = "write multiple registers, quantity 0";
+      s.expect = pe.expect;
+      if (run) c.touches = touches(run->first, 1);
+      add(std::move(c), s);
+    }
+    for (int n : {1, limit, limit + 1}) {
+      if (n <= 0) continue;
+      bool over = n == limit + 1;
+      std::string what = n == 1 && limit != 1 ? "quantity-1" : over ? "quantity-limit+1" : "quantity-limit";
+      if (n == 1 && limit == 1 && !over) what = "quantity-limit";
+      Case c = over ? with_policy(base(16, what, f.section), Violation::quantity_over_limit) : base(16, what, f.section);
+      if (n > 1 && !stated) c.level = Level::observed;
+      auto pe = cases::policy_expect(g, Violation::quantity_over_limit);
+      c.title = fmt::format("FC 16 writes {} registers{}", n, over ? ", one over the limit" : n == limit ? " (the limit)" : "");
+      c.requirement = over ? fmt::format("Over the limit of {}: {}.", limit, pe.expect.text)
+                           : fmt::format("A write of {} in-range registers is accepted (MBAP v1.1b3 §6.12).", n);
+      if (2 + 5 + size_t(n) * 2 > kMaxPdu + 1) {
+        c.skip_reason = fmt::format("{} registers do not fit a 253-byte PDU (MBAP v1.1b3 §4.1)", n);
+        out.push_back(std::move(c));
+        continue;
+      }
+      auto run = writable_run(over ? limit : n);
+      if (!run) {
+        c.skip_reason = fmt::format("no run of {} consecutive registers this run may write", over ? limit : n);
+        out.push_back(std::move(c));
+        continue;
+      }
+      auto words = run->second;
+      if (over) words.push_back(words.back());
+      c.touches = touches(run->first, words.size());
+      Step s;
+      s.unit = g.target.unit;
+      s.pdu = write_multiple_registers(run->first, words);
+      s.what = fmt::format("write {} x{} (FC 16)", hex16(run->first), words.size());
+      s.expect = over ? pe.expect : cases::write_echo(s.pdu);
+      add(std::move(c), s);
+    }
+    address_cases(16, Table::holding, [&](uint16_t a, uint16_t n, Expect e) {
+      Step s;
+      s.unit = g.target.unit;
+      std::vector<uint16_t> zeros(n, 0);
+      s.pdu = write_multiple_registers(a, zeros);
+      s.what = fmt::format("write {} x{} (FC 16)", hex16(a), n);
+      s.expect = e;
+      return std::optional<Step>(s);
+    });
+  }
+
+  void write_single(const spec::FunctionCode& f) {
+    address_cases(6, Table::holding, [&](uint16_t a, uint16_t, Expect e) {
+      Step s;
+      s.unit = g.target.unit;
+      s.pdu = write_single_register(a, 0);
+      s.what = fmt::format("write {} = 0 (FC 06)", hex16(a));
+      s.expect = e;
+      return std::optional<Step>(s);
+    });
+  }
+
+  void unsupported() {
+    auto pe = cases::policy_expect(g, Violation::unsupported_function);
+    for (int fc : kPublicCodes) {
+      if (cases::has_fc(g.spec, fc)) continue;
+      Case c = with_policy(base(fc, "unsupported", g.spec.profile.section), Violation::unsupported_function);
+      c.title = fmt::format("FC {:02}, which the profile does not list", fc);
+      c.requirement = fmt::format("A function code the device does not support: {}.", pe.expect.text);
+      Step s;
+      s.unit = g.target.unit;
+      s.pdu = {uint8_t(fc), 0, 0, 0, 1};
+      s.what = fmt::format("FC {:02} with address 0, quantity 1", fc);
+      s.expect = pe.expect;
+      add(std::move(c), s);
+    }
+  }
+
+  void run() {
+    for (const auto& f : g.spec.profile.function_codes) {
+      if (f.code >= 1 && f.code <= 4) reads(f);
+      if (f.code == 16) write_multiple(f);
+      if (f.code == 6) write_single(f);
+    }
+    unsupported();
+  }
+};
+
+}  // namespace
+
+std::vector<Case> function_code_cases(const GenContext& g) {
+  std::vector<Case> out;
+  Gen{g, out}.run();
+  return out;
+}
+
+}  // namespace mbc::conf

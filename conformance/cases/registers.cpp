@@ -1,0 +1,222 @@
+// Family "registers": what the register table states, register by register.
+//   read        every readable register answers a read of its words;
+//   write-min / write-max / write-mid
+//               in-range writes are accepted (MBAP v1.1b3 §6.6/§6.12 echo)
+//               and read back as written, multi-word values whole;
+//   below-min / above-max
+//               out-of-range writes get the policy's value_out_of_range
+//               answer and leave the value unchanged;
+//   word-order  a 2-word value with distinct halves reads back with its words
+//               where the spec's word_order puts them;
+//   read-only / write-only
+//               writes to ro and reads of wo registers get the policy's answer.
+// Registers with no stated range are written at the type's bounds as OBSERVED.
+#include <fmt/core.h>
+
+#include <bit>
+#include <cmath>
+
+#include "cases/common.h"
+
+namespace mbc::conf {
+namespace {
+
+using cases::clause;
+using cases::hex16;
+using spec::Access;
+using spec::DataType;
+using spec::Register;
+using spec::Table;
+
+std::string table_prefix(Table t) {
+  switch (t) {
+    case Table::holding: return "";
+    case Table::input: return "input-";
+    case Table::coil: return "coil-";
+    case Table::discrete_input: return "di-";
+  }
+  return "";
+}
+
+// Raw words for an engineering value (f32 registers carry float bits).
+std::vector<uint16_t> words_for(const Register& r, double v) {
+  if (r.type == DataType::f32) return cases::encode(r, int64_t(std::bit_cast<uint32_t>(float(v))));
+  return cases::encode(r, int64_t(v));
+}
+
+std::string show(const Register& r, double v) {
+  if (r.type == DataType::f32) return fmt::format("{}", v);
+  return fmt::format("{}", int64_t(v));
+}
+
+struct Gen {
+  const GenContext& g;
+  std::vector<Case>& out;
+
+  Case base(const Register& r, const std::string& what) {
+    Case c;
+    c.family = "registers";
+    c.id = fmt::format("{}/registers/{}{}/{}", g.spec.device.id, table_prefix(r.table), hex16(r.address), what);
+    c.clause = clause(g.spec, r.section);
+    if (r.table == Table::holding) c.register_address = r.address;
+    c.errata = r.errata;
+    return c;
+  }
+
+  Expect want_words(const Register& r, std::vector<uint16_t> w, std::string text) {
+    Expect e;
+    e.kind = Expect::Kind::registers;
+    if (r.table == Table::coil || r.table == Table::discrete_input)
+      for (auto& x : w) x = x ? 1 : 0;
+    e.words = std::move(w);
+    e.text = std::move(text);
+    return e;
+  }
+
+  void read(const Register& r) {
+    Case c = base(r, "read");
+    c.title = fmt::format("read {} ({})", hex16(r.address), r.name.en);
+    c.requirement = fmt::format("{} {} is readable ({}, {} word{}).", spec::to_string(r.table), hex16(r.address),
+                                spec::to_string(r.access), r.words, r.words == 1 ? "" : "s");
+    Expect e = cases::normal(fmt::format("a normal reply with {} item{}", r.words, r.words == 1 ? "" : "s"));
+    auto st = cases::read_step(g, r, e);
+    if (!st) return;
+    c.steps.push_back(std::move(*st));
+    out.push_back(std::move(c));
+  }
+
+  bool writable(const Register& r, Case& c) {
+    if (auto why = cases::write_forbidden(g, r); !why.empty()) {
+      c.skip_reason = why;
+      return false;
+    }
+    return true;
+  }
+
+  // Write `v`, expect the echo, read it back.
+  void write_in_range(const Register& r, const std::string& what, double v, Level level, const std::string& why) {
+    Case c = base(r, what);
+    c.level = level;
+    c.title = fmt::format("write {} = {} ({}) and read it back", hex16(r.address), show(r, v), why);
+    c.requirement = level == Level::observed
+                        ? fmt::format("{} states no range; a write of {} (the type's {}) is recorded.", hex16(r.address), show(r, v), why)
+                        : fmt::format("{} accepts {} ({} of {}..{}) and reads it back.", hex16(r.address), show(r, v), why,
+                                      show(r, r.range->min), show(r, r.range->max));
+    c.touches.push_back({r.address, r.words});
+    auto w = words_for(r, v);
+    auto st = cases::write_step(g, r, w);
+    if (!st) {
+      c.skip_reason = "the profile has no function code to write it whole";
+    } else if (writable(r, c)) {
+      c.steps.push_back(std::move(*st));
+      if (auto rd = cases::read_step(g, r, want_words(r, w, fmt::format("{} (as written)", show(r, v)))))
+        c.steps.push_back(std::move(*rd));
+    }
+    out.push_back(std::move(c));
+  }
+
+  // A rejected write: read (memo), write, the policy's answer, read unchanged.
+  void rejected_write(const Register& r, const std::string& what, std::vector<uint16_t> w, spec::Violation v,
+                      const std::string& title) {
+    Case c = base(r, what);
+    auto pe = cases::policy_expect(g, v);
+    c.level = pe.level;
+    c.clause = pe.level == Level::observed ? clause(g.spec, r.section) + "; " + pe.clause : pe.clause;
+    if (!pe.erratum.empty()) c.errata.push_back(pe.erratum);
+    c.title = title;
+    c.requirement = fmt::format("{}: {}; the value stays unchanged.", title, pe.expect.text);
+    c.touches.push_back({r.address, r.words});
+    bool readable = r.access != Access::wo && r.access != Access::command;
+    int memo = -1;
+    if (readable) {
+      if (auto rd = cases::read_step(g, r, Expect{})) {
+        rd->setup = true;
+        rd->what = "before: " + rd->what;
+        memo = 0;
+        c.steps.push_back(std::move(*rd));
+      }
+    }
+    auto st = cases::write_step(g, r, w, pe.expect);
+    if (!st) {
+      c.skip_reason = "the profile has no function code to write it whole";
+    } else if (writable(r, c)) {
+      c.steps.push_back(std::move(*st));
+      if (memo >= 0) {
+        Expect same;
+        same.kind = Expect::Kind::unchanged;
+        same.memo = memo;
+        same.text = "the value read before (unchanged)";
+        if (auto rd = cases::read_step(g, r, same)) c.steps.push_back(std::move(*rd));
+      }
+    }
+    out.push_back(std::move(c));
+  }
+
+  void writes(const Register& r) {
+    bool has_range = r.range.has_value();
+    double lo = has_range ? r.range->min : double(cases::type_min(r));
+    double hi = has_range ? r.range->max : double(cases::type_max(r));
+    if (r.type == DataType::f32 && !has_range) return;  // no float bounds to test
+    if (r.type == DataType::bitfield && !has_range) return;  // reserved bits make type bounds meaningless
+    Level lv = has_range ? Level::must : Level::observed;
+    write_in_range(r, "write-min", lo, lv, "minimum");
+    if (hi != lo) write_in_range(r, "write-max", hi, lv, "maximum");
+    double mid = r.type == DataType::f32 ? (lo + hi) / 2 : std::floor((lo + hi) / 2);
+    if (r.type == DataType::enumeration) {
+      // The middle of an enumeration is its middle value, not a hole between values.
+      if (const auto* en = g.spec.find_enum(r.enum_id); en && !en->values.empty())
+        mid = double(en->values[en->values.size() / 2].value);
+    }
+    if (mid != lo && mid != hi) write_in_range(r, "write-mid", mid, lv, "middle");
+
+    if (has_range && r.type != DataType::f32 && r.type != DataType::bit) {
+      if (lo - 1 >= double(cases::type_min(r)))
+        rejected_write(r, "below-min", words_for(r, lo - 1), spec::Violation::value_out_of_range,
+                       fmt::format("write {} = {} (minimum - 1)", hex16(r.address), show(r, lo - 1)));
+      if (hi + 1 <= double(cases::type_max(r)))
+        rejected_write(r, "above-max", words_for(r, hi + 1), spec::Violation::value_out_of_range,
+                       fmt::format("write {} = {} (maximum + 1)", hex16(r.address), show(r, hi + 1)));
+    }
+    if (r.words == 2 && r.type != DataType::f32) {
+      // Both halves non-zero and different, so swapped words cannot read back right.
+      int64_t v = 0x00010002;
+      if (v < lo || v > hi) v = -0x00010002;
+      if (v >= lo && v <= hi) write_in_range(r, "word-order", double(v), lv, "distinct words");
+    }
+  }
+
+  void run() {
+    for (const auto& r : g.spec.registers) {
+      if (r.access != Access::wo && r.access != Access::command) read(r);
+      if (r.access == Access::rw && (r.table == Table::holding || r.table == Table::coil)) writes(r);
+      if (r.access == Access::ro && r.table == Table::holding) {
+        double v = r.default_value.value_or(0);
+        rejected_write(r, "read-only", r.type == DataType::f32 ? words_for(r, v) : cases::encode(r, int64_t(v)),
+                       spec::Violation::write_read_only, fmt::format("write read-only {}", hex16(r.address)));
+      }
+      if (r.access == Access::wo) {
+        Case c = base(r, "write-only");
+        auto pe = cases::policy_expect(g, spec::Violation::read_write_only);
+        c.level = pe.level;
+        c.clause = pe.clause;
+        if (!pe.erratum.empty()) c.errata.push_back(pe.erratum);
+        c.title = fmt::format("read write-only {}", hex16(r.address));
+        c.requirement = fmt::format("A read of write-only {}: {}.", hex16(r.address), pe.expect.text);
+        if (auto st = cases::read_step(g, r, pe.expect)) {
+          c.steps.push_back(std::move(*st));
+          out.push_back(std::move(c));
+        }
+      }
+    }
+  }
+};
+
+}  // namespace
+
+std::vector<Case> register_cases(const GenContext& g) {
+  std::vector<Case> out;
+  Gen{g, out}.run();
+  return out;
+}
+
+}  // namespace mbc::conf

@@ -1,0 +1,139 @@
+// report.html: one self-contained page (no scripts, no external files): the
+// summary per device, a register table coloured by the worst result of the
+// register's cases, every failing case with its frames in hex and decoded
+// beside the manual section, OBSERVED deviations, and a latency histogram
+// drawn with CSS bars.
+#include <fmt/core.h>
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+
+#include "report/report.h"
+
+namespace mbc::conf {
+namespace {
+
+std::string esc(const std::string& s) {
+  std::string out;
+  for (char c : s) {
+    switch (c) {
+      case '&': out += "&amp;"; break;
+      case '<': out += "&lt;"; break;
+      case '>': out += "&gt;"; break;
+      case '"': out += "&quot;"; break;
+      default: out += c;
+    }
+  }
+  return out;
+}
+
+int severity(Outcome o) {
+  switch (o) {
+    case Outcome::fail: return 3;
+    case Outcome::observed: return 2;
+    case Outcome::pass: return 1;
+    case Outcome::skip: return 0;
+  }
+  return 0;
+}
+
+std::string histogram(const std::vector<double>& lat) {
+  if (lat.empty()) return "<p>No answered exchanges.</p>";
+  // Log-spaced buckets from 1 µs: latencies span in-process (µs) to serial lines (ms).
+  std::map<int, size_t> buckets;
+  for (double us : lat) buckets[std::max(0, int(std::floor(std::log2(std::max(us, 1.0)))))]++;
+  size_t top = 0;
+  for (auto& [b, n] : buckets) top = std::max(top, n);
+  std::string h = "<table class=hist>";
+  for (auto& [b, n] : buckets) {
+    auto label = [](double us) { return us >= 1000 ? fmt::format("{:g} ms", us / 1000) : fmt::format("{:g} µs", us); };
+    h += fmt::format("<tr><td>{} – {}</td><td><div class=bar style=\"width:{:.1f}%\"></div></td><td>{}</td></tr>",
+                     label(std::pow(2.0, b)), label(std::pow(2.0, b + 1)), 100.0 * double(n) / double(top), n);
+  }
+  return h + "</table>";
+}
+
+}  // namespace
+
+std::string html_report(const RunReport& rep) {
+  std::string h = R"(<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>mbconform run</title><style>
+body{font:14px/1.4 system-ui,sans-serif;margin:2em;max-width:80em}
+table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:2px 6px;text-align:left;vertical-align:top}
+.pass{background:#d7f5d7}.fail{background:#f8c8c8}.skip{background:#eee}.observed{background:#fff0c0}
+code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
+.bar{background:#4a7;height:1em}.hist td:nth-child(2){width:30em}.regs td{font-size:12px}
+</style></head><body>)";
+  h += fmt::format("<h1>mbconform {}</h1><p>Started {} · version {}{}</p>", esc(rep.command), esc(rep.started_at),
+                   esc(rep.version), rep.interrupted ? " · <b>interrupted: partial results</b>" : "");
+  h += "<h2>Summary</h2><table><tr><th>device</th><th>target</th><th>cases</th><th>pass</th><th>fail</th><th>MUST failed</th>"
+       "<th>observed</th><th>skip</th><th>wall</th><th>wire-time bound</th></tr>";
+  for (const auto& d : rep.devices) {
+    Counts c = count(d);
+    h += fmt::format("<tr><td><a href=\"#{0}\">{0}</a></td><td><code>{1}</code></td><td>{2}</td><td class=pass>{3}</td><td class={8}>{4}</td>"
+                     "<td class={8}>{5}</td><td class=observed>{6}</td><td class=skip>{7}</td><td>{9:.3f} s</td><td>{10}</td></tr>",
+                     esc(d.device_id), esc(d.target_uri), c.total(), c.pass, c.fail, c.must_failed, c.observed, c.skip,
+                     c.fail ? "fail" : "pass", d.wall_seconds,
+                     d.baud ? fmt::format("{:.3f} s at {} baud", d.wire_time_bound_seconds, *d.baud) : "n/a (no line rate)");
+  }
+  h += "</table>";
+
+  for (const auto& d : rep.devices) {
+    h += fmt::format("<h2 id=\"{0}\">{0}</h2><p>Spec <code>{1}</code> · {2} frames, {3} bytes sent, {4} received</p>",
+                     esc(d.device_id), esc(d.spec_path), d.frames_sent, d.bytes_sent, d.bytes_received);
+    if (!d.restore_failures.empty()) {
+      h += "<p class=fail><b>Could not restore:</b></p><ul>";
+      for (const auto& f : d.restore_failures) h += "<li>" + esc(f) + "</li>";
+      h += "</ul>";
+    }
+    // Registers: the worst outcome of each register's cases.
+    std::map<uint16_t, std::vector<const CaseResult*>> by_reg;
+    for (const auto& r : d.cases)
+      if (r.register_address) by_reg[*r.register_address].push_back(&r);
+    h += "<h3>Registers</h3><table class=regs><tr><th>address</th><th>cases</th></tr>";
+    for (const auto& [addr, rs] : by_reg) {
+      int worst = 0;
+      for (auto* r : rs) worst = std::max(worst, severity(r->outcome));
+      const char* cls = worst == 3 ? "fail" : worst == 2 ? "observed" : worst == 1 ? "pass" : "skip";
+      std::string cells;
+      for (auto* r : rs) {
+        std::string leaf = r->id.substr(r->id.rfind('/') + 1);
+        cells += fmt::format("<span class={} title=\"{}\">{}</span> ", to_string(r->outcome), esc(r->title + ": " + r->message), esc(leaf));
+      }
+      h += fmt::format("<tr><td class={}><code>0x{:04X}</code></td><td>{}</td></tr>", cls, addr, cells);
+    }
+    h += "</table>";
+
+    h += "<h3>Failing cases</h3>";
+    bool any = false;
+    for (const auto& r : d.cases) {
+      if (r.outcome != Outcome::fail) continue;
+      any = true;
+      h += fmt::format("<div class=fail><p><b>{}</b> [{}] <i>{}</i><br>{}<br>Requirement: {}<br>{}{}</p>", esc(r.id),
+                       to_string(r.level), esc(r.clause), esc(r.title), esc(r.requirement), esc(r.message),
+                       r.errata.empty() ? "" : "<br>Errata: " + esc(fmt::format("{}", fmt::join(r.errata, ", "))));
+      h += "<table><tr><th>step</th><th>request</th><th>expected</th><th>actual</th></tr>";
+      for (const auto& f : r.frames)
+        h += fmt::format("<tr><td>{}</td><td><code>{}</code><pre>{}</pre></td><td>{}<pre>{}</pre></td><td><code>{}</code><pre>{}</pre></td></tr>",
+                         esc(f.step), to_hex(f.request), esc(f.request_decoded), esc(f.expected_text),
+                         f.expected ? to_hex(*f.expected) : "", f.actual ? to_hex(*f.actual) : "silence", esc(f.actual_decoded));
+      h += "</table></div>";
+    }
+    if (!any) h += "<p>None.</p>";
+
+    h += "<h3>Observed (behaviour the manual leaves open, deviations from the standard)</h3><table><tr><th>case</th><th>clause</th><th>what came</th></tr>";
+    for (const auto& r : d.cases)
+      if (r.outcome == Outcome::observed)
+        h += fmt::format("<tr><td>{}</td><td>{}</td><td>{}</td></tr>", esc(r.id), esc(r.clause), esc(r.message));
+    h += "</table>";
+    h += "<h3>Skipped</h3><table>";
+    for (const auto& r : d.cases)
+      if (r.outcome == Outcome::skip) h += fmt::format("<tr><td>{}</td><td>{}</td></tr>", esc(r.id), esc(r.message));
+    h += "</table><h3>Latency</h3>" + histogram(d.latencies_us);
+  }
+  h += "</body></html>\n";
+  return h;
+}
+
+}  // namespace mbc::conf

@@ -1,0 +1,109 @@
+// report.json (everything) and the files on disk.
+#include <fmt/core.h>
+
+#include <filesystem>
+#include <fstream>
+#include <stdexcept>
+
+#include "report/report.h"
+
+namespace mbc::conf {
+namespace {
+
+nlohmann::json frame_json(const FrameRecord& f) {
+  nlohmann::json j;
+  j["step"] = f.step;
+  j["request"] = to_hex(f.request);
+  j["request_decoded"] = f.request_decoded;
+  j["expected"] = f.expected ? nlohmann::json(to_hex(*f.expected)) : nlohmann::json(nullptr);
+  j["expected_text"] = f.expected_text;
+  j["actual"] = f.actual ? nlohmann::json(to_hex(*f.actual)) : nlohmann::json(nullptr);
+  j["actual_decoded"] = f.actual_decoded;
+  j["latency_us"] = f.latency_us;
+  return j;
+}
+
+void write_file(const std::filesystem::path& p, const std::string& text) {
+  std::ofstream out(p, std::ios::binary);
+  out << text;
+  if (!out) throw std::runtime_error(fmt::format("cannot write {}", p.string()));
+}
+
+}  // namespace
+
+Counts count(const DeviceRun& d) {
+  Counts c;
+  for (const auto& r : d.cases) {
+    switch (r.outcome) {
+      case Outcome::pass: ++c.pass; break;
+      case Outcome::fail:
+        ++c.fail;
+        if (r.level == Level::must) ++c.must_failed;
+        break;
+      case Outcome::skip: ++c.skip; break;
+      case Outcome::observed: ++c.observed; break;
+    }
+  }
+  return c;
+}
+
+nlohmann::json report_json(const RunReport& rep) {
+  nlohmann::json j;
+  j["command"] = rep.command;
+  j["started_at"] = rep.started_at;
+  j["version"] = rep.version;
+  j["interrupted"] = rep.interrupted;
+  j["devices"] = nlohmann::json::array();
+  for (const auto& d : rep.devices) {
+    nlohmann::json dj;
+    dj["device_id"] = d.device_id;
+    dj["target_uri"] = d.target_uri;
+    dj["spec_path"] = d.spec_path;
+    Counts c = count(d);
+    dj["counts"] = {{"pass", c.pass}, {"fail", c.fail}, {"skip", c.skip}, {"observed", c.observed},
+                    {"must_failed", c.must_failed}, {"total", c.total()}};
+    dj["frames_sent"] = d.frames_sent;
+    dj["bytes_sent"] = d.bytes_sent;
+    dj["bytes_received"] = d.bytes_received;
+    dj["wall_seconds"] = d.wall_seconds;
+    dj["baud"] = d.baud ? nlohmann::json(*d.baud) : nlohmann::json(nullptr);
+    dj["wire_time_bound_seconds"] = d.wire_time_bound_seconds;
+    dj["latencies_us"] = d.latencies_us;
+    dj["restore_failures"] = d.restore_failures;
+    dj["interrupted"] = d.interrupted;
+    dj["cases"] = nlohmann::json::array();
+    for (const auto& r : d.cases) {
+      nlohmann::json cj;
+      cj["id"] = r.id;
+      cj["family"] = r.family;
+      cj["clause"] = r.clause;
+      cj["level"] = to_string(r.level);
+      cj["title"] = r.title;
+      cj["requirement"] = r.requirement;
+      cj["outcome"] = to_string(r.outcome);
+      cj["message"] = r.message;
+      cj["register"] = r.register_address ? nlohmann::json(*r.register_address) : nlohmann::json(nullptr);
+      cj["errata"] = r.errata;
+      cj["duration_ms"] = r.duration_ms;
+      cj["frames"] = nlohmann::json::array();
+      for (const auto& f : r.frames) cj["frames"].push_back(frame_json(f));
+      if (!r.extra.empty()) cj["extra"] = r.extra;
+      dj["cases"].push_back(std::move(cj));
+    }
+    j["devices"].push_back(std::move(dj));
+  }
+  return j;
+}
+
+void write_reports(const RunReport& rep, const std::string& dir, bool junit_only) {
+  std::filesystem::path d(dir);
+  std::error_code ec;
+  std::filesystem::create_directories(d, ec);
+  if (ec) throw std::runtime_error(fmt::format("cannot create {}: {}", dir, ec.message()));
+  write_file(d / "junit.xml", junit_xml(rep));
+  if (junit_only) return;
+  write_file(d / "report.json", report_json(rep).dump(1) + "\n");
+  write_file(d / "report.html", html_report(rep));
+}
+
+}  // namespace mbc::conf

@@ -1,0 +1,75 @@
+// junit.xml: one <testsuite> per device, one <testcase> per case. A failed
+// case carries <failure>, a skipped one <skipped>; OBSERVED cases pass in
+// JUnit terms and say what was observed in <system-out>.
+#include <fmt/core.h>
+
+#include "report/report.h"
+
+namespace mbc::conf {
+namespace {
+
+std::string xml_escape(const std::string& s) {
+  std::string out;
+  out.reserve(s.size());
+  for (unsigned char c : s) {
+    switch (c) {
+      case '&': out += "&amp;"; break;
+      case '<': out += "&lt;"; break;
+      case '>': out += "&gt;"; break;
+      case '"': out += "&quot;"; break;
+      case '\'': out += "&apos;"; break;
+      default:
+        // XML 1.0 forbids most control characters even as references.
+        if (c < 0x20 && c != '\t' && c != '\n' && c != '\r') out += '?';
+        else out += char(c);
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+std::string junit_xml(const RunReport& rep) {
+  std::string x = "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n";
+  size_t tests = 0, failures = 0, skipped = 0;
+  for (const auto& d : rep.devices) {
+    Counts c = count(d);
+    tests += c.total();
+    failures += c.fail;
+    skipped += c.skip;
+  }
+  x += fmt::format("<testsuites name=\"mbconform {}\" tests=\"{}\" failures=\"{}\" skipped=\"{}\">\n", xml_escape(rep.command),
+                   tests, failures, skipped);
+  for (const auto& d : rep.devices) {
+    Counts c = count(d);
+    x += fmt::format("  <testsuite name=\"{}\" tests=\"{}\" failures=\"{}\" errors=\"0\" skipped=\"{}\" time=\"{:.3f}\"{}>\n",
+                     xml_escape(d.device_id), c.total(), c.fail, c.skip, d.wall_seconds,
+                     rep.started_at.empty() ? "" : fmt::format(" timestamp=\"{}\"", xml_escape(rep.started_at)));
+    x += fmt::format("    <properties><property name=\"target\" value=\"{}\"/><property name=\"spec\" value=\"{}\"/>"
+                     "<property name=\"interrupted\" value=\"{}\"/></properties>\n",
+                     xml_escape(d.target_uri), xml_escape(d.spec_path), d.interrupted ? "true" : "false");
+    for (const auto& r : d.cases) {
+      x += fmt::format("    <testcase name=\"{}\" classname=\"{}.{}\" time=\"{:.6f}\">\n", xml_escape(r.id), xml_escape(d.device_id),
+                       xml_escape(r.family), r.duration_ms / 1000.0);
+      std::string head = fmt::format("[{}] {} — {}", to_string(r.level), r.clause, r.requirement);
+      if (r.outcome == Outcome::fail) {
+        std::string body = head + "\n";
+        for (const auto& f : r.frames)
+          body += fmt::format("{}\n  request  {}\n  expected {}{}\n  actual   {}\n", f.step, to_hex(f.request), f.expected_text,
+                              f.expected ? " = " + to_hex(*f.expected) : "", f.actual ? to_hex(*f.actual) : "silence");
+        x += fmt::format("      <failure message=\"{}\" type=\"{}\">{}</failure>\n", xml_escape(r.message), to_string(r.level),
+                         xml_escape(body));
+      } else if (r.outcome == Outcome::skip) {
+        x += fmt::format("      <skipped message=\"{}\"/>\n", xml_escape(r.message));
+      } else if (r.outcome == Outcome::observed) {
+        x += fmt::format("      <system-out>{}</system-out>\n", xml_escape("OBSERVED: " + head + "\n" + r.message));
+      }
+      x += "    </testcase>\n";
+    }
+    x += "  </testsuite>\n";
+  }
+  x += "</testsuites>\n";
+  return x;
+}
+
+}  // namespace mbc::conf

@@ -1,0 +1,42 @@
+// The report writers: one RunReport (result.h) in, one format out.
+//   report.json  everything, for tools (json.cpp)
+//   junit.xml    one testsuite per device, one testcase per case (junit.cpp)
+//   report.html  one self-contained page for people (html.cpp)
+//   terminal     progress line and summary table (terminal.cpp)
+//   summary      the stable digest committed as reports/reference/ (summary.cpp):
+//                no timestamps, no wall times, so a test can check it is fresh.
+#pragma once
+
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "report/result.h"
+
+namespace mbc::conf {
+
+nlohmann::json report_json(const RunReport&);
+std::string junit_xml(const RunReport&);
+std::string html_report(const RunReport&);
+
+// "  12/812 sihong-57hs-r/registers/0x0020/write-min  pass"
+std::string progress_line(const CaseResult&, size_t done, size_t total);
+// Per device: pass / fail / skip / observed counts, MUST failures, wall time
+// against the wire-time bound; then the failing MUST cases.
+std::string summary_table(const RunReport&);
+
+nlohmann::json stable_summary(const RunReport&);
+std::string summary_markdown(const nlohmann::json& summary);
+
+// Counts over a device run.
+struct Counts {
+  size_t pass = 0, fail = 0, skip = 0, observed = 0, must_failed = 0;
+  size_t total() const { return pass + fail + skip + observed; }
+};
+Counts count(const DeviceRun&);
+
+// Writes junit.xml, report.json and (unless junit_only) report.html into
+// `dir` (created). Throws std::runtime_error when a file cannot be written.
+void write_reports(const RunReport&, const std::string& dir, bool junit_only = false);
+
+}  // namespace mbc::conf

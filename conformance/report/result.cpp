@@ -1,0 +1,24 @@
+#include "report/result.h"
+
+namespace mbc::conf {
+
+const char* to_string(Level l) {
+  switch (l) {
+    case Level::must: return "MUST";
+    case Level::should: return "SHOULD";
+    case Level::observed: return "OBSERVED";
+  }
+  return "?";
+}
+
+const char* to_string(Outcome o) {
+  switch (o) {
+    case Outcome::pass: return "pass";
+    case Outcome::fail: return "fail";
+    case Outcome::skip: return "skip";
+    case Outcome::observed: return "observed";
+  }
+  return "?";
+}
+
+}  // namespace mbc::conf

@@ -1,0 +1,307 @@
+#include "runner/runner.h"
+
+#include <fmt/core.h>
+
+#include <chrono>
+
+#include "cases/common.h"
+#include "master/pdu.h"
+#include "serve/rtu_framing.h"
+
+namespace mbc::conf {
+namespace {
+
+using clock_type = std::chrono::steady_clock;
+
+struct Exchange {
+  Reply reply;
+  Bytes request_pdu;  // what the reply is judged against
+};
+
+std::string hex_or_silence(const std::optional<Bytes>& b) { return b ? to_hex(*b) : "silence"; }
+
+class CaseRunner {
+ public:
+  CaseRunner(Target& t, const spec::Spec& s, DeviceRun& run) : t_(t), s_(s), run_(run) {
+    baud_ = t.info().baud;
+  }
+
+  Exchange send(const Step& st) {
+    Exchange x;
+    if (st.kind == Step::Kind::raw) {
+      x.reply = t_.send_raw(st.adu, st.gap_after);
+      if (st.adu.size() >= 4) x.request_pdu.assign(st.adu.begin() + 1, st.adu.end() - 2);
+      account(x.reply, st.gap_after ? 1 : 0);
+    } else {
+      x.reply = t_.transact(st.unit, st.pdu);
+      x.request_pdu = st.pdu;
+      account(x.reply, 0);
+    }
+    return x;
+  }
+
+  // Quiet traffic of the runner itself (per-case save and restore).
+  std::optional<Bytes> quiet(uint8_t unit, const Bytes& pdu) {
+    Reply r = t_.transact(unit, pdu);
+    account(r, 0);
+    return r.pdu;
+  }
+
+  CaseResult run(const Case& c) {
+    CaseResult res = result_header(c);
+    auto t0 = clock_type::now();
+    if (!c.skip_reason.empty()) {
+      res.outcome = Outcome::skip;
+      res.message = c.skip_reason;
+      return res;
+    }
+    const auto& info = t_.info();
+    for (const auto& st : c.steps) {
+      if (st.kind == Step::Kind::advance && !info.virtual_clock) return skipped(res, "the target has no virtual clock");
+      if (st.kind == Step::Kind::power_cycle && !info.power_cycle) return skipped(res, "the target cannot be power-cycled");
+      if (st.kind == Step::Kind::raw && !info.raw) return skipped(res, "the target cannot send raw frames");
+    }
+    auto saved = save(c);
+
+    std::vector<std::optional<Bytes>> replies;
+    std::vector<std::string> failures;
+    bool setup_failed = false;
+    for (const auto& st : c.steps) {
+      FrameRecord fr;
+      fr.step = st.what;
+      fr.expected_text = cases::describe(st.expect);
+      if (st.kind == Step::Kind::advance) {
+        t_.advance(st.dt);
+        replies.push_back(std::nullopt);
+        res.frames.push_back(std::move(fr));
+        continue;
+      }
+      if (st.kind == Step::Kind::power_cycle) {
+        t_.power_cycle();
+        replies.push_back(std::nullopt);
+        res.frames.push_back(std::move(fr));
+        continue;
+      }
+      Exchange x = send(st);
+      fr.request = x.reply.request;
+      fr.request_decoded = x.request_pdu.empty() ? "(not a frame)" : describe_pdu(x.request_pdu, true);
+      if (!x.reply.silent()) fr.actual = x.reply.frame;
+      if (x.reply.pdu) fr.actual_decoded = describe_pdu(*x.reply.pdu, false);
+      else if (!x.reply.framing_error.empty()) fr.actual_decoded = x.reply.framing_error;
+      fr.latency_us = double(x.reply.latency.count());
+      if (st.expect.kind == Expect::Kind::exact) {
+        fr.expected = st.expect.adu && info.framing == Framing::rtu ? *st.expect.adu : st.expect.pdu;
+      } else if (st.expect.kind == Expect::Kind::exception && !x.request_pdu.empty()) {
+        Bytes e{uint8_t(x.request_pdu[0] | 0x80), st.expect.code};
+        fr.expected = info.framing == Framing::rtu && st.kind == Step::Kind::pdu ? rtu_frame(st.unit, e) : e;
+      }
+      std::string why = judge(st, x, replies);
+      replies.push_back(x.reply.pdu);
+      if (!why.empty()) {
+        if (st.setup) setup_failed = true;
+        failures.push_back(fmt::format("{}{}: expected {}; got {}: {}", st.setup ? "setup: " : "", st.what,
+                                       fr.expected_text, hex_or_silence(fr.actual), why));
+      }
+      res.frames.push_back(std::move(fr));
+    }
+    restore(saved);
+    res.duration_ms = std::chrono::duration<double, std::milli>(clock_type::now() - t0).count();
+    if (failures.empty()) {
+      res.outcome = c.level == Level::observed ? Outcome::observed : Outcome::pass;
+      if (c.level == Level::observed) res.message = observed_summary(res);
+    } else {
+      res.outcome = c.level == Level::observed ? Outcome::observed : Outcome::fail;
+      res.message = failures.front();
+      if (failures.size() > 1) res.message += fmt::format(" (+{} more)", failures.size() - 1);
+      if (c.level == Level::observed) res.message = "differs from the standard: " + res.message;
+      if (setup_failed && c.level != Level::observed) res.message = "could not establish the state: " + res.message;
+    }
+    return res;
+  }
+
+ private:
+  CaseResult& skipped(CaseResult& r, const std::string& why) {
+    r.outcome = Outcome::skip;
+    r.message = why;
+    return r;
+  }
+
+  static std::string observed_summary(const CaseResult& r) {
+    std::string s;
+    for (const auto& f : r.frames) {
+      if (f.request.empty()) continue;
+      s += fmt::format("{}{} -> {}", s.empty() ? "" : "; ", f.step, f.actual ? (f.actual_decoded.empty() ? to_hex(*f.actual) : f.actual_decoded) : "silence");
+    }
+    return s.empty() ? "documented in the spec" : s;
+  }
+
+  // Empty when the reply meets the expectation, else why not.
+  std::string judge(const Step& st, const Exchange& x, const std::vector<std::optional<Bytes>>& replies) {
+    const Expect& e = st.expect;
+    const Reply& r = x.reply;
+    if (e.kind == Expect::Kind::none) return "";
+    if (e.kind == Expect::Kind::silence) return r.silent() ? "" : "a reply came";
+    if (r.silent()) return "no reply";
+    if (!r.pdu) return "unusable reply: " + r.framing_error;
+    const Bytes& pdu = *r.pdu;
+    switch (e.kind) {
+      case Expect::Kind::exact:
+        if (pdu != e.pdu) return fmt::format("PDU differs (expected {})", to_hex(e.pdu));
+        if (e.adu && t_.info().framing == Framing::rtu && r.frame != *e.adu)
+          return fmt::format("frame differs (expected {})", to_hex(*e.adu));
+        return "";
+      case Expect::Kind::exception: {
+        if (pdu.size() < 2 || !(pdu[0] & 0x80)) return "not an exception reply";
+        if (!x.request_pdu.empty() && pdu[0] != (x.request_pdu[0] | 0x80))
+          return fmt::format("exception to FC {:02X}, request was FC {:02X}", pdu[0] & 0x7F, x.request_pdu[0]);
+        if (pdu[1] != e.code) return fmt::format("exception {:02X} instead of {:02X}", pdu[1], e.code);
+        if (pdu.size() != 2) return "exception reply longer than 2 bytes";
+        return "";
+      }
+      case Expect::Kind::normal:
+      case Expect::Kind::registers: {
+        Judged j = judge_reply(x.request_pdu, pdu);
+        if (j.kind == Judged::Kind::exception) return fmt::format("exception {:02X}", j.exception_code);
+        if (!j.ok()) return j.problems.empty() ? "malformed reply" : j.problems.front();
+        if (e.kind == Expect::Kind::registers) {
+          std::vector<uint16_t> got = j.registers;
+          if (got.empty() && !j.bits.empty())
+            for (bool b : j.bits) got.push_back(b ? 1 : 0);
+          if (got != e.words) {
+            std::string g;
+            for (auto w : got) g += fmt::format("{}{:04X}", g.empty() ? "" : " ", w);
+            return fmt::format("read [{}]", g);
+          }
+        }
+        return "";
+      }
+      case Expect::Kind::unchanged: {
+        if (e.memo < 0 || size_t(e.memo) >= replies.size() || !replies[e.memo]) return "no earlier value to compare";
+        if (pdu != *replies[e.memo]) return fmt::format("value changed (before: {})", to_hex(*replies[e.memo]));
+        return "";
+      }
+      default: return "";
+    }
+  }
+
+  struct Saved {
+    const spec::Register* reg;
+    std::vector<uint16_t> words;
+  };
+
+  // Reads the registers a case touches, so they can be put back.
+  std::vector<Saved> save(const Case& c) {
+    std::vector<Saved> out;
+    if (c.touches.empty() || !cases::has_fc(s_, 3)) return out;
+    for (auto [addr, n] : c.touches) {
+      for (uint32_t a = addr; a < uint32_t(addr) + uint32_t(n) && a <= 0xFFFF;) {
+        const spec::Register* r = s_.register_covering(uint16_t(a));
+        if (!r) {
+          ++a;
+          continue;
+        }
+        a = r->last_address() + 1;
+        if (r->access != spec::Access::rw) continue;
+        bool dup = false;
+        for (const auto& sv : out) dup |= sv.reg == r;
+        if (dup) continue;
+        Bytes req = read_request(3, r->address, uint16_t(r->words));
+        auto pdu = quiet(t_.info().unit, req);
+        if (!pdu) continue;
+        Judged j = judge_reply(req, *pdu);
+        if (j.ok() && j.kind == Judged::Kind::normal && int(j.registers.size()) == r->words)
+          out.push_back({r, j.registers});
+      }
+    }
+    return out;
+  }
+
+  void restore(const std::vector<Saved>& saved) {
+    GenContext g{s_, t_.info(), {}, nullptr};
+    for (const auto& sv : saved) {
+      auto st = cases::write_step(g, *sv.reg, sv.words);
+      if (st) quiet(t_.info().unit, st->pdu);
+    }
+  }
+
+  void account(const Reply& r, int extra_gaps) {
+    run_.frames_sent++;
+    run_.bytes_sent += r.request.size();
+    run_.bytes_received += r.frame.size();
+    if (!r.silent()) run_.latencies_us.push_back(double(r.latency.count()));
+    if (baud_) {
+      double b = frame_wire_seconds(r.request.size(), *baud_) +
+                 extra_gaps * std::chrono::duration<double>(serve::frame_gap(*baud_)).count();
+      if (!r.silent()) b += frame_wire_seconds(r.frame.size(), *baud_);
+      run_.wire_time_bound_seconds += b;
+    }
+  }
+
+  Target& t_;
+  const spec::Spec& s_;
+  DeviceRun& run_;
+  std::optional<int> baud_;
+};
+
+}  // namespace
+
+double frame_wire_seconds(size_t bytes, int baud) {
+  return std::chrono::duration<double>(serve::wire_time(bytes, baud) + serve::frame_gap(baud)).count();
+}
+
+CaseResult result_header(const Case& c) {
+  CaseResult r;
+  r.id = c.id;
+  r.family = c.family;
+  r.clause = c.clause;
+  r.level = c.level;
+  r.title = c.title;
+  r.requirement = c.requirement;
+  r.register_address = c.register_address;
+  r.errata = c.errata;
+  r.outcome = Outcome::skip;
+  return r;
+}
+
+DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Case>& cases, const RunOptions& opt) {
+  DeviceRun run;
+  run.device_id = spec.device.id;
+  run.target_uri = target.info().uri;
+  run.spec_path = spec.path;
+  run.baud = target.info().baud;
+  auto t0 = clock_type::now();
+  CaseRunner runner(target, spec, run);
+  for (size_t i = 0; i < cases.size(); ++i) {
+    if (opt.stop && opt.stop->load()) {
+      run.interrupted = true;
+      break;
+    }
+    run.cases.push_back(runner.run(cases[i]));
+    if (opt.on_case) opt.on_case(run.cases.back(), i + 1, cases.size());
+  }
+  run.wall_seconds = std::chrono::duration<double>(clock_type::now() - t0).count();
+  return run;
+}
+
+std::vector<std::string> plan_lines(const Case& c, const TargetInfo& info) {
+  std::vector<std::string> out;
+  for (const auto& st : c.steps) {
+    std::string frame;
+    switch (st.kind) {
+      case Step::Kind::pdu:
+        frame = info.framing == Framing::rtu ? to_hex(rtu_frame(st.unit, st.pdu))
+                                             : fmt::format("unit {} PDU {}", st.unit, to_hex(st.pdu));
+        break;
+      case Step::Kind::raw:
+        frame = to_hex(st.adu);
+        if (st.gap_after) frame += fmt::format(" (gap after byte {})", *st.gap_after);
+        break;
+      case Step::Kind::advance: frame = fmt::format("(advance {} us)", st.dt.count()); break;
+      case Step::Kind::power_cycle: frame = "(power cycle)"; break;
+    }
+    out.push_back(fmt::format("  -> {}   {}   expect: {}", frame, st.what, cases::describe(st.expect)));
+  }
+  return out;
+}
+
+}  // namespace mbc::conf
