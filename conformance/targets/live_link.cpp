@@ -1,0 +1,160 @@
+#include "targets/live_link.h"
+
+#include <fmt/core.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <charconv>
+#include <cstring>
+#include <stdexcept>
+
+namespace mbc::conf::live {
+
+int int_param(const Uri& u, const std::string& uri, const std::string& key, int fallback, int lo, int hi) {
+  auto v = u.param(key);
+  if (!v) return fallback;
+  int n = 0;
+  auto [end, ec] = std::from_chars(v->data(), v->data() + v->size(), n);
+  if (ec != std::errc{} || end != v->data() + v->size() || n < lo || n > hi)
+    throw std::invalid_argument(fmt::format("target '{}': {}={}: expected an integer {}..{}", uri, key, *v, lo, hi));
+  return n;
+}
+
+void check_params(const Uri& u, const std::string& uri, std::initializer_list<const char*> known) {
+  for (const auto& [k, v] : u.query) {
+    if (std::none_of(known.begin(), known.end(), [&](const char* n) { return k == n; })) {
+      std::string list;
+      for (const char* n : known) list += std::string(list.empty() ? "" : ", ") + n;
+      throw std::invalid_argument(fmt::format("target '{}': unknown parameter '{}' (known: {})", uri, k, list));
+    }
+  }
+}
+
+// ---- silence window ----
+
+SilenceWindow::SilenceWindow(milliseconds timeout, microseconds frame_gap, std::optional<milliseconds> fixed)
+    : timeout_(timeout), frame_gap_(frame_gap), ring_(kMaxSamples) {
+  if (fixed) fixed_ = *fixed;
+}
+
+void SilenceWindow::record(microseconds latency) {
+  ring_[count_ % kMaxSamples] = latency.count();
+  ++count_;
+  size_t n = std::min(count_, kMaxSamples);
+  if (n < kMinSamples) return;
+  std::vector<int64_t> v(ring_.begin(), ring_.begin() + ptrdiff_t(n));
+  size_t at = std::min(n - 1, size_t(double(n) * 0.99));
+  std::nth_element(v.begin(), v.begin() + ptrdiff_t(at), v.end());
+  p99_ = microseconds(v[at]);
+}
+
+void SilenceWindow::late_reply() { widen_ = std::min(widen_ * 2, 1 << 10); }
+
+microseconds SilenceWindow::window() const {
+  if (fixed_) return *fixed_;
+  if (!p99_) return timeout_;
+  microseconds w = std::max<microseconds>(kLatencyMultiple * *p99_, frame_gap_ + kFloor) * widen_;
+  return std::min(w, timeout_);
+}
+
+// ---- byte streams ----
+
+ReadResult read_frame(int fd, std::vector<uint8_t>& buf, Clock::time_point first_byte_by, microseconds end_silence,
+                      Clock::time_point hard_deadline, const std::function<bool(std::span<const uint8_t>)>& complete) {
+  ReadResult r;
+  r.last_byte = Clock::now();
+  while (buf.empty() || !complete(buf)) {
+    Clock::time_point until = buf.empty() ? first_byte_by : r.last_byte + end_silence;
+    until = std::min(until, hard_deadline);
+    auto left = std::chrono::duration_cast<microseconds>(until - Clock::now());
+    if (left.count() <= 0) break;
+    pollfd p{fd, POLLIN, 0};
+    timespec ts{time_t(left.count() / 1000000), long(left.count() % 1000000) * 1000};
+    int rc = ppoll(&p, 1, &ts, nullptr);
+    if (rc < 0) {
+      if (errno == EINTR) continue;
+      throw std::runtime_error(fmt::format("poll: {}", std::strerror(errno)));
+    }
+    if (rc == 0) break;  // silence
+    uint8_t chunk[512];
+    ssize_t n = read(fd, chunk, sizeof chunk);
+    if (n < 0) {
+      if (errno == EINTR || errno == EAGAIN) continue;
+      r.closed = true;  // ECONNRESET, EIO (a pty whose other side went away)
+      break;
+    }
+    if (n == 0) {
+      r.closed = true;
+      break;
+    }
+    buf.insert(buf.end(), chunk, chunk + n);
+    r.last_byte = Clock::now();
+  }
+  return r;
+}
+
+size_t drain(int fd) {
+  size_t total = 0;
+  for (;;) {
+    pollfd p{fd, POLLIN, 0};
+    if (poll(&p, 1, 0) <= 0 || !(p.revents & POLLIN)) return total;
+    uint8_t chunk[512];
+    ssize_t n = read(fd, chunk, sizeof chunk);
+    if (n <= 0) return total;
+    total += size_t(n);
+  }
+}
+
+void write_all(int fd, std::span<const uint8_t> bytes, const std::string& what) {
+  size_t at = 0;
+  while (at < bytes.size()) {
+    // MSG_NOSIGNAL: a peer that closed the socket is an error here, not a SIGPIPE.
+    ssize_t n = send(fd, bytes.data() + at, bytes.size() - at, MSG_NOSIGNAL);
+    if (n < 0 && errno == ENOTSOCK) n = write(fd, bytes.data() + at, bytes.size() - at);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      if (errno == EAGAIN) {
+        pollfd p{fd, POLLOUT, 0};
+        poll(&p, 1, 100);
+        continue;
+      }
+      throw std::runtime_error(fmt::format("{}: write: {}", what, std::strerror(errno)));
+    }
+    at += size_t(n);
+  }
+}
+
+std::optional<size_t> rtu_reply_length(std::span<const uint8_t> head) {
+  constexpr size_t slave_fc = 2, crc = 2;
+  if (head.size() < 2) return std::nullopt;
+  auto with_count = [&](size_t count_at) -> std::optional<size_t> {
+    if (head.size() <= count_at) return std::nullopt;
+    return count_at + 1 + head[count_at] + crc;
+  };
+  if (head[1] & 0x80) return slave_fc + 1 + crc;  // exception code (MBAP v1.1b3 §7)
+  switch (head[1]) {
+    case 0x01: case 0x02: case 0x03: case 0x04:  // byte count, data (§6.1-6.4)
+    case 0x0C: case 0x11:                        // byte count, ... (§6.10, §6.13)
+    case 0x14: case 0x15: case 0x17:             // byte count, ... (§6.14, §6.15, §6.17)
+      return with_count(2);
+    case 0x05: case 0x06: case 0x0F: case 0x10:  // echo of address and value/quantity (§6.5, 6.6, 6.11, 6.12)
+    case 0x0B:                                   // status, event count (§6.9)
+      return slave_fc + 4 + crc;
+    case 0x08:  // echo of sub-function and data: 2 data bytes for all but "return query data" (§6.8)
+      return slave_fc + 4 + crc;
+    case 0x07:  // one status byte (§6.7)
+      return slave_fc + 1 + crc;
+    case 0x16:  // echo of address, AND and OR masks (§6.16)
+      return slave_fc + 6 + crc;
+    case 0x18:  // two-byte byte count (§6.18)
+      if (head.size() < 4) return std::nullopt;
+      return slave_fc + 2 + size_t(head[2] << 8 | head[3]) + crc;
+    default:  // FC 43 and unknown codes: the line's silence ends the frame
+      return std::nullopt;
+  }
+}
+
+}  // namespace mbc::conf::live

@@ -1,0 +1,175 @@
+// tcp://HOST:PORT?unit=N: Modbus TCP (MB Messaging on TCP/IP v1.0b). The
+// connection is libmodbus's (modbus_new_tcp_pi + modbus_connect: name
+// resolution, connect timeout, TCP_NODELAY). Requests carry a transaction id
+// of their own (libmodbus 3.1.6's modbus_send_raw_request always sends 0,
+// which cannot tell a late reply from the current one, nor check that the
+// server echoes the id, §3.1.3). Replies are read here, byte for byte, and
+// checked against the request's MBAP header; raw means whole MBAP ADUs.
+#include <fmt/core.h>
+#include <modbus/modbus.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <deque>
+#include <stdexcept>
+#include <thread>
+
+#include "serve/mbap.h"
+#include "targets/kinds.h"
+#include "targets/live_link.h"
+
+namespace mbc::conf {
+namespace {
+
+using namespace live;
+
+constexpr uint16_t kDefaultPort = 502;  // MB TCP v1.0b §3.1.2: the registered port
+constexpr milliseconds kDefaultTimeout{1000};
+// The end of a reply whose MBAP length is unusable: the connection's silence.
+constexpr milliseconds kReplyEndSilence{20};
+// Transaction ids of requests whose reply did not come in time; their late
+// replies are recognised and dropped.
+constexpr size_t kStaleMemory = 16;
+
+class TcpTarget final : public Target {
+ public:
+  explicit TcpTarget(const Uri& u) : window_(kDefaultTimeout, microseconds(0), std::nullopt) {
+    std::string base = fmt::format("tcp://{}:{}", u.host, u.port ? u.port : kDefaultPort);
+    check_params(u, base, {"unit", "timeout", "silence"});
+    if (u.host.empty()) throw std::invalid_argument(fmt::format("target 'tcp:{}': needs HOST[:PORT], e.g. tcp://192.168.1.20:502", u.path));
+    // MB TCP v1.0b §4.4.1.1: the unit id addresses a device behind a gateway;
+    // 0 is broadcast on the serial side, so it is never the default.
+    int unit = int_param(u, base, "unit", 1, 1, 255);
+    timeout_ = milliseconds(int_param(u, base, "timeout", int(kDefaultTimeout.count()), 1, 60000));
+    std::optional<milliseconds> fixed;
+    if (u.param("silence")) fixed = milliseconds(int_param(u, base, "silence", 0, 1, 60000));
+    window_ = SilenceWindow(timeout_, microseconds(0), fixed);
+    info_.uri = fmt::format("{}?unit={}", base, unit);
+    info_.kind = "tcp";
+    info_.framing = Framing::mbap;
+    info_.unit = uint8_t(unit);
+    info_.live = true;
+    info_.raw = true;
+    std::string port = std::to_string(u.port ? u.port : kDefaultPort);
+    ctx_ = modbus_new_tcp_pi(u.host.c_str(), port.c_str());
+    if (!ctx_) throw std::invalid_argument(fmt::format("target '{}': {}", info_.uri, modbus_strerror(errno)));
+    auto ms = timeout_.count();
+    modbus_set_response_timeout(ctx_, uint32_t(ms / 1000), uint32_t(ms % 1000) * 1000);
+    connect();
+  }
+  ~TcpTarget() override {
+    modbus_close(ctx_);
+    modbus_free(ctx_);
+  }
+
+  const TargetInfo& info() const override { return info_; }
+  microseconds silence_window() const override { return window_.window(); }
+
+  Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override {
+    uint16_t tid = next_tid_++;
+    Bytes adu = serve::mbap_reply(serve::Mbap{tid, 0, 0, unit}, pdu);
+    return exchange(adu, serve::Mbap{tid, 0, 0, unit}, std::nullopt);
+  }
+
+  Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
+    return exchange(Bytes(bytes.begin(), bytes.end()), serve::parse_mbap(bytes), gap_after);
+  }
+
+  void advance(std::chrono::microseconds) override {
+    throw std::logic_error(info_.uri + ": a live device has no virtual clock");
+  }
+  void power_cycle() override { throw std::logic_error(info_.uri + ": a live device cannot be power-cycled from here"); }
+
+ private:
+  void connect() {
+    if (modbus_connect(ctx_) == -1)
+      throw std::runtime_error(fmt::format("target '{}': cannot connect: {}", info_.uri, modbus_strerror(errno)));
+    connected_ = true;
+    in_.clear();
+  }
+
+  static bool whole_adu(std::span<const uint8_t> b) {
+    auto h = serve::parse_mbap(b);
+    return h && h->length_ok() && b.size() >= h->adu_size();
+  }
+
+  Reply exchange(const Bytes& adu, std::optional<serve::Mbap> sent, std::optional<size_t> gap_after) {
+    if (!connected_) connect();  // the server closed it after the last exchange (e.g. a bad MBAP length)
+    int fd = modbus_get_socket(ctx_);
+    if (drain(fd) > 0) window_.late_reply();
+    in_.clear();
+    size_t split = gap_after ? std::min(*gap_after, adu.size()) : adu.size();
+    write_all(fd, std::span(adu).first(split), info_.uri);
+    if (split < adu.size()) {
+      std::this_thread::sleep_for(kReplyEndSilence);  // two TCP segments
+      write_all(fd, std::span(adu).subspan(split), info_.uri);
+    }
+    Reply r;
+    r.request = adu;
+    auto t0 = Clock::now();
+    auto first_by = t0 + window_.window();
+    ReadResult rr;
+    for (;;) {
+      rr = read_frame(fd, in_, first_by, kReplyEndSilence, first_by + timeout_, whole_adu);
+      if (!whole_adu(in_) || !is_stale(*serve::parse_mbap(in_), sent)) break;
+      in_.erase(in_.begin(), in_.begin() + ptrdiff_t(serve::parse_mbap(in_)->adu_size()));
+      window_.late_reply();
+    }
+    size_t take = whole_adu(in_) ? serve::parse_mbap(in_)->adu_size() : in_.size();
+    r.frame.assign(in_.begin(), in_.begin() + ptrdiff_t(take));
+    in_.clear();
+    r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
+    if (rr.closed) {
+      modbus_close(ctx_);
+      connected_ = false;
+    }
+    judge_mbap(r, sent);
+    if (sent && r.frame.empty()) remember_stale(sent->transaction);
+    if (!r.frame.empty() && sent && sent->unit != 0) window_.record(r.latency);
+    return r;
+  }
+
+  bool is_stale(const serve::Mbap& got, const std::optional<serve::Mbap>& sent) const {
+    if (sent && got.transaction == sent->transaction) return false;
+    return std::find(stale_.begin(), stale_.end(), got.transaction) != stale_.end();
+  }
+  void remember_stale(uint16_t tid) {
+    stale_.push_back(tid);
+    if (stale_.size() > kStaleMemory) stale_.pop_front();
+  }
+
+  // MB TCP v1.0b §3.1.3: the server copies the transaction and unit ids, the
+  // protocol id is 0, the length counts the unit id and the PDU.
+  static void judge_mbap(Reply& r, const std::optional<serve::Mbap>& sent) {
+    if (r.frame.empty()) return;
+    auto h = serve::parse_mbap(r.frame);
+    if (!h) {
+      r.framing_error = fmt::format("reply of {} bytes is shorter than the 7-byte MBAP header", r.frame.size());
+    } else if (h->protocol != 0) {
+      r.framing_error = fmt::format("reply protocol id {}, Modbus is 0", h->protocol);
+    } else if (!h->length_ok() || h->adu_size() != r.frame.size()) {
+      r.framing_error = fmt::format("reply MBAP length {} but {} bytes follow it", h->length, r.frame.size() - 6);
+    } else if (sent && h->transaction != sent->transaction) {
+      r.framing_error = fmt::format("reply transaction id {}, request was {}", h->transaction, sent->transaction);
+    } else if (sent && h->unit != sent->unit) {
+      r.framing_error = fmt::format("reply unit id {}, request went to {}", h->unit, sent->unit);
+    } else {
+      r.pdu = Bytes(r.frame.begin() + serve::kMbapHeader, r.frame.end());
+    }
+  }
+
+  TargetInfo info_;
+  modbus_t* ctx_ = nullptr;
+  bool connected_ = false;
+  milliseconds timeout_{kDefaultTimeout};
+  SilenceWindow window_;
+  uint16_t next_tid_ = 1;
+  std::deque<uint16_t> stale_;
+  Bytes in_;
+};
+
+}  // namespace
+
+std::unique_ptr<Target> make_tcp_target(const Uri& u) { return std::make_unique<TcpTarget>(u); }
+
+}  // namespace mbc::conf
