@@ -7,3 +7,7 @@ tools/setup.sh
 tools/build.sh
 build/bin/mbconform spec check
 build/bin/mbconform spec errata --out reports/manuals
+# The conformance run: every case against every reference device in-process.
+# Full reports (JUnit, JSON, HTML) go to a dated directory under reports/runs/;
+# the stable summary (no dates, no times) is committed as reports/reference/.
+build/bin/mbconform run --quiet --out "reports/runs/$(date -u +%Y%m%dT%H%M%SZ)" --summary reports/reference

@@ -185,8 +185,63 @@ struct Gen {
     }
   }
 
+  // Power-on state (spec/README.md: `default` is the power-on value of a
+  // volatile register; a persistent one keeps what was stored).
+  void power_cycle(const Register& r) {
+    if (r.table != Table::holding || r.words != 1 || !r.range || r.type == DataType::f32) return;
+    if (r.persistence.by == spec::PersistBy::save_command) return;  // needs the save command; the examples cover it
+    bool persistent = r.persistence.store != spec::Store::none;
+    if (!persistent && !r.default_value) return;
+    double dflt = r.default_value.value_or(r.range->min);
+    if (dflt < r.range->min || dflt > r.range->max) return;  // a default the range excludes is an erratum of its own
+    double v = r.range->max != dflt ? r.range->max : r.range->min;
+    if (v == dflt) return;
+    Case c = base(r, persistent ? "persists" : "volatile");
+    c.clause = clause(g.spec, !r.persistence.section.empty() ? r.persistence.section : r.section);
+    c.title = persistent ? fmt::format("{} keeps {} across a power cycle", hex16(r.address), show(r, v))
+                         : fmt::format("{} returns to its default {} after a power cycle", hex16(r.address), show(r, dflt));
+    c.requirement = persistent ? fmt::format("{} is stored ({}): a written value survives a power cycle.", hex16(r.address),
+                                             r.persistence.store == spec::Store::eeprom ? "EEPROM" : "flash")
+                               : fmt::format("{} is volatile: after a power cycle it reads its default {}.", hex16(r.address), show(r, dflt));
+    c.touches.push_back({r.address, 1});
+    if (!g.target.power_cycle) {
+      c.skip_reason = "the target cannot be power-cycled";
+      out.push_back(std::move(c));
+      return;
+    }
+    if (!writable(r, c)) {
+      out.push_back(std::move(c));
+      return;
+    }
+    if (persistent && r.persistence.unless_register) {
+      // The "do not persist" switch must be off for the write to be stored.
+      const Register* sw = g.spec.find_register(*r.persistence.unless_register);
+      if (!sw) return;
+      int64_t off = r.persistence.unless_value == 0 ? 1 : 0;
+      if (auto st = cases::write_step(g, *sw, cases::encode(*sw, off))) {
+        st->setup = true;
+        st->what = "persistence on: " + st->what;
+        c.steps.push_back(std::move(*st));
+        c.touches.push_back({sw->address, 1});
+      }
+    }
+    auto w = words_for(r, v);
+    auto st = cases::write_step(g, r, w);
+    if (!st) return;
+    c.steps.push_back(std::move(*st));
+    Step pc;
+    pc.kind = Step::Kind::power_cycle;
+    pc.what = "power cycle";
+    c.steps.push_back(std::move(pc));
+    auto want = persistent ? w : words_for(r, dflt);
+    if (auto rd = cases::read_step(g, r, want_words(r, want, persistent ? show(r, v) + " (stored)" : show(r, dflt) + " (the default)")))
+      c.steps.push_back(std::move(*rd));
+    out.push_back(std::move(c));
+  }
+
   void run() {
     for (const auto& r : g.spec.registers) {
+      if (r.access == Access::rw) power_cycle(r);
       if (r.access != Access::wo && r.access != Access::command) read(r);
       if (r.access == Access::rw && (r.table == Table::holding || r.table == Table::coil)) writes(r);
       if (r.access == Access::ro && r.table == Table::holding) {

@@ -82,6 +82,7 @@ code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
   for (const auto& d : rep.devices) {
     h += fmt::format("<h2 id=\"{0}\">{0}</h2><p>Spec <code>{1}</code> · {2} frames, {3} bytes sent, {4} received</p>",
                      esc(d.device_id), esc(d.spec_path), d.frames_sent, d.bytes_sent, d.bytes_received);
+    if (!d.error.empty()) h += "<p class=fail><b>Run stopped:</b> " + esc(d.error) + "</p>";
     if (!d.restore_failures.empty()) {
       h += "<p class=fail><b>Could not restore:</b></p><ul>";
       for (const auto& f : d.restore_failures) h += "<li>" + esc(f) + "</li>";

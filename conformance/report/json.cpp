@@ -71,6 +71,7 @@ nlohmann::json report_json(const RunReport& rep) {
     dj["latencies_us"] = d.latencies_us;
     dj["restore_failures"] = d.restore_failures;
     dj["interrupted"] = d.interrupted;
+    dj["error"] = d.error;
     dj["cases"] = nlohmann::json::array();
     for (const auto& r : d.cases) {
       nlohmann::json cj;

@@ -61,6 +61,9 @@ struct DeviceRun {
   double wire_time_bound_seconds = 0;  // bytes at the baud rate + 3.5 char gaps
   std::vector<std::string> restore_failures;  // registers a live run could not put back
   bool interrupted = false;
+  // Set when the run against this target had to stop (the target kept
+  // throwing: a lost connection, a device that cannot go on).
+  std::string error;
 };
 
 struct RunReport {

@@ -12,6 +12,7 @@ namespace mbc::conf {
 namespace {
 
 using clock_type = std::chrono::steady_clock;
+constexpr int kMaxTargetErrors = 3;
 
 struct Exchange {
   Reply reply;
@@ -132,7 +133,7 @@ class CaseRunner {
       if (f.request.empty()) continue;
       s += fmt::format("{}{} -> {}", s.empty() ? "" : "; ", f.step, f.actual ? (f.actual_decoded.empty() ? to_hex(*f.actual) : f.actual_decoded) : "silence");
     }
-    return s.empty() ? "documented in the spec" : s;
+    return s.empty() ? "documented in the spec: " + r.title : s;
   }
 
   // Empty when the reply meets the expectation, else why not.
@@ -271,12 +272,28 @@ DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Ca
   run.baud = target.info().baud;
   auto t0 = clock_type::now();
   CaseRunner runner(target, spec, run);
+  int target_errors = 0;
   for (size_t i = 0; i < cases.size(); ++i) {
     if (opt.stop && opt.stop->load()) {
       run.interrupted = true;
       break;
     }
-    run.cases.push_back(runner.run(cases[i]));
+    try {
+      run.cases.push_back(runner.run(cases[i]));
+      target_errors = 0;
+    } catch (const std::exception& e) {
+      // The target threw (transport lost, device could not go on): the case
+      // fails; a target that keeps throwing ends the run against it.
+      CaseResult r = result_header(cases[i]);
+      r.outcome = Outcome::fail;
+      r.message = fmt::format("target error: {}", e.what());
+      run.cases.push_back(std::move(r));
+      if (++target_errors >= kMaxTargetErrors) {
+        run.error = fmt::format("stopped after {} target errors in a row; last: {}", target_errors, e.what());
+        if (opt.on_case) opt.on_case(run.cases.back(), i + 1, cases.size());
+        break;
+      }
+    }
     if (opt.on_case) opt.on_case(run.cases.back(), i + 1, cases.size());
   }
   run.wall_seconds = std::chrono::duration<double>(clock_type::now() - t0).count();

@@ -1,0 +1,146 @@
+// `mbconform run` as a user runs it: exit codes, the report files (JUnit XML
+// parsed by Python's XML parser, JSON by nlohmann), --list/--filter, and
+// --plan against a served device whose trace shows nothing was sent.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "serve_process.h"
+
+namespace {
+
+using mbc::serve_test::ServeProcess;
+using mbc::serve_test::TempDir;
+
+struct Out {
+  int rc = -1;
+  std::string text;
+};
+
+std::string quote(const std::string& s) {
+  std::string q = "'";
+  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return q + "'";
+}
+
+Out run(const std::vector<std::string>& args) {
+  std::string cmd = quote(mbc::serve_test::mbconform_bin());
+  for (const auto& a : args) cmd += " " + quote(a);
+  cmd += " 2>&1";
+  Out o;
+  FILE* p = popen(cmd.c_str(), "r");
+  if (!p) return o;
+  std::array<char, 4096> buf;
+  size_t n;
+  while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) o.text.append(buf.data(), n);
+  int st = pclose(p);
+  o.rc = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+  return o;
+}
+
+std::string slurp(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+TEST(RunCli, ExitCodes) {
+  TempDir dir;
+  EXPECT_EQ(run({"run", "--quiet", "--target", "ref:hsc60", "--out", dir / "ok"}).rc, 0);
+  Out failed = run({"run", "--quiet", "--target", "ref:hsc60?fault=accept-out-of-range", "--out", dir / "bad"});
+  EXPECT_EQ(failed.rc, 1) << failed.text;
+  EXPECT_NE(failed.text.find("FAIL hsc60/registers/"), std::string::npos) << failed.text;
+  EXPECT_EQ(run({"run", "--target", "nope:x", "--out", dir / "x"}).rc, 2);
+  EXPECT_EQ(run({"run", "--target", "ref:no-such-device", "--out", dir / "x"}).rc, 2);
+  // A live target needs a spec to be tested against.
+  EXPECT_EQ(run({"run", "--target", "tcp://127.0.0.1:9?unit=1", "--out", dir / "x"}).rc, 2);
+  EXPECT_EQ(run({"run", "--spec", dir / "missing.yaml", "--target", "ref:hsc60", "--out", dir / "x"}).rc, 2);
+}
+
+TEST(RunCli, ReportsAreWellFormed) {
+  TempDir dir;
+  std::string out = dir / "r";
+  Out o = run({"run", "--quiet", "--target", "ref:sihong-57hs-r", "--target", "ref:hsc60?fault=swapped-words", "--out", out});
+  ASSERT_EQ(o.rc, 1) << o.text;
+  EXPECT_NE(o.text.find("reports: " + out), std::string::npos);
+
+  auto j = nlohmann::json::parse(slurp(out + "/report.json"));
+  ASSERT_EQ(j["devices"].size(), 2u);
+  size_t cases = 0, fails = 0, skips = 0;
+  for (const auto& d : j["devices"]) {
+    for (const auto& c : d["cases"]) {
+      ++cases;
+      fails += c["outcome"] == "fail";
+      skips += c["outcome"] == "skip";
+      for (const char* k : {"id", "clause", "level", "requirement", "outcome", "frames"}) EXPECT_TRUE(c.contains(k)) << k;
+    }
+  }
+  EXPECT_GT(fails, 0u);
+
+  // JUnit: Python's parser must accept it, with one suite per device and the same counts.
+  std::string py = std::string(PYTHON3) + " -c " + quote(
+      "import sys, xml.etree.ElementTree as E\n"
+      "r = E.parse(sys.argv[1]).getroot()\n"
+      "s = r.findall('testsuite')\n"
+      "print(len(s), sum(len(x.findall('testcase')) for x in s), len(r.findall('.//failure')), len(r.findall('.//skipped')))\n") +
+      " " + quote(out + "/junit.xml");
+  FILE* p = popen(py.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  char line[256] = {};
+  ASSERT_NE(fgets(line, sizeof line, p), nullptr);
+  EXPECT_EQ(pclose(p), 0);
+  EXPECT_EQ(std::string(line), "2 " + std::to_string(cases) + " " + std::to_string(fails) + " " + std::to_string(skips) + "\n");
+
+  // The HTML page is self-contained: no scripts, no external resources.
+  std::string html = slurp(out + "/report.html");
+  EXPECT_NE(html.find("<h2 id=\"hsc60\">"), std::string::npos);
+  EXPECT_NE(html.find("class=bar"), std::string::npos);  // the latency histogram
+  EXPECT_NE(html.find("Failing cases"), std::string::npos);
+  EXPECT_EQ(html.find("<script"), std::string::npos);
+  EXPECT_EQ(html.find("src="), std::string::npos);
+  EXPECT_EQ(html.find("href=\"http"), std::string::npos);
+}
+
+TEST(RunCli, ListAndFilter) {
+  Out o = run({"run", "--target", "ref:sihong-57hs-r", "--list", "--filter", "*/examples/*"});
+  ASSERT_EQ(o.rc, 0) << o.text;
+  std::istringstream in(o.text);
+  std::string l;
+  size_t n = 0;
+  while (std::getline(in, l)) {
+    ++n;
+    EXPECT_EQ(l.rfind("sihong-57hs-r/examples/", 0), 0u) << l;
+  }
+  EXPECT_GT(n, 5u);
+  Out re = run({"run", "--target", "ref:sihong-57hs-r", "--list", "--filter", "fc0[36]/gap$"});
+  ASSERT_EQ(re.rc, 0);
+  EXPECT_NE(re.text.find("sihong-57hs-r/function-codes/fc03/gap "), std::string::npos) << re.text;
+  EXPECT_NE(re.text.find("sihong-57hs-r/function-codes/fc06/gap "), std::string::npos) << re.text;
+}
+
+// --plan prints the frames and sends nothing: the served device's trace
+// shows neither a connection nor a frame.
+TEST(RunCli, PlanSendsNothing) {
+  ServeProcess serve({"--device", "hsc60@1", "--tcp", "127.0.0.1:0", "--trace"});
+  ASSERT_TRUE(serve.wait_listening(1)) << serve.log();
+  std::string uri = "tcp://127.0.0.1:" + std::to_string(serve.endpoint("tcp")->port()) + "?unit=1";
+  Out o = run({"run", "--target", uri, "--device", "hsc60", "--plan", "--filter", "*/registers/0x0000/read"});
+  ASSERT_EQ(o.rc, 0) << o.text;
+  EXPECT_NE(o.text.find("unit 1 PDU 03 00 00 00 01"), std::string::npos) << o.text;
+  Out rtu = run({"run", "--target", "ref:hsc60", "--plan", "--filter", "*/framing/rtu/crc-error"});
+  EXPECT_NE(rtu.text.find("-> 01 03 00 00 00 01 84 F5"), std::string::npos) << rtu.text;  // the CRC's high byte inverted
+  EXPECT_EQ(serve.stop(SIGTERM).value_or(-1), 0);
+  std::string log = serve.log();
+  EXPECT_EQ(log.find("connected"), std::string::npos) << log;
+  EXPECT_EQ(log.find(" rx "), std::string::npos) << log;
+}
+
+}  // namespace
