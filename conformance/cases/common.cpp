@@ -8,16 +8,7 @@
 
 #include "master/pdu.h"
 
-// Until safety/safety.cpp lands (helper A), may_write is weak: live targets
-// then write nothing, reference targets never call it.
-namespace mbc::conf {
-WriteDecision may_write(const spec::Spec&, const spec::Register&, const TargetInfo&, const WritePolicy&)
-    __attribute__((weak));
-}
-
 namespace mbc::conf::cases {
-
-bool safety_available() { return &mbc::conf::may_write != nullptr; }
 
 using spec::Access;
 using spec::DataType;
@@ -160,7 +151,6 @@ std::string write_forbidden(const GenContext& g, const Register& r) {
       return fmt::format("{} sets the {} at once; writing it would lose the device for the rest of the run",
                          hex16(r.address), st.setting);
   if (g.target.live) {
-    if (!safety_available()) return "live target: the safety module (safety/safety.cpp) is not built, nothing is written";
     WriteDecision d = may_write(g.spec, r, g.target, g.policy);
     if (!d.allowed) return d.reason;
   }

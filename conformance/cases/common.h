@@ -55,9 +55,6 @@ PolicyExpect policy_expect(const GenContext&, spec::Violation);
 // Why the case may not write the register on this target, or empty.
 std::string write_forbidden(const GenContext&, const spec::Register&);
 
-// Whether safety/safety.cpp is linked in (live targets write nothing without it).
-bool safety_available();
-
 // Whether the profile supports a function code.
 bool has_fc(const spec::Spec&, int fc);
 

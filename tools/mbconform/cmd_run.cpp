@@ -24,6 +24,7 @@
 #include "loader.h"
 #include "report/report.h"
 #include "runner/runner.h"
+#include "safety/safety.h"
 #include "targets/target.h"
 
 namespace mbc::cli {
@@ -181,8 +182,30 @@ int run(const RunArgs& a) {
       }
       std::fflush(stdout);
     };
+    // Live drives: keep every register the run may write, put them back
+    // afterwards (also after SIGINT or a target error) and report what could not be.
+    std::optional<conf::Snapshot> snap;
+    std::vector<std::string> snap_notes;
+    if (info.live) {
+      try {
+        snap = conf::Snapshot::take(*target, s, a.policy);
+        for (const auto& f : snap->failures()) snap_notes.push_back("not kept before the run: " + f);
+      } catch (const std::exception& e) {
+        fmt::print(stderr, "mbconform run: error: target {}: cannot read the registers to keep: {}\n", uri, e.what());
+        return kExitUsage;
+      }
+    }
     conf::DeviceRun dr = conf::run_cases(*target, s, cases, opt);
     if (tty) fmt::print("\r\033[K");
+    if (snap) {
+      try {
+        for (auto& f : snap->restore(*target)) dr.restore_failures.push_back(std::move(f));
+      } catch (const std::exception& e) {
+        dr.restore_failures.push_back(fmt::format("restore stopped: {}", e.what()));
+      }
+      for (auto& n : snap_notes) dr.restore_failures.push_back(std::move(n));
+      for (const auto& f : dr.restore_failures) fmt::print(stderr, "mbconform run: {}: {}\n", s.device.id, f);
+    }
     report.devices.push_back(std::move(dr));
     if (g_stop.load()) {
       report.interrupted = true;
@@ -212,6 +235,8 @@ int run(const RunArgs& a) {
   bool must_failed = false;
   for (const auto& d : report.devices) must_failed |= conf::count(d).must_failed > 0;
   if (must_failed) return kExitFailed;
+  for (const auto& d : report.devices)
+    if (!d.error.empty()) return kExitUsage;
   if (report.interrupted) return kExitUsage;
   return kExitOk;
 }
