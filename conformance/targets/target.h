@@ -32,6 +32,7 @@ struct TargetInfo {
   bool raw = false;            // send_raw() is available (malformed frames)
   std::optional<int> baud;     // serial line rate, for the wire-time bound
   std::string device_id;       // the spec a ref: target carries, else empty
+  std::string implementation;  // what answers, as it names itself (plugin: the stack's name)
 };
 
 // One exchange. `frame` is what came back, as received (RTU: slave..CRC;

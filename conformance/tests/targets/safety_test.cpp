@@ -114,8 +114,9 @@ TEST(Snapshot, RestoresChangedRegistersOverTheWire) {
     for (const auto& k : snap.kept()) {
       const Register* r = s.find_register(k.address);
       ASSERT_TRUE(r);
-      if (r->words == 1 && r->default_value && !r->is_signed())
+      if (r->words == 1 && r->default_value && !r->is_signed()) {
         EXPECT_EQ(k.value[0], uint16_t(int64_t(*r->default_value))) << k.name;
+      }
     }
     int changed = 0;
     for (const auto& k : snap.kept()) {
