@@ -1,0 +1,40 @@
+# `mbconform fuzz` end to end (ctest fuzz_cli_*):
+#   CLEAN=1: fuzzing a correct reference device finds nothing (exit 0).
+#   else:    fuzzing TARGET (a deliberately broken reference device,
+#            reference/faults/) exits 1 and saves a reproducer; replaying it on
+#            the broken device reproduces (exit 1), on the correct device
+#            CORRECT it does not (exit 0).
+file(REMOVE_RECURSE "${OUT}")
+execute_process(COMMAND "${MBCONFORM}" fuzz --target "${TARGET}" --duration ${DURATION} --seed 7 --out "${OUT}"
+                RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+message("${out}${err}")
+if(CLEAN)
+  if(NOT rc EQUAL 0)
+    message(FATAL_ERROR "fuzzing ${TARGET} should find nothing, exit code ${rc}")
+  endif()
+  return()
+endif()
+if(NOT rc EQUAL 1)
+  message(FATAL_ERROR "fuzzing the broken ${TARGET} should exit 1, got ${rc}")
+endif()
+file(GLOB found "${OUT}/finding-*.txt")
+list(LENGTH found n)
+if(NOT n EQUAL 1)
+  message(FATAL_ERROR "expected one reproducer in ${OUT}, found [${found}]")
+endif()
+if(NOT out MATCHES "replay: mbconform fuzz --replay ")
+  message(FATAL_ERROR "no replay command printed")
+endif()
+file(STRINGS "${found}" steps REGEX "^(pdu|probe|raw|advance)")
+list(LENGTH steps nsteps)
+if(nsteps LESS 1 OR nsteps GREATER ${MAX_STEPS})
+  message(FATAL_ERROR "reproducer has ${nsteps} steps, expected 1..${MAX_STEPS} after reduction")
+endif()
+execute_process(COMMAND "${MBCONFORM}" fuzz --replay "${found}" --target "${TARGET}" RESULT_VARIABLE rc OUTPUT_VARIABLE out)
+if(NOT rc EQUAL 1 OR NOT out MATCHES "reproduced: ")
+  message(FATAL_ERROR "replaying ${found} on ${TARGET}: exit ${rc}, expected 1 and 'reproduced:'\n${out}")
+endif()
+execute_process(COMMAND "${MBCONFORM}" fuzz --replay "${found}" --target "${CORRECT}" RESULT_VARIABLE rc OUTPUT_VARIABLE out)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "replaying ${found} on the correct ${CORRECT}: exit ${rc}, expected 0\n${out}")
+endif()

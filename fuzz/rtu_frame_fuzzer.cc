@@ -1,0 +1,108 @@
+// The RTU frame decoding shared by the reference side and the master side:
+// CRC-16 (MB-SL v1.02 §2.5.1.2), hex frames, where a request ends on a byte
+// stream (reference/serve/rtu_framing.h), the MBAP header, and the master's
+// reply decoder (decode_rtu_reply) followed by its judge.
+#include <cstddef>
+#include <cstdint>
+#include <string>
+
+#include "codec/crc16.h"
+#include "codec/hex.h"
+#include "fuzz_support.h"
+#include "master/pdu.h"
+#include "serve/mbap.h"
+#include "serve/rtu_framing.h"
+#include "targets/kinds.h"
+
+namespace {
+constexpr const char* kHarness = "rtu_frame_fuzzer";
+using namespace mbc;
+
+void check(bool cond, const std::string& what, std::span<const uint8_t> in) {
+  MBC_FUZZ_CHECK(cond, kHarness, what + "\n  input: " + to_hex(in));
+}
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  std::span<const uint8_t> in(data, size);
+
+  // CRC: a frame with its CRC appended checks; flipping any bit breaks it.
+  Bytes framed(in.begin(), in.end());
+  uint16_t c = crc16(in);
+  framed.push_back(uint8_t(c & 0xFF));
+  framed.push_back(uint8_t(c >> 8));
+  check(crc_ok(framed), "crc_ok rejects a frame carrying its own CRC", in);
+  if (size > 0) {
+    framed[size / 2] ^= uint8_t(1u << (size % 8));
+    check(!crc_ok(framed), "crc_ok accepts a frame with one bit flipped (CRC-16 detects every 1-bit error)", in);
+  }
+
+  // Hex: what to_hex prints, parse_hex_strict reads back exactly; the lenient
+  // parser on arbitrary text never crashes and round-trips what it accepts.
+  std::string hex = to_hex(in);
+  auto back = parse_hex_strict(hex);
+  check(back && *back == Bytes(in.begin(), in.end()), "parse_hex_strict(to_hex(x)) != x", in);
+  std::string_view text(reinterpret_cast<const char*>(data), size);
+  if (auto lenient = parse_hex(text)) {
+    auto again = parse_hex(to_hex(*lenient));
+    check(again && *again == *lenient, "parse_hex does not round-trip what it accepted", in);
+  }
+
+  // Stream framing: once a prefix fixes the request length, longer prefixes
+  // (up to that length) agree; a length is never shorter than the bytes it was
+  // decided from, and never shorter than slave + FC + CRC.
+  std::optional<size_t> decided;
+  size_t decided_at = 0;
+  for (size_t k = 0; k <= size && k <= 300; ++k) {
+    auto n = serve::rtu_request_length(in.first(k));
+    if (decided && k <= *decided) {
+      check(n == decided, "rtu_request_length changes its mind after " + std::to_string(decided_at) + " bytes", in);
+    } else if (n && !decided) {
+      decided = n;
+      decided_at = k;
+      check(*n >= 4 && *n >= k, "rtu_request_length " + std::to_string(*n) + " from " + std::to_string(k) + " bytes", in);
+    }
+  }
+
+  // MBAP header: parse and re-emit keep transaction, protocol and unit.
+  if (auto h = serve::parse_mbap(in)) {
+    size_t pdu_len = size - serve::kMbapHeader;
+    Bytes out = serve::mbap_reply(*h, in.subspan(serve::kMbapHeader));
+    auto h2 = serve::parse_mbap(out);
+    check(h2 && h2->transaction == h->transaction && h2->protocol == h->protocol && h2->unit == h->unit &&
+              h2->length == uint16_t(1 + pdu_len) && out.size() == size,
+          "mbap_reply(parse_mbap(x)) does not keep the header", in);
+  }
+
+  // The master's decoder: a PDU comes out only of a frame that is valid for
+  // the slave asked; otherwise a reason is given.
+  for (uint8_t slave : {uint8_t(size ? data[0] : 1), uint8_t(size ? data[0] ^ 1 : 2)}) {
+    conf::Reply r;
+    r.frame.assign(in.begin(), in.end());
+    conf::decode_rtu_reply(r, slave);
+    bool valid = size >= 4 && size <= 256 && crc_ok(in) && data[0] == slave;
+    if (size == 0) {
+      check(!r.pdu && r.framing_error.empty(), "silence decoded as a frame or an error", in);
+      continue;
+    }
+    check(valid == r.pdu.has_value(), valid ? "valid frame rejected: " + r.framing_error : "invalid frame accepted", in);
+    check(valid == r.framing_error.empty(), "framing_error set together with a pdu, or neither", in);
+    if (r.pdu) {
+      check(r.pdu->size() == size - 3 && std::equal(r.pdu->begin(), r.pdu->end(), data + 1), "pdu is not the frame's middle", in);
+      // The judge on the decoded PDU, against a request with the same FC.
+      Bytes req(r.pdu->begin(), r.pdu->begin() + std::min<size_t>(r.pdu->size(), 5));
+      if (!req.empty()) req[0] &= 0x7F;
+      conf::Judged j = conf::judge_reply(req, *r.pdu);
+      check(j.ok() == (j.problems.empty() && j.kind != conf::Judged::Kind::malformed), "Judged::ok inconsistent", in);
+      (void)conf::describe_pdu(*r.pdu, false);
+    }
+  }
+  // And the encoder feeding the decoder gives the PDU back (MB-SL §2.5.1).
+  if (size >= 2 && size <= 254) {
+    conf::Reply r;
+    r.frame = conf::rtu_frame(data[0], in.subspan(1));
+    conf::decode_rtu_reply(r, data[0]);
+    check(r.pdu && *r.pdu == Bytes(in.begin() + 1, in.end()), "decode_rtu_reply(rtu_frame(s, pdu)) != pdu", in);
+  }
+  return 0;
+}
