@@ -24,7 +24,8 @@ int int_param(const Uri& u, const std::string& uri, const std::string& key, int 
 }
 
 void check_params(const Uri& u, const std::string& uri, std::initializer_list<const char*> known) {
-  for (const auto& [k, v] : u.query) {
+  for (const auto& param : u.query) {
+    const std::string& k = param.first;  // not a structured binding: clang < 16 cannot capture one in a lambda
     if (std::none_of(known.begin(), known.end(), [&](const char* n) { return k == n; })) {
       std::string list;
       for (const char* n : known) list += std::string(list.empty() ? "" : ", ") + n;
