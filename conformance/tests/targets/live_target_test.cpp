@@ -164,6 +164,33 @@ TEST_P(LiveTarget, FrameSplitByAGapIsNotAnswered) {
   EXPECT_TRUE(whole.pdu) << whole.framing_error;
 }
 
+// A truncated frame fails its CRC (RTU, MB-SL v1.02 §2.5.1.2) or never
+// completes its MBAP length (TCP): no reply either way; then the link works.
+TEST_P(LiveTarget, TruncatedFrameIsNotAnswered) {
+  const auto& r = served.default_word();
+  Bytes pdu = read_request(served.read_fc(r), r.address, 1);
+  Reply ok = target->transact(pdu);
+  ASSERT_TRUE(ok.pdu);
+  Bytes adu = ok.request;
+  adu.pop_back();
+  EXPECT_TRUE(target->send_raw(adu).silent());
+  if (!rtu()) return;  // the server still waits for the missing byte: the next request completes garbage
+  Reply again = target->transact(pdu);
+  EXPECT_TRUE(again.pdu) << again.framing_error;
+}
+
+// MB TCP: a server drops a connection whose MBAP length cannot be right
+// (serve does); the target reconnects for the next exchange.
+TEST_P(LiveTarget, ReconnectsAfterTheServerClosedTheConnection) {
+  if (rtu()) GTEST_SKIP() << "MBAP only";
+  Bytes bogus{0x00, 0x07, 0x00, 0x00, 0x00, 0x00, served.slave};  // length 0: not even a unit id
+  Reply dropped = target->send_raw(bogus);
+  EXPECT_TRUE(dropped.silent()) << to_hex(dropped.frame);
+  const auto& r = served.default_word();
+  Reply ok = target->transact(read_request(served.read_fc(r), r.address, 1));
+  EXPECT_TRUE(ok.pdu) << ok.framing_error;
+}
+
 TEST_P(LiveTarget, RawWellFormedFrameIsAnsweredLikeTransact) {
   const auto& r = served.default_word();
   Bytes pdu = read_request(served.read_fc(r), r.address, 1);
