@@ -557,9 +557,14 @@ void Device::advance(uint64_t dt_us) {
 
 namespace {
 int64_t default_raw(const Register& r) {
-  if (!r.default_value) return 0;
-  if (r.type == DataType::f32) return int64_t(std::bit_cast<uint32_t>(float(*r.default_value)));
-  return int64_t(*r.default_value);
+  // No printed default: power up at 0, unless the register's range excludes 0;
+  // then at the range's minimum (a device never holds a value it would refuse
+  // as a write, so a master can always write back what it read).
+  std::optional<double> v = r.default_value;
+  if (!v && r.range && (r.range->min > 0 || r.range->max < 0)) v = r.range->min;
+  if (!v) return 0;
+  if (r.type == DataType::f32) return int64_t(std::bit_cast<uint32_t>(float(*v)));
+  return int64_t(*v);
 }
 }  // namespace
 

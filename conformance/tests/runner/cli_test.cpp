@@ -9,6 +9,8 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <thread>
+#include <csignal>
 
 #include <nlohmann/json.hpp>
 
@@ -141,6 +143,97 @@ TEST(RunCli, PlanSendsNothing) {
   std::string log = serve.log();
   EXPECT_EQ(log.find("connected"), std::string::npos) << log;
   EXPECT_EQ(log.find(" rx "), std::string::npos) << log;
+}
+
+}  // namespace
+
+namespace {
+
+// The whole run against a device served by `mbconform serve` in a child
+// process, through the live targets (libmodbus): all MUST cases pass.
+struct Served {
+  const char* device;
+  const char* transport;  // tcp | rtu-tcp | pty
+};
+
+void PrintTo(const Served& s, std::ostream* os) { *os << s.device << " over " << s.transport; }
+
+class OverTheWire : public ::testing::TestWithParam<Served> {};
+
+TEST_P(OverTheWire, EveryMustCasePasses) {
+  const Served& p = GetParam();
+  TempDir dir;
+  std::vector<std::string> args{"--device", std::string(p.device) + "@1"};
+  std::string t = p.transport;
+  if (t == "pty") args.insert(args.end(), {"--pty", dir / "tty"});
+  else args.insert(args.end(), {"--" + t, "127.0.0.1:0"});
+  ServeProcess serve(args);
+  ASSERT_TRUE(serve.wait_listening(1)) << serve.log();
+  const auto* ep = serve.endpoint(t);
+  ASSERT_NE(ep, nullptr);
+  std::string uri = t == "pty" ? "rtu://" + ep->address + "?baud=115200&unit=1"
+                               : t + "://127.0.0.1:" + std::to_string(ep->port()) + "?unit=1";
+  Out o = run({"run", "--quiet", "--target", uri, "--device", p.device, "--out", dir / "r"});
+  EXPECT_EQ(o.rc, 0) << o.text;
+  auto j = nlohmann::json::parse(slurp(dir / "r/report.json"));
+  const auto& d = j["devices"][0];
+  EXPECT_EQ(d["counts"]["must_failed"], 0);
+  EXPECT_GT(d["counts"]["pass"].get<int>(), 10);
+  EXPECT_TRUE(d["restore_failures"].empty()) << d["restore_failures"].dump();
+  if (t != "tcp") {  // RTU framing
+    // RTU framing cases ran (not skipped) through the raw path.
+    for (const auto& c : d["cases"])
+      if (c["id"].get<std::string>().find("/framing/rtu/crc-error") != std::string::npos) {
+        EXPECT_NE(c["outcome"], "skip") << c.dump();
+      }
+  }
+  if (t == "pty") {
+    EXPECT_GT(d["wire_time_bound_seconds"].get<double>(), 0.0);
+  }
+  EXPECT_EQ(serve.stop(SIGTERM).value_or(-1), 0) << serve.log();
+}
+
+INSTANTIATE_TEST_SUITE_P(Serve, OverTheWire,
+                         ::testing::Values(Served{"sihong-57hs-r", "tcp"}, Served{"hsc60", "tcp"},
+                                           Served{"hanstar-7trsm5740q", "tcp"}, Served{"rieding-dhe", "tcp"},
+                                           Served{"hsc60", "rtu-tcp"}, Served{"sihong-57hs-r", "pty"},
+                                           Served{"hsc60", "pty"}, Served{"hanstar-7trsm5740q", "pty"},
+                                           Served{"rieding-dhe", "pty"}),
+                         [](const auto& info) {
+                           std::string n = std::string(info.param.device) + "_" + info.param.transport;
+                           for (auto& ch : n)
+                             if (ch == '-') ch = '_';
+                           return n;
+                         });
+
+// SIGINT stops the run, which still writes its partial reports (exit 2).
+TEST(RunCli, InterruptedRunWritesPartialReports) {
+  TempDir dir;
+  ServeProcess serve({"--device", "sihong-57hs-r@1", "--pty", dir / "tty", "--line-rate", "9600"});
+  ASSERT_TRUE(serve.wait_listening(1)) << serve.log();
+  std::string cmd = quote(mbc::serve_test::mbconform_bin()) + " run --quiet --target " +
+                    quote("rtu://" + (dir / "tty") + "?baud=9600&unit=1") + " --device sihong-57hs-r --out " +
+                    quote(dir / "r") + " > " + quote(dir / "out.txt") + " 2>&1 & echo $!";
+  FILE* p = popen(cmd.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  int pid = 0;
+  ASSERT_EQ(fscanf(p, "%d", &pid), 1);
+  pclose(p);
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  ASSERT_EQ(kill(pid, SIGINT), 0);
+  int rc = -1;
+  for (int i = 0; i < 100 && rc < 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    if (kill(pid, 0) != 0) rc = 0;
+  }
+  ASSERT_EQ(rc, 0) << "the run did not stop after SIGINT";
+  auto j = nlohmann::json::parse(slurp(dir / "r/report.json"));
+  EXPECT_TRUE(j["interrupted"].get<bool>());
+  size_t n = j["devices"][0]["cases"].size();
+  EXPECT_GT(n, 0u);
+  EXPECT_LT(n, 900u);
+  EXPECT_NE(slurp(dir / "out.txt").find("interrupted"), std::string::npos);
+  EXPECT_EQ(serve.stop(SIGTERM).value_or(-1), 0);
 }
 
 }  // namespace
