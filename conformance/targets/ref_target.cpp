@@ -6,6 +6,8 @@
 #include <fmt/core.h>
 
 #include <charconv>
+#include <map>
+#include <mutex>
 #include <stdexcept>
 
 #include "engine/device.h"
@@ -27,13 +29,24 @@ int int_param(const Uri& u, const std::string& key, int fallback, int lo, int hi
   return n;
 }
 
+// Property tests open a fresh ref: target per generated case: each spec is
+// parsed and checked once per process.
+spec::Spec cached_spec(const std::string& id) {
+  static std::mutex mutex;
+  static std::map<std::string, spec::Spec> cache;
+  std::lock_guard lock(mutex);
+  auto it = cache.find(id);
+  if (it == cache.end()) it = cache.emplace(id, spec::load_spec_by_id(id)).first;
+  return it->second;
+}
+
 class RefTarget final : public Target {
  public:
   RefTarget(const Uri& u) {
     if (u.path.empty()) throw std::invalid_argument("ref: target needs a device id, e.g. ref:hsc60");
     spec::Spec s;
     try {
-      s = spec::load_spec_by_id(u.path);
+      s = cached_spec(u.path);
     } catch (const std::exception& e) {
       throw std::runtime_error(fmt::format("ref:{}: {}", u.path, e.what()));
     }

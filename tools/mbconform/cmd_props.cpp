@@ -1,6 +1,208 @@
-// mbconform props (being written).
+// mbconform props: the RapidCheck properties of the profile invariants
+// (conformance/properties/) against any target, with the runner's reports.
+//
+//   mbconform props                                        # every reference device, in-process
+//   mbconform props --target ref:hsc60?fault=lost-write --cases 500 --seed 7
+//   mbconform props --target tcp://10.0.0.5:502?unit=3 --device hsc60 --only read-after-write
+//   mbconform props --replay conformance/properties/regressions/hsc60-lost-write.txt
+//
+// A falsified property prints its shrunk counterexample as hex frames with
+// the seed, and writes it to DIR/regressions/ in the format of
+// conformance/properties/regressions/ (add it there to replay it in ctest).
+//
+// Exit codes: 0 every property held; 1 a property was falsified (or a replay
+// disagreed); 2 the run could not be done (bad target, bad spec, bad arguments).
+#include <fmt/core.h>
+
+#include <chrono>
+#include <ctime>
+#include <filesystem>
+#include <fstream>
+
 #include "commands.h"
+#include "loader.h"
+#include "properties/properties.h"
+#include "properties/stateful.h"
+#include "report/report.h"
+#include "safety/safety.h"
 
 namespace mbc::cli {
-void add_props_command(CLI::App& app, int& exit_code) {}
+namespace {
+
+spec::Spec load_file(const std::string& path) {
+  auto lr = spec::load_spec_file(path);
+  if (!lr.ok()) throw std::runtime_error(path + ": not a valid spec (mbconform spec check " + path + ")");
+  return *lr.spec;
+}
+
+const char* const kDefaultTargets[] = {"ref:sihong-57hs-r", "ref:hsc60", "ref:hanstar-7trsm5740q", "ref:rieding-dhe",
+                                       "ref:modbus-standard"};
+
+struct PropsArgs {
+  std::vector<std::string> targets, only, replay;
+  std::string device, spec_file, out;
+  int cases = 100, max_size = 60;
+  uint64_t seed = 0;
+  bool list = false, quiet = false;
+  conf::WritePolicy policy;
+};
+
+std::string utc_now(const char* f) {
+  std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[64];
+  std::strftime(buf, sizeof buf, f, &tm);
+  return buf;
+}
+
+int replay_files(const PropsArgs& a) {
+  int rc = kExitOk;
+  for (const auto& path : a.replay) {
+    conf::props::Regression r;
+    try {
+      r = conf::props::parse_regression(path);
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "mbconform props: error: {}\n", e.what());
+      return kExitUsage;
+    }
+    std::string uri = a.targets.empty() ? "ref:" + r.device_id : a.targets.front();
+    try {
+      auto target = conf::open_target(uri);
+      spec::Spec s = a.spec_file.empty() ? spec::load_spec_by_id(r.device_id) : load_file(a.spec_file);
+      conf::props::SpecView view(s, target->info(), a.policy);
+      conf::props::Session session(*target, view, conf::props::facts_for(s.device.id));
+      std::string why = conf::props::replay(session, r.steps);
+      fmt::print("{} on {}: {}\n", path, uri, why.empty() ? "agrees with the model" : why);
+      if (!why.empty()) rc = kExitFailed;
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "mbconform props: error: {}: {}\n", uri, e.what());
+      return kExitUsage;
+    }
+  }
+  return rc;
+}
+
+int run(PropsArgs& a) {
+  if (!a.replay.empty()) return replay_files(a);
+  if (a.list) {
+    for (const auto& inv : conf::props::invariants())
+      fmt::print("{:<28} {}\n{:<28} {}\n", inv.name, inv.requirement, "", inv.clause);
+    return kExitOk;
+  }
+  for (const auto& o : a.only)
+    if (!conf::props::find_invariant(o)) {
+      fmt::print(stderr, "mbconform props: error: --only {}: no such invariant (see --list)\n", o);
+      return kExitUsage;
+    }
+  std::optional<spec::Spec> named;
+  try {
+    if (!a.spec_file.empty()) named = load_file(a.spec_file);
+    else if (!a.device.empty()) named = spec::load_spec_by_id(a.device);
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "mbconform props: error: {}\n", e.what());
+    return kExitUsage;
+  }
+  std::vector<std::string> targets = a.targets;
+  if (targets.empty()) targets.assign(std::begin(kDefaultTargets), std::end(kDefaultTargets));
+
+  conf::props::Options opt;
+  opt.cases = a.cases;
+  opt.seed = a.seed ? a.seed : uint64_t(std::chrono::system_clock::now().time_since_epoch().count());
+  opt.max_size = a.max_size;
+  opt.policy = a.policy;
+  opt.only = a.only;
+
+  conf::RunReport report;
+  report.command = "props";
+  report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
+  report.version = "mbconform 0.1";
+  std::string out = a.out.empty() ? "reports/runs/props-" + utc_now("%Y%m%dT%H%M%SZ") : a.out;
+  bool failed = false;
+  std::vector<std::pair<std::string, std::string>> regressions;  // file name, text
+
+  for (const auto& uri : targets) {
+    conf::props::TargetSource src;
+    try {
+      src = conf::props::source_for(uri, named ? &*named : nullptr);
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "mbconform props: error: target {}: {}\n", uri, e.what());
+      return kExitUsage;
+    }
+    auto probe = src.open();
+    const conf::TargetInfo info = probe->info();
+    std::optional<conf::Snapshot> snap;
+    conf::DeviceRun dr;
+    if (info.live) {
+      try {
+        snap = conf::Snapshot::take(*probe, *src.spec, a.policy);
+        for (const auto& f : snap->failures()) dr.restore_failures.push_back("not kept before the run: " + f);
+      } catch (const std::exception& e) {
+        fmt::print(stderr, "mbconform props: error: target {}: cannot read the registers to keep: {}\n", uri, e.what());
+        return kExitUsage;
+      }
+    }
+    dr.device_id = src.spec->device.id;
+    dr.target_uri = info.uri;
+    dr.spec_path = src.spec->path;
+    dr.baud = info.baud;
+    fmt::print("{}: properties against {} (seed {}, {} cases each)\n", dr.device_id, info.uri, opt.seed, opt.cases);
+    auto t0 = std::chrono::steady_clock::now();
+    for (const auto& inv : conf::props::invariants()) {
+      if (!a.only.empty() && std::find(a.only.begin(), a.only.end(), inv.name) == a.only.end()) continue;
+      conf::CaseResult c = conf::props::run_invariant(inv, src, opt);
+      fmt::print("  {:<34} {:<5} {:>5} cases {:>8.1f} ms{}\n", c.id, conf::to_string(c.outcome), c.extra.value("cases", 0),
+                 c.duration_ms, c.outcome == conf::Outcome::skip ? "  (" + c.message + ")" : "");
+      if (c.outcome == conf::Outcome::fail) {
+        failed = true;
+        if (!a.quiet) fmt::print("{}\n", c.message);
+        if (c.extra.contains("regression"))
+          regressions.emplace_back(fmt::format("{}-{}.txt", dr.device_id, c.title), c.extra["regression"].get<std::string>());
+      }
+      dr.cases.push_back(std::move(c));
+    }
+    dr.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (snap) {
+      for (const auto& f : snap->restore(*probe)) dr.restore_failures.push_back(f);
+      for (const auto& f : dr.restore_failures) fmt::print(stderr, "mbconform props: warning: {}\n", f);
+    }
+    report.devices.push_back(std::move(dr));
+  }
+  try {
+    conf::write_reports(report, out);
+    if (!regressions.empty()) {
+      std::filesystem::create_directories(out + "/regressions");
+      for (const auto& [name, text] : regressions) std::ofstream(out + "/regressions/" + name) << text;
+    }
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "mbconform props: error: writing reports: {}\n", e.what());
+    return kExitUsage;
+  }
+  fmt::print("{}", conf::summary_table(report));
+  fmt::print("reports: {}\n", out);
+  if (!regressions.empty()) fmt::print("counterexamples: {}/regressions/ (copy to conformance/properties/regressions/ to replay in ctest)\n", out);
+  return failed ? kExitFailed : kExitOk;
+}
+
+}  // namespace
+
+void add_props_command(CLI::App& app, int& exit_code) {
+  static PropsArgs a;
+  auto* cmd = app.add_subcommand("props", "Property tests (RapidCheck) of the profile invariants against any target");
+  cmd->add_option("--target", a.targets, "URI (ref:ID[?fault=NAME], tcp://, rtu-tcp://, rtu://, plugin:); repeatable; default every reference device");
+  cmd->add_option("--device", a.device, "ID: the spec (spec/devices/ID.yaml) of a live target");
+  cmd->add_option("--spec", a.spec_file, "FILE: the spec of a live target");
+  cmd->add_option("--cases", a.cases, "generated cases per invariant (default 100)")->check(CLI::Range(1, 1000000));
+  cmd->add_option("--seed", a.seed, "RapidCheck seed (default: from the clock; printed)");
+  cmd->add_option("--max-size", a.max_size, "RapidCheck size bound: longest stateful sequence (default 60)")->check(CLI::Range(1, 10000));
+  cmd->add_option("--only", a.only, "NAME: run only this invariant; repeatable (see --list)");
+  cmd->add_option("--out", a.out, "DIR: reports (junit.xml, report.json, report.html) and counterexamples");
+  cmd->add_option("--replay", a.replay, "FILE: replay a regression file through the model (on ref:ID, or --target)");
+  cmd->add_flag("--allow-motion", a.policy.allow_motion, "live targets: let properties write command and motion registers");
+  cmd->add_flag("--allow-eeprom-writes", a.policy.allow_eeprom_writes, "live targets: let properties write persistent registers");
+  cmd->add_flag("--list", a.list, "print the invariants and exit");
+  cmd->add_flag("--quiet", a.quiet, "do not print counterexamples (they are in the reports)");
+  cmd->callback([&exit_code] { exit_code = run(a); });
+}
+
 }  // namespace mbc::cli

@@ -1,0 +1,238 @@
+// The property runner: RapidCheck around each invariant, one fresh target per
+// generated case (ref:), the shrunk counterexample kept as regression lines.
+#include "properties/properties.h"
+
+#include <fmt/core.h>
+#include <rapidcheck.h>
+
+#include <chrono>
+#include <random>
+#include <sstream>
+
+#include "loader.h"
+#include "master/pdu.h"
+#include "properties/stateful.h"
+
+namespace mbc::conf::props {
+
+std::string Step::line() const {
+  switch (kind) {
+    case Kind::frame: return to_hex(frame);
+    case Kind::advance: return fmt::format("advance {}", advance_us);
+    case Kind::power_cycle: return "power-cycle";
+  }
+  return "";
+}
+
+namespace {
+Step frame_step(const Reply& r, const std::string& note) {
+  Step s;
+  s.frame = r.request;
+  if (!r.silent()) s.reply = r.frame;
+  s.note = note;
+  return s;
+}
+}  // namespace
+
+Reply Session::send(std::span<const uint8_t> pdu, const std::string& note) { return send_to(unit(), pdu, note); }
+
+Reply Session::send_to(uint8_t unit, std::span<const uint8_t> pdu, const std::string& note) {
+  Reply r = target_.transact(unit, pdu);
+  steps_.push_back(frame_step(r, note));
+  return r;
+}
+
+Reply Session::send_raw(std::span<const uint8_t> adu, const std::string& note) {
+  Reply r = target_.send_raw(adu);
+  steps_.push_back(frame_step(r, note));
+  return r;
+}
+
+void Session::advance(uint64_t us) {
+  target_.advance(std::chrono::microseconds(us));
+  Step s;
+  s.kind = Step::Kind::advance;
+  s.advance_us = us;
+  steps_.push_back(s);
+}
+
+void Session::power_cycle() {
+  target_.power_cycle();
+  Step s;
+  s.kind = Step::Kind::power_cycle;
+  steps_.push_back(s);
+}
+
+const Invariant* find_invariant(const std::string& name) {
+  for (const auto& i : invariants())
+    if (i.name == name) return &i;
+  return nullptr;
+}
+
+namespace {
+
+std::vector<FrameRecord> records_of(const std::vector<Step>& steps) {
+  std::vector<FrameRecord> out;
+  for (const auto& s : steps) {
+    FrameRecord f;
+    f.step = s.note.empty() ? s.line() : s.note;
+    if (s.kind == Step::Kind::frame) {
+      f.request = s.frame;
+      f.actual = s.reply;
+      if (s.frame.size() >= 4) f.request_decoded = describe_pdu(std::span(s.frame).subspan(1, s.frame.size() - 3), true);
+      if (s.reply && s.reply->size() >= 4)
+        f.actual_decoded = describe_pdu(std::span(*s.reply).subspan(1, s.reply->size() - 3), false);
+    }
+    out.push_back(std::move(f));
+  }
+  return out;
+}
+
+}  // namespace
+
+CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const Options& options) {
+  CaseResult c;
+  c.family = "properties";
+  c.level = Level::must;
+  c.clause = inv.clause;
+  c.requirement = inv.requirement;
+  c.title = inv.name;
+  auto t0 = std::chrono::steady_clock::now();
+  std::unique_ptr<Target> probe = source.open();
+  const spec::Spec& spec = *source.spec;
+  c.id = fmt::format("prop.{}.{}", inv.name, spec.device.id);
+  const DeviceFacts* facts = facts_for(spec.device.id);
+  SpecView probe_view(spec, probe->info(), options.policy);
+  if (std::string why = inv.skip_reason ? inv.skip_reason(probe_view, probe->info(), facts) : ""; !why.empty()) {
+    c.outcome = Outcome::skip;
+    c.message = why;
+    return c;
+  }
+  const bool fresh_per_case = !probe->info().live;
+  std::shared_ptr<Target> shared = std::move(probe);
+
+  uint64_t seed = options.seed;
+  if (seed == 0) seed = std::random_device{}() | (uint64_t(std::random_device{}()) << 32);
+
+  int runs = 0;
+  std::vector<Step> last_failure;
+  std::string last_failure_text;
+  auto property = [&] {
+    std::shared_ptr<Target> target = fresh_per_case ? std::shared_ptr<Target>(source.open()) : shared;
+    // One view for every run: RapidCheck keeps generated values (and the
+    // stateful commands' model) across runs while it shrinks.
+    Session session(*target, probe_view, facts);
+    ++runs;
+    try {
+      inv.check(session);
+    } catch (...) {
+      last_failure = session.steps();
+      throw;
+    }
+  };
+
+  rc::detail::TestParams params;
+  params.seed = seed;
+  params.maxSuccess = options.cases;
+  params.maxSize = options.max_size;
+  params.maxDiscardRatio = 10;
+  rc::detail::TestMetadata meta;
+  meta.id = c.id;
+  meta.description = inv.requirement;
+  rc::detail::TestResult result = rc::detail::checkTestable(property, meta, params);
+
+  c.extra["seed"] = seed;
+  c.extra["target"] = source.uri;
+  rc::detail::SuccessResult ok;
+  rc::detail::FailureResult failed;
+  rc::detail::GaveUpResult gave_up;
+  rc::detail::Error error;
+  if (result.match(ok)) {
+    c.outcome = Outcome::pass;
+    c.extra["cases"] = ok.numSuccess;
+    c.message = fmt::format("{} generated cases passed (seed {})", ok.numSuccess, seed);
+  } else if (result.match(failed)) {
+    c.outcome = Outcome::fail;
+    c.extra["cases"] = failed.numSuccess + 1;
+    std::ostringstream shown;
+    for (const auto& [type, value] : failed.counterExample) shown << value << "\n";  // the generated values, as RapidCheck shows them
+    std::vector<std::string> lines;
+    for (const auto& s : last_failure) lines.push_back(s.line());
+    c.extra["counterexample"] = lines;
+    std::string fault;
+    if (auto f = parse_uri(source.uri).param("fault")) fault = *f;
+    c.extra["regression"] = format_regression(
+        spec.device.id, fault,
+        fmt::format("{} falsified against {} (seed {}, {} cases):\n{}", c.id, source.uri, seed, failed.numSuccess + 1,
+                    failed.description.substr(failed.description.find_last_of('\n', failed.description.size() - 2) + 1)),
+        last_failure);
+    c.extra["shrunk"] = shown.str();
+    c.frames = records_of(last_failure);
+    std::string frames;
+    for (const auto& s : last_failure) {
+      frames += "  " + s.line();
+      if (s.kind == Step::Kind::frame) frames += s.reply ? "   -> " + to_hex(*s.reply) : "   -> (silence)";
+      if (!s.note.empty()) frames += "   # " + s.note;
+      frames += "\n";
+    }
+    c.message = fmt::format("falsified after {} cases (seed {}): {}\nshrunk counterexample ({} steps):\n{}",
+                            failed.numSuccess + 1, seed, failed.description, last_failure.size(), frames);
+  } else if (result.match(gave_up)) {
+    c.outcome = Outcome::fail;
+    c.extra["cases"] = gave_up.numSuccess;
+    c.message = "gave up: " + gave_up.description;
+  } else if (result.match(error)) {
+    c.outcome = Outcome::fail;
+    c.message = "could not run: " + error.description;
+  }
+  c.extra["runs"] = runs;  // including shrinking
+  c.duration_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return c;
+}
+
+std::vector<CaseResult> run_all(const TargetSource& source, const Options& options) {
+  std::vector<CaseResult> out;
+  for (const auto& inv : invariants()) {
+    if (!options.only.empty() && std::find(options.only.begin(), options.only.end(), inv.name) == options.only.end())
+      continue;
+    out.push_back(run_invariant(inv, source, options));
+  }
+  return out;
+}
+
+TargetSource source_for(const std::string& uri, const spec::Spec* spec_override) {
+  TargetSource s;
+  s.uri = uri;
+  std::shared_ptr<Target> first(open_target(uri));
+  if (spec_override) {
+    s.spec = spec_override;
+  } else {
+    if (first->info().device_id.empty())
+      throw std::invalid_argument(fmt::format("target {}: give the device's spec (--device ID or --spec FILE)", uri));
+    static std::map<std::string, std::unique_ptr<spec::Spec>> cache;  // specs outlive every source
+    auto& slot = cache[first->info().device_id];
+    if (!slot) slot = std::make_unique<spec::Spec>(spec::load_spec_by_id(first->info().device_id));
+    s.spec = slot.get();
+  }
+  if (first->info().live) {
+    s.open = [first] {
+      // The same live target for every case: a view that does not own it.
+      struct Borrowed final : Target {
+        std::shared_ptr<Target> t;
+        explicit Borrowed(std::shared_ptr<Target> t) : t(std::move(t)) {}
+        const TargetInfo& info() const override { return t->info(); }
+        Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override { return t->transact(unit, pdu); }
+        Reply send_raw(std::span<const uint8_t> b, std::optional<size_t> g) override { return t->send_raw(b, g); }
+        std::chrono::microseconds silence_window() const override { return t->silence_window(); }
+        void advance(std::chrono::microseconds dt) override { t->advance(dt); }
+        void power_cycle() override { t->power_cycle(); }
+      };
+      return std::unique_ptr<Target>(new Borrowed(first));
+    };
+  } else {
+    s.open = [uri] { return open_target(uri); };
+  }
+  return s;
+}
+
+}  // namespace mbc::conf::props

@@ -1,0 +1,102 @@
+// Property tests of the profile invariants (issue 6), with RapidCheck. Each
+// invariant is stated once, from the spec and the Modbus standard, and holds
+// for every device whose spec has the feature it needs; it runs against any
+// conf::Target: the reference devices in ctest (`ref:ID`, and `ref:ID?fault=`
+// to show it can fail), a live drive or a served device from
+// `mbconform props --target URI`.
+//
+// A failing property is shrunk by RapidCheck to a minimal case; the frames of
+// that case are kept as hex (one frame per line, with the seed) so it can be
+// replayed by hand with any master, or added to regressions/ (replay.h).
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "properties/facts.h"
+#include "properties/spec_view.h"
+#include "report/result.h"
+#include "safety/safety.h"
+#include "spec.h"
+#include "targets/target.h"
+
+namespace mbc::conf::props {
+
+// One thing done to the target, as kept in a counterexample and in a
+// regression file (regressions/README.md has the format).
+struct Step {
+  enum class Kind { frame, advance, power_cycle } kind = Kind::frame;
+  Bytes frame;          // the whole ADU as sent (RTU: slave, PDU, CRC)
+  uint64_t advance_us = 0;
+  std::optional<Bytes> reply;  // as received; nullopt = silence (frames only)
+  std::string note;            // what the step meant ("write 0x0020 = 1000")
+  std::string line() const;    // the regression-file line: hex, "advance N", "power-cycle"
+};
+
+// The target a property case runs on, plus the record of what was done.
+class Session {
+ public:
+  Session(Target& target, const SpecView& view, const DeviceFacts* facts) : target_(target), view_(view), facts_(facts) {}
+  Target& target() { return target_; }
+  const SpecView& view() const { return view_; }
+  const spec::Spec& spec() const { return view_.spec(); }
+  const DeviceFacts* facts() const { return facts_; }
+  uint8_t unit() const { return target_.info().unit; }
+
+  Reply send(std::span<const uint8_t> pdu, const std::string& note = "");                    // to the unit
+  Reply send_to(uint8_t unit, std::span<const uint8_t> pdu, const std::string& note = "");   // 0 = broadcast
+  Reply send_raw(std::span<const uint8_t> adu, const std::string& note = "");
+  void advance(uint64_t us);
+  void power_cycle();
+  const std::vector<Step>& steps() const { return steps_; }
+
+ private:
+  Target& target_;
+  const SpecView& view_;
+  const DeviceFacts* facts_;
+  std::vector<Step> steps_;
+};
+
+struct Options {
+  int cases = 100;        // generated cases per invariant
+  uint64_t seed = 0;      // RapidCheck seed; 0 = pick one (printed in the result)
+  int max_size = 100;     // RapidCheck's size bound (sequence length of the stateful property)
+  WritePolicy policy;
+  std::vector<std::string> only;  // invariant names; empty = all
+};
+
+// A target to run on: `open()` gives a fresh one per generated case when the
+// target is in-process (ref:, so each case starts at power-on), else the same one.
+struct TargetSource {
+  std::string uri;
+  const spec::Spec* spec = nullptr;
+  std::function<std::unique_ptr<Target>()> open;
+};
+
+struct Invariant {
+  std::string name;         // prop.<name>.<device>
+  std::string clause;       // the standard clause / spec field it rests on
+  std::string requirement;  // the requirement, as a sentence
+  // Empty when it applies; else why it is skipped for this device/target.
+  std::function<std::string(const SpecView&, const TargetInfo&, const DeviceFacts*)> skip_reason;
+  // One generated case: generates with *rc::gen, fails with RC_FAIL.
+  std::function<void(Session&)> check;
+};
+const std::vector<Invariant>& invariants();
+const Invariant* find_invariant(const std::string& name);
+
+// Runs one invariant on `source` and reports it as `prop.<name>.<device>`:
+// extra.cases (generated cases run), extra.seed, extra.counterexample (the
+// shrunk case's steps as regression lines) and extra.shrunk (RapidCheck's
+// description of it).
+CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const Options& options);
+std::vector<CaseResult> run_all(const TargetSource& source, const Options& options);
+
+// A TargetSource for a URI: ref: targets reopen per case; others are opened once.
+TargetSource source_for(const std::string& uri, const spec::Spec* spec_override = nullptr);
+
+}  // namespace mbc::conf::props

@@ -1,0 +1,183 @@
+// The properties in ctest: every invariant passes on every reference device
+// it applies to; each invariant fails on a reference device broken at run
+// time by a named fault (reference/faults/); the regression list replays.
+#include <gtest/gtest.h>
+
+#include <fmt/core.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "faults/faults.h"
+#include "loader.h"
+#include "properties/properties.h"
+#include "properties/stateful.h"
+
+namespace mbc::conf::props {
+namespace {
+
+constexpr uint64_t kSeed = 20261130;  // fixed: ctest runs are reproducible
+
+Options ctest_options(int cases = 100) {
+  Options o;
+  o.cases = cases;
+  o.seed = kSeed;
+  o.max_size = 40;
+  return o;
+}
+
+std::string result_text(const CaseResult& c) {
+  return fmt::format("{}: {} ({} cases) {}", c.id, to_string(c.outcome), c.extra.value("cases", 0), c.message);
+}
+
+// ---- clean devices: every invariant holds ---------------------------------
+
+struct Clean {
+  std::string device, invariant;
+};
+std::vector<Clean> clean_cases() {
+  std::vector<Clean> out;
+  for (const auto& id : spec::spec_ids())
+    for (const auto& inv : invariants()) out.push_back({id, inv.name});
+  return out;
+}
+
+void PrintTo(const Clean& c, std::ostream* os) { *os << c.invariant << " on " << c.device; }
+
+class PropertyHolds : public ::testing::TestWithParam<Clean> {};
+
+TEST_P(PropertyHolds, OnTheReferenceDevice) {
+  const auto& p = GetParam();
+  TargetSource src = source_for("ref:" + p.device);
+  CaseResult c = run_invariant(*find_invariant(p.invariant), src, ctest_options());
+  RecordProperty("cases", c.extra.value("cases", 0));
+  EXPECT_NE(c.outcome, Outcome::fail) << result_text(c);
+  if (c.outcome == Outcome::skip) GTEST_SKIP() << c.message;
+}
+
+INSTANTIATE_TEST_SUITE_P(Props, PropertyHolds, ::testing::ValuesIn(clean_cases()), [](const auto& info) {
+  std::string n = info.param.invariant + "_" + info.param.device;
+  for (char& ch : n)
+    if (!isalnum(uint8_t(ch))) ch = '_';
+  return n;
+});
+
+// ---- teeth: each invariant catches a broken device ------------------------
+
+struct Tooth {
+  std::string invariant, device, fault;
+};
+const std::vector<Tooth> kTeeth = {
+    {"read-after-write", "hsc60", "swapped-words"},
+    {"read-after-write", "sihong-57hs-r", "lost-write"},
+    {"rejection-changes-nothing", "hsc60", "wrong-exception-code"},
+    {"rejection-changes-nothing", "hsc60", "accept-out-of-range"},
+    {"rejection-changes-nothing", "modbus-standard", "off-by-one-limit"},
+    {"rejection-changes-nothing", "modbus-standard", "accept-read-only"},
+    {"foreign-or-corrupt-ignored", "sihong-57hs-r", "reply-other-slave"},
+    {"foreign-or-corrupt-ignored", "hsc60", "accept-bad-crc"},
+    {"broadcast-unanswered", "sihong-57hs-r", "answer-broadcast"},
+    {"broadcast-unanswered", "modbus-standard", "ignore-broadcast"},
+    {"responses-well-formed", "hsc60", "bad-reply-crc"},
+    {"responses-well-formed", "rieding-dhe", "wrong-byte-count"},
+    {"responses-well-formed", "modbus-standard", "refuse-limit"},
+    {"persistence", "sihong-57hs-r", "forget-persistent"},
+    {"persistence", "hsc60", "forget-persistent"},
+    {"persistence", "modbus-standard", "keep-volatile"},
+    {"stateful-model", "hsc60", "lost-write"},
+    {"stateful-model", "modbus-standard", "keep-volatile"},
+    {"stateful-model", "sihong-57hs-r", "forget-persistent"},
+    {"stateful-model", "modbus-standard", "accept-out-of-range"},
+    {"stateful-model", "rieding-dhe", "reply-other-slave"},
+};
+
+void PrintTo(const Tooth& t, std::ostream* os) { *os << t.invariant << " on " << t.device << "?fault=" << t.fault; }
+
+class PropertyCatches : public ::testing::TestWithParam<Tooth> {};
+
+TEST_P(PropertyCatches, TheInjectedFault) {
+  const auto& t = GetParam();
+  const Invariant* inv = find_invariant(t.invariant);
+  ASSERT_NE(inv, nullptr) << t.invariant;
+  TargetSource src = source_for(fmt::format("ref:{}?fault={}", t.device, t.fault));
+  CaseResult c = run_invariant(*inv, src, ctest_options());
+  EXPECT_EQ(c.outcome, Outcome::fail) << "fault " << t.fault << " went unnoticed: " << result_text(c);
+  EXPECT_FALSE(c.extra.value("counterexample", nlohmann::json::array()).empty()) << result_text(c);
+}
+
+INSTANTIATE_TEST_SUITE_P(Props, PropertyCatches, ::testing::ValuesIn(kTeeth), [](const auto& info) {
+  std::string n = info.param.invariant + "_" + info.param.device + "_" + info.param.fault;
+  for (char& ch : n)
+    if (!isalnum(uint8_t(ch))) ch = '_';
+  return n;
+});
+
+// Every invariant has at least one tooth.
+TEST(PropertyTeeth, EveryInvariantCatchesSomeFault) {
+  for (const auto& inv : invariants()) {
+    bool found = std::any_of(kTeeth.begin(), kTeeth.end(), [&](const Tooth& t) { return t.invariant == inv.name; });
+    EXPECT_TRUE(found) << inv.name << " has no fault it is shown to catch";
+  }
+}
+
+// ---- regressions -----------------------------------------------------------
+
+std::vector<std::string> regression_files() {
+  std::vector<std::string> out;
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(MBC_REGRESSIONS_DIR, ec))
+    if (e.path().extension() == ".txt") out.push_back(e.path().string());
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+TEST(PropertyRegressions, ReplayOnTheReferenceDevicesAndStillCatchTheirFault) {
+  auto files = regression_files();
+  ASSERT_FALSE(files.empty()) << "no regressions in " << MBC_REGRESSIONS_DIR;
+  for (const auto& path : files) {
+    SCOPED_TRACE(path);
+    Regression r = parse_regression(path);
+    WritePolicy policy;
+    {
+      auto target = open_target("ref:" + r.device_id);
+      spec::Spec s = spec::load_spec_by_id(r.device_id);
+      SpecView view(s, target->info(), policy);
+      Session session(*target, view, facts_for(r.device_id));
+      EXPECT_EQ(replay(session, r.steps), "") << "the clean device disagrees with the model";
+    }
+    if (!r.fault.empty()) {
+      auto target = open_target(fmt::format("ref:{}?fault={}", r.device_id, r.fault));
+      spec::Spec s = spec::load_spec_by_id(r.device_id);
+      SpecView view(s, target->info(), policy);
+      Session session(*target, view, facts_for(r.device_id));
+      EXPECT_NE(replay(session, r.steps), "") << "fault " << r.fault << " is no longer caught by this sequence";
+    }
+  }
+}
+
+TEST(PropertyRegressions, FormatRoundTrips) {
+  Step a;
+  a.frame = {0x01, 0x03, 0x00, 0x00, 0x00, 0x01, 0x84, 0x0A};
+  a.note = "read";
+  Step b;
+  b.kind = Step::Kind::advance;
+  b.advance_us = 1500;
+  Step c;
+  c.kind = Step::Kind::power_cycle;
+  std::string text = format_regression("hsc60", "lost-write", "found by test", {a, b, c});
+  auto path = std::filesystem::temp_directory_path() / "mbc_props_roundtrip.txt";
+  {
+    std::ofstream(path) << text;
+  }
+  Regression r = parse_regression(path.string());
+  std::filesystem::remove(path);
+  EXPECT_EQ(r.device_id, "hsc60");
+  EXPECT_EQ(r.fault, "lost-write");
+  ASSERT_EQ(r.steps.size(), 3u);
+  EXPECT_EQ(r.steps[0].frame, a.frame);
+  EXPECT_EQ(r.steps[1].advance_us, 1500u);
+  EXPECT_EQ(r.steps[2].kind, Step::Kind::power_cycle);
+}
+
+}  // namespace
+}  // namespace mbc::conf::props
