@@ -23,36 +23,39 @@ struct CommandFact {
 };
 
 // How a position move is set up, started, stopped and watched. Values are
-// raw register values; positions are in the drive's position unit (pulses).
+// raw register values; positions and distances are in pulses.
 struct MotionFacts {
   std::string section;
-  // Writes that prepare a move (speeds, ramps, mode), in order, before any
-  // move: the property's own profile, so that speed and decel time are known.
+  // Register values the facts below assume (e.g. the microstep they convert
+  // speeds with); a device holding others skips the speed checks.
+  std::vector<CommandFact> assumes;
+  // Writes that set the profile before a move (speeds, ramps, mode), in order.
   std::vector<CommandFact> setup;
-  // The move: write `distance` (relative, pulses) into `distance_key`, then
-  // `start` (if any; empty key = the distance write starts the move).
-  std::string distance_key;
-  double distance_scale = 1;     // raw value = pulses * distance_scale
-  std::optional<CommandFact> start;
-  // Position feedback (pulses), and the maximum speed in pulses/s the setup
-  // configures (speed never above it).
-  std::string position_key;
+  // A move of d pulses: |d| (or d, when signed) into distance_key (or
+  // reverse_distance_key for d < 0, when given), then the start command for
+  // its direction, if any (none: the distance write starts the move).
+  std::string distance_key, reverse_distance_key;
+  bool signed_distance = false;
+  std::optional<CommandFact> start_forward, start_reverse;
+  int64_t max_distance = 4000;
+  // Position feedback: one register, or a low and a high word in two
+  // (read as one two's-complement 32-bit count).
+  std::string position_key, position_high_key;
+  // What the setup configures: the top speed (pulses/s) and the time a
+  // normal stop takes from it.
   double max_speed_pulses_per_s = 0;
-  double decel_seconds = 0;       // a normal stop ends within this time (+ one read interval)
-  std::optional<CommandFact> stop;          // decelerating stop
-  std::optional<CommandFact> emergency_stop;
-  // The status word: register key and the bit meaning "running"; the bit
-  // meaning "in position" (optional).
+  double decel_seconds = 0;
+  std::optional<CommandFact> stop, emergency_stop;
+  // Status word: running (bits of running_mask non-zero, or zero when
+  // running_when_set is false: a "motion complete" bit), in position.
   std::string status_key;
   uint16_t running_mask = 0;
-  bool running_when_set = true;  // false: the bit reads 1 when standing still (motion complete)
-  std::optional<uint16_t> in_position_mask;
-  // Positioning refused until homed (7TRSM5740Q §5.2): a position command
-  // written before any homing leaves the axis where it is.
+  bool running_when_set = true;
+  uint16_t in_position_mask = 0;
+  // Positioning refused until homed: a write of position_command_key before
+  // any homing leaves the axis where it is.
   bool positioning_needs_homing = false;
-  std::string position_command_key;  // the absolute position command refused before homing
-  // The largest move a case makes (keeps cases short in virtual time).
-  int64_t max_distance = 4000;
+  std::string position_command_key;
 };
 
 struct DeviceFacts {

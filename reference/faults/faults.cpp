@@ -43,6 +43,7 @@ const std::vector<FaultInfo>& all_faults() {
       {Fault::homing_gate_open, "homing-gate-open",
        "7TRSM5740Q: a position command (position_command) moves the axis before a homing"},
       {Fault::slow_estop, "slow-estop", "an emergency stop decelerates over 0.5 s instead of stopping at once"},
+      {Fault::creep, "creep", "after a move ends the position creeps on by 1 pulse per clock step, 5 times, while the status says stopped"},
   };
   return list;
 }
@@ -90,10 +91,11 @@ namespace {
 constexpr double kOvershootPulses = 3;
 constexpr double kOverspeedFactor = 1.5;
 constexpr double kSlowEstopSeconds = 0.5;
+constexpr int kCreepSteps = 5;
 
 bool device_level(const FaultSet& f) {
   for (Fault x : {Fault::forget_persistent, Fault::keep_volatile, Fault::overshoot, Fault::overspeed,
-                  Fault::homing_gate_open, Fault::slow_estop})
+                  Fault::homing_gate_open, Fault::slow_estop, Fault::creep})
     if (f.has(x)) return true;
   return false;
 }
@@ -166,6 +168,15 @@ class FaultyBehaviour final : public ref::Behaviour {
       d.axis().set_position(d.axis().position() + kOvershootPulses);
       inner_->advance(d, 0);
     }
+    if (faults_.has(Fault::creep)) {
+      if (was_moving && !d.axis().moving()) {
+        creep_left_ = kCreepSteps;
+      } else if (!d.axis().moving() && creep_left_ > 0 && dt_us > 0) {
+        --creep_left_;
+        d.axis().set_position(d.axis().position() + 1);
+        inner_->advance(d, 0);
+      }
+    }
   }
 
   void power_on(ref::Device& d) override {
@@ -213,6 +224,7 @@ class FaultyBehaviour final : public ref::Behaviour {
   std::unique_ptr<ref::Behaviour> inner_;
   FaultSet faults_;
   std::vector<std::pair<uint16_t, uint16_t>> volatile_;
+  int creep_left_ = 0;
 };
 
 }  // namespace

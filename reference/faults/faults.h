@@ -42,6 +42,7 @@ enum class Fault {
   overspeed,
   homing_gate_open,
   slow_estop,
+  creep,
 };
 
 struct FaultInfo {
