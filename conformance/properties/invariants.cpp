@@ -44,7 +44,7 @@ Judged expect_normal(const Reply& rep, std::span<const uint8_t> req, const std::
 }
 
 Image image_or_fail(Session& s, const char* when) {
-  Image img = read_image(s.target(), s.view());
+  Image img = read_image(s.transact(), s.view());
   if (!img.error.empty()) fail(fmt::format("{}: {}", when, img.error));
   return img;
 }
@@ -58,7 +58,7 @@ void expect_unchanged(const Image& before, const Image& after, const std::string
 }
 
 uint32_t read_or_fail(Session& s, const Register& r, const std::string& what) {
-  ReadResult rr = read_register(s.target(), s.view(), r);
+  ReadResult rr = read_register(s.transact(), s.view(), r);
   if (!rr.raw) fail(fmt::format("{}: reading {}: {}", what, describe(r), rr.error));
   return *rr.raw;
 }

@@ -41,7 +41,7 @@ void write_key(Session& s, const std::string& key, int64_t value, const std::str
 
 int64_t read_key(Session& s, const std::string& key) {
   const Register& r = reg(s, key);
-  ReadResult rr = read_register(s.target(), s.view(), r);
+  ReadResult rr = read_register(s.transact(), s.view(), r);
   if (!rr.raw) fail(fmt::format("reading {}: {}", key, rr.error));
   if (r.is_signed()) return r.words == 1 ? int64_t(int16_t(*rr.raw)) : int64_t(int32_t(*rr.raw));
   return int64_t(*rr.raw);

@@ -53,6 +53,10 @@ class Session {
   void advance(uint64_t us);
   void power_cycle();
   const std::vector<Step>& steps() const { return steps_; }
+  // send(), as the readers in spec_view.h take it.
+  Transact transact() {
+    return [this](std::span<const uint8_t> pdu, const std::string& note) { return send(pdu, note); };
+  }
 
  private:
   Target& target_;

@@ -210,11 +210,11 @@ std::vector<std::string> Image::differences(const Image& after) const {
   return out;
 }
 
-Image read_image(Target& target, const SpecView& view) {
+Image read_image(const Transact& transact, const SpecView& view) {
   Image img;
   for (const auto& [start, qty] : view.image_reads()) {
     Bytes req = read_request(3, start, qty);
-    Reply rep = target.transact(req);
+    Reply rep = transact(req, fmt::format("read image 0x{:04X} x{}", start, qty));
     if (!rep.pdu) {
       img.error = fmt::format("reading the image at 0x{:04X} x{}: {}", start, qty,
                               rep.silent() ? "no reply" : rep.framing_error);
@@ -232,9 +232,9 @@ Image read_image(Target& target, const SpecView& view) {
   return img;
 }
 
-ReadResult read_register(Target& target, const SpecView& view, const Register& r) {
+ReadResult read_register(const Transact& transact, const SpecView& view, const Register& r) {
   Bytes req = read_request(3, r.address, uint16_t(r.words));
-  Reply rep = target.transact(req);
+  Reply rep = transact(req, fmt::format("read {} (0x{:04X})", r.key.empty() ? r.name.en : r.key, r.address));
   if (!rep.pdu) return {std::nullopt, rep.silent() ? "no reply to the read" : rep.framing_error};
   Judged j = judge_reply(req, *rep.pdu);
   if (j.kind == Judged::Kind::exception) return {std::nullopt, fmt::format("the read got exception {:02X}", j.exception_code)};

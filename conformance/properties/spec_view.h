@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <optional>
 #include <string>
@@ -79,6 +80,10 @@ class SpecView {
   std::vector<std::pair<uint16_t, uint16_t>> image_reads_;
 };
 
+// Sends one request PDU to the unit and returns the reply (a Session's send,
+// so every frame lands in the counterexample).
+using Transact = std::function<Reply(std::span<const uint8_t> pdu, const std::string& note)>;
+
 // The register image read through a target: address -> word, or an error
 // message (a read refused, a malformed reply).
 struct Image {
@@ -86,13 +91,13 @@ struct Image {
   std::string error;
   std::vector<std::string> differences(const Image& after) const;  // "0x0020: 1000 -> 1001"
 };
-Image read_image(Target& target, const SpecView& view);
+Image read_image(const Transact& transact, const SpecView& view);
 
 // Reads one register (all its words) with FC 03.
 struct ReadResult {
   std::optional<uint32_t> raw;
   std::string error;
 };
-ReadResult read_register(Target& target, const SpecView& view, const spec::Register& r);
+ReadResult read_register(const Transact& transact, const SpecView& view, const spec::Register& r);
 
 }  // namespace mbc::conf::props

@@ -353,7 +353,7 @@ std::optional<Model> initial_model(Session& s, std::string& error) {
   m.power_cycle = t.power_cycle;
   m.live = t.live;
   for (const Register* r : s.view().writable()) {
-    ReadResult rr = read_register(s.target(), s.view(), *r);
+    ReadResult rr = read_register(s.transact(), s.view(), *r);
     if (!rr.raw) {
       error = fmt::format("reading 0x{:04X} for the initial model: {}", r->address, rr.error);
       return std::nullopt;
@@ -484,7 +484,7 @@ struct StepCmd final : rc::state::Command<Model, Sut> {
 // Reads every tracked register and compares it with the model.
 std::string final_image_check(Session& s, const Model& m) {
   for (const Register* r : s.view().writable()) {
-    ReadResult rr = read_register(s.target(), s.view(), *r);
+    ReadResult rr = read_register(s.transact(), s.view(), *r);
     if (!rr.raw) return fmt::format("final read of {}: {}", describe(*r), rr.error);
     auto w = s.view().words_of(*r, *rr.raw);
     for (int k = 0; k < r->words; ++k) {
