@@ -88,6 +88,26 @@ std::vector<FrameRecord> records_of(const std::vector<Step>& steps) {
   return out;
 }
 
+// The properties report through CaseResult; RapidCheck's own listener would
+// also print a "reproduce" line at exit for every falsified property.
+struct QuietListener final : rc::detail::TestListener {
+  void onTestCaseFinished(const rc::detail::CaseDescription&) override {}
+  void onShrinkTried(const rc::detail::CaseDescription&, bool) override {}
+  void onTestFinished(const rc::detail::TestMetadata&, const rc::detail::TestResult&) override {}
+};
+
+// RapidCheck's description is "file:line:\nRC_FAIL(...)\n\n<message>".
+std::string failure_message(const std::string& description) {
+  auto at = description.find("\n\n");
+  std::string m = at == std::string::npos ? description : description.substr(at + 2);
+  while (!m.empty() && m.back() == '\n') m.pop_back();
+  return m;
+}
+std::string what_failed(const std::string& description) {
+  std::string m = failure_message(description);
+  return m.substr(0, m.find('\n'));
+}
+
 }  // namespace
 
 CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const Options& options) {
@@ -139,7 +159,8 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   rc::detail::TestMetadata meta;
   meta.id = c.id;
   meta.description = inv.requirement;
-  rc::detail::TestResult result = rc::detail::checkTestable(property, meta, params);
+  QuietListener quiet;
+  rc::detail::TestResult result = rc::detail::checkTestable(property, meta, params, quiet);
 
   c.extra["seed"] = seed;
   c.extra["target"] = source.uri;
@@ -164,7 +185,7 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
     c.extra["regression"] = format_regression(
         spec.device.id, fault,
         fmt::format("{} falsified against {} (seed {}, {} cases):\n{}", c.id, source.uri, seed, failed.numSuccess + 1,
-                    failed.description.substr(failed.description.find_last_of('\n', failed.description.size() - 2) + 1)),
+                    what_failed(failed.description)),
         last_failure);
     c.extra["shrunk"] = shown.str();
     c.frames = records_of(last_failure);
@@ -176,7 +197,7 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
       frames += "\n";
     }
     c.message = fmt::format("falsified after {} cases (seed {}): {}\nshrunk counterexample ({} steps):\n{}",
-                            failed.numSuccess + 1, seed, failed.description, last_failure.size(), frames);
+                            failed.numSuccess + 1, seed, failure_message(failed.description), last_failure.size(), frames);
   } else if (result.match(gave_up)) {
     c.outcome = Outcome::fail;
     c.extra["cases"] = gave_up.numSuccess;
