@@ -237,3 +237,35 @@ TEST(RunCli, InterruptedRunWritesPartialReports) {
 }
 
 }  // namespace
+
+namespace {
+
+// A broken device served over TCP (serve --fault): the named case fails,
+// the run exits 1.
+TEST(RunCli, ServedFaultIsCaughtByItsCase) {
+  TempDir dir;
+  ServeProcess serve({"--device", "sihong-57hs-r@1", "--tcp", "127.0.0.1:0", "--fault", "wrong-exception-code"});
+  ASSERT_TRUE(serve.wait_listening(1)) << serve.log();
+  std::string uri = "tcp://127.0.0.1:" + std::to_string(serve.endpoint("tcp")->port()) + "?unit=1";
+  Out o = run({"run", "--quiet", "--target", uri, "--device", "sihong-57hs-r", "--out", dir / "r"});
+  EXPECT_EQ(o.rc, 1) << o.text;
+  EXPECT_NE(o.text.find("FAIL sihong-57hs-r/examples/6.2.4/unmapped-address"), std::string::npos) << o.text;
+  EXPECT_EQ(serve.stop(SIGTERM).value_or(-1), 0);
+}
+
+#ifdef EXAMPLE_PLUGIN
+// libmodbus's modbus_reply as a third-party stack (the example plugin)
+// against the modbus-standard spec: its framing is right, but its plain
+// mapping has no value ranges and no typed registers, which the run finds.
+TEST(RunCli, PluginStackAgainstTheStandard) {
+  TempDir dir;
+  std::string uri = std::string("plugin:") + EXAMPLE_PLUGIN;
+  Out framing = run({"run", "--quiet", "--target", uri, "--device", "modbus-standard", "--filter", "*/framing/*", "--out", dir / "f"});
+  EXPECT_EQ(framing.rc, 0) << framing.text;
+  Out all = run({"run", "--quiet", "--target", uri, "--device", "modbus-standard", "--out", dir / "a"});
+  EXPECT_EQ(all.rc, 1) << all.text;
+  EXPECT_NE(all.text.find("FAIL modbus-standard/registers/0x0212/above-max"), std::string::npos) << all.text;
+}
+#endif
+
+}  // namespace
