@@ -158,14 +158,23 @@ std::string write_forbidden(const GenContext& g, const Register& r) {
 }
 
 const Register* plain_register(const GenContext& g) {
+  // A register with a stated range first; else any plain u16 (the values 0
+  // and 1 are then written, and the cases using it are OBSERVED or check
+  // only what the standard fixes).
+  const Register* fallback = nullptr;
   for (const auto& r : g.spec.registers) {
     if (r.table != Table::holding || r.access != Access::rw || r.words != 1) continue;
     if (!write_forbidden(g, r).empty()) continue;
     if (r.persistence.store != spec::Store::none && g.target.live && !g.policy.allow_eeprom_writes) continue;
-    if (!r.range || r.range->max <= r.range->min) continue;
-    return &r;
+    if (r.range && r.range->max > r.range->min) return &r;
+    if (!r.range && !fallback && r.type == DataType::u16) fallback = &r;
   }
-  return nullptr;
+  return fallback;
+}
+
+std::pair<int64_t, int64_t> plain_values(const Register& r) {
+  if (r.range) return {int64_t(r.range->min), int64_t(r.range->max)};
+  return {0, 1};
 }
 
 std::string describe(const Expect& e) {

@@ -61,6 +61,9 @@ bool has_fc(const spec::Spec&, int fc);
 // A register that reads and writes plainly (rw, holding, one word, not a
 // line setting, writable by policy) for cases that need any register.
 const spec::Register* plain_register(const GenContext&);
+// Two different values plain_register()'s register accepts: its range's
+// bounds, or 0 and 1 when it states no range.
+std::pair<int64_t, int64_t> plain_values(const spec::Register&);
 
 // "exception 03", "echo", ...
 std::string describe(const Expect&);

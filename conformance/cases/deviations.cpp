@@ -73,7 +73,7 @@ std::optional<Step> provoke(const GenContext& g, Violation v) {
       return st;
     case Violation::value_out_of_range: {
       const spec::Register* r = cases::plain_register(g);
-      if (!r || r->range->max >= cases::type_max(*r)) return std::nullopt;
+      if (!r || !r->range || r->range->max >= cases::type_max(*r)) return std::nullopt;
       st.pdu = write_single_register(r->address, cases::encode(*r, int64_t(r->range->max) + 1)[0]);
       return st;
     }

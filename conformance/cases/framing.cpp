@@ -103,7 +103,8 @@ struct Gen {
     const auto& ser = g.spec.serial;
     std::string cl = ser.broadcast_section.empty() ? "MB-SL v1.02 §2.1" : clause(g.spec, ser.broadcast_section);
     uint8_t bcast = uint8_t(ser.broadcast_address.value_or(0));
-    auto lo = cases::encode(*r, int64_t(r->range->min)), hi = cases::encode(*r, int64_t(r->range->max));
+    auto [lo_v, hi_v] = cases::plain_values(*r);
+    auto lo = cases::encode(*r, lo_v), hi = cases::encode(*r, hi_v);
     for (bool effect : {false, true}) {
       bool stated = effect ? ser.broadcast_writes == "applied" : ser.broadcast_reply == "none";
       Case c = base("broadcast", effect ? "write-applied" : "no-reply", stated ? cl : "MB-SL v1.02 §2.1");
@@ -212,7 +213,7 @@ struct Gen {
       c.steps.push_back(before);
       Step s;
       s.unit = g.target.unit;
-      auto w = cases::encode(*r, int64_t(r->range->max));
+      auto w = cases::encode(*r, cases::plain_values(*r).second);
       s.pdu = {16, uint8_t(r->address >> 8), uint8_t(r->address & 0xFF), 0, 2, 2, uint8_t(w[0] >> 8), uint8_t(w[0] & 0xFF)};
       s.what = "write multiple registers, quantity 2, byte count 2";
       s.expect = pe.expect;
