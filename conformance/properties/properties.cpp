@@ -38,7 +38,14 @@ Reply Session::send(std::span<const uint8_t> pdu, const std::string& note) { ret
 
 Reply Session::send_to(uint8_t unit, std::span<const uint8_t> pdu, const std::string& note) {
   Reply r = target_.transact(unit, pdu);
-  steps_.push_back(frame_step(r, note));
+  Step st = frame_step(r, note);
+  // Counterexamples and regressions are RTU frames, whatever carried them
+  // (a Modbus TCP target sent the same PDU behind an MBAP header).
+  if (target_.info().framing != Framing::rtu) {
+    st.frame = rtu_frame(unit, pdu);
+    if (r.pdu) st.reply = rtu_frame(unit, *r.pdu);
+  }
+  steps_.push_back(std::move(st));
   return r;
 }
 
