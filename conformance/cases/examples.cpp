@@ -60,8 +60,7 @@ void add_given(const GenContext& g, const spec::Example& ex, Built& b, std::vect
       continue;
     }
     if (auto why = cases::write_forbidden(g, *r); !why.empty()) {
-      b.skip = "given state: " + why;
-      return;
+      if (b.skip.empty()) b.skip = "given state: " + why;
     }
     auto st = cases::write_step(g, *r, cases::encode(*r, int64_t(v.value)));
     if (!st) {
@@ -81,8 +80,6 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
   for (const auto& e : ex.errata)
     if (std::find(errata.begin(), errata.end(), e) == errata.end()) errata.push_back(e);
   add_given(g, ex, b, touches);
-  if (!b.skip.empty()) return;
-
   auto req = parse_hex(ex.resolved_request.value_or(ex.request));
   if (!req || req->size() < 2) {
     b.skip = "the printed request is not a frame (erratum without a resolved reading)";
@@ -146,10 +143,7 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
     for (auto [addr, n] : written_by(s.pdu)) {
       touches.push_back({addr, n});
       if (const spec::Register* r = g.spec.register_covering(addr))
-        if (auto why = cases::write_forbidden(g, *r); !why.empty() && g.target.live) {
-          b.skip = why;
-          return;
-        }
+        if (auto why = cases::write_forbidden(g, *r); !why.empty() && g.target.live && b.skip.empty()) b.skip = why;
     }
   }
   b.steps.push_back(std::move(s));
@@ -196,10 +190,7 @@ std::vector<Case> examples_cases(const GenContext& g) {
     c.requirement = seq ? fmt::format("The worked sequence of §{} gives these replies in step order.", first.section)
                         : (first.does.empty() ? "The device answers the printed request with the printed response." : first.does);
     Built b;
-    for (const auto* ex : grp) {
-      add_example(g, *ex, b, c.touches, c.errata);
-      if (!b.skip.empty()) break;
-    }
+    for (const auto* ex : grp) add_example(g, *ex, b, c.touches, c.errata);
     c.steps = std::move(b.steps);
     c.skip_reason = b.skip;
     if (b.given_unsettable) {

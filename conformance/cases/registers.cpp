@@ -107,7 +107,8 @@ struct Gen {
     auto st = cases::write_step(g, r, w);
     if (!st) {
       c.skip_reason = "the profile has no function code to write it whole";
-    } else if (writable(r, c)) {
+    } else {
+      writable(r, c);  // a forbidden write is skipped, its frames still shown by --plan
       c.steps.push_back(std::move(*st));
       if (auto rd = cases::read_step(g, r, want_words(r, w, fmt::format("{} (as written)", show(r, v)))))
         c.steps.push_back(std::move(*rd));
@@ -139,7 +140,8 @@ struct Gen {
     auto st = cases::write_step(g, r, w, pe.expect);
     if (!st) {
       c.skip_reason = "the profile has no function code to write it whole";
-    } else if (writable(r, c)) {
+    } else {
+      writable(r, c);
       c.steps.push_back(std::move(*st));
       if (memo >= 0) {
         Expect same;
@@ -209,10 +211,7 @@ struct Gen {
       out.push_back(std::move(c));
       return;
     }
-    if (!writable(r, c)) {
-      out.push_back(std::move(c));
-      return;
-    }
+    writable(r, c);
     if (persistent && r.persistence.unless_register) {
       // The "do not persist" switch must be off for the write to be stored.
       const Register* sw = g.spec.find_register(*r.persistence.unless_register);

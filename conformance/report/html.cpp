@@ -118,7 +118,8 @@ code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
       for (const auto& f : r.frames)
         h += fmt::format("<tr><td>{}</td><td><code>{}</code><pre>{}</pre></td><td>{}<pre>{}</pre></td><td><code>{}</code><pre>{}</pre></td></tr>",
                          esc(f.step), to_hex(f.request), esc(f.request_decoded), esc(f.expected_text),
-                         f.expected ? to_hex(*f.expected) : "", f.actual ? to_hex(*f.actual) : "silence", esc(f.actual_decoded));
+                         f.expected ? to_hex(*f.expected) + "\n" + esc(f.expected_decoded) : "", f.actual ? to_hex(*f.actual) : "silence",
+                         esc(f.actual_decoded));
       h += "</table></div>";
     }
     if (!any) h += "<p>None.</p>";

@@ -17,6 +17,7 @@ nlohmann::json frame_json(const FrameRecord& f) {
   j["request_decoded"] = f.request_decoded;
   j["expected"] = f.expected ? nlohmann::json(to_hex(*f.expected)) : nlohmann::json(nullptr);
   j["expected_text"] = f.expected_text;
+  j["expected_decoded"] = f.expected_decoded;
   j["actual"] = f.actual ? nlohmann::json(to_hex(*f.actual)) : nlohmann::json(nullptr);
   j["actual_decoded"] = f.actual_decoded;
   j["latency_us"] = f.latency_us;

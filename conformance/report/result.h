@@ -29,6 +29,7 @@ struct FrameRecord {
   std::string expected_text;        // the expectation in words ("exception 03", "silence")
   std::optional<Bytes> actual;      // as received; nullopt = silence
   std::string request_decoded, actual_decoded;
+  std::string expected_decoded;     // `expected` decoded, when set
   double latency_us = 0;
 };
 

@@ -5,6 +5,7 @@
 #include <chrono>
 
 #include "cases/common.h"
+#include "codec/crc16.h"
 #include "master/pdu.h"
 #include "serve/rtu_framing.h"
 
@@ -95,6 +96,24 @@ class CaseRunner {
       } else if (st.expect.kind == Expect::Kind::exception && !x.request_pdu.empty()) {
         Bytes e{uint8_t(x.request_pdu[0] | 0x80), st.expect.code};
         fr.expected = info.framing == Framing::rtu && st.kind == Step::Kind::pdu ? rtu_frame(st.unit, e) : e;
+      } else if (st.expect.kind == Expect::Kind::registers && !x.request_pdu.empty() &&
+                 (x.request_pdu[0] == 3 || x.request_pdu[0] == 4)) {
+        // MBAP v1.1b3 §6.3/§6.4: FC, byte count, the registers high byte first.
+        Bytes e{x.request_pdu[0], uint8_t(2 * st.expect.words.size())};
+        for (uint16_t w : st.expect.words) {
+          e.push_back(uint8_t(w >> 8));
+          e.push_back(uint8_t(w & 0xFF));
+        }
+        fr.expected = info.framing == Framing::rtu && st.kind == Step::Kind::pdu ? rtu_frame(st.unit, e) : e;
+      } else if (st.expect.kind == Expect::Kind::unchanged && st.expect.memo >= 0 && size_t(st.expect.memo) < replies.size() &&
+                 replies[st.expect.memo]) {
+        const Bytes& e = *replies[st.expect.memo];
+        fr.expected = info.framing == Framing::rtu && st.kind == Step::Kind::pdu ? rtu_frame(st.unit, e) : e;
+      }
+      if (fr.expected) {
+        const Bytes& e = *fr.expected;
+        bool adu = info.framing == Framing::rtu && e.size() >= 4 && crc_ok(e) && !(e.size() == 2);
+        fr.expected_decoded = describe_pdu(adu ? std::span<const uint8_t>(e).subspan(1, e.size() - 3) : std::span<const uint8_t>(e), false);
       }
       std::string why = judge(st, x, replies);
       replies.push_back(x.reply.pdu);
