@@ -133,7 +133,7 @@ class CaseRunner {
       res.outcome = c.level == Level::observed ? Outcome::observed : Outcome::fail;
       res.message = failures.front();
       if (failures.size() > 1) res.message += fmt::format(" (+{} more)", failures.size() - 1);
-      if (c.level == Level::observed) res.message = "differs from the standard: " + res.message;
+      if (c.level == Level::observed) res.message = "differs from the expectation: " + res.message;
       if (setup_failed && c.level != Level::observed) res.message = "could not establish the state: " + res.message;
     }
     return res;
