@@ -111,6 +111,20 @@ TEST(RunCli, ReportsAreWellFormed) {
   EXPECT_EQ(html.find("href=\"http"), std::string::npos);
 }
 
+TEST(RunCli, JunitOnlyAndSummary) {
+  TempDir dir;
+  Out o = run({"run", "--quiet", "--target", "ref:hanstar-7trsm5740q", "--junit-only", "--out", dir / "j", "--summary", dir / "s"});
+  ASSERT_EQ(o.rc, 0) << o.text;
+  EXPECT_TRUE(std::filesystem::exists(dir / "j/junit.xml"));
+  EXPECT_FALSE(std::filesystem::exists(dir / "j/report.json"));
+  EXPECT_FALSE(std::filesystem::exists(dir / "j/report.html"));
+  // The summary holds no dates or times, so two runs give the same bytes.
+  std::string first = slurp(dir / "s/summary.json");
+  ASSERT_EQ(run({"run", "--quiet", "--target", "ref:hanstar-7trsm5740q", "--junit-only", "--out", dir / "j2", "--summary", dir / "s"}).rc, 0);
+  EXPECT_EQ(first, slurp(dir / "s/summary.json"));
+  EXPECT_FALSE(nlohmann::json::parse(first).contains("started_at"));
+}
+
 TEST(RunCli, ListAndFilter) {
   Out o = run({"run", "--target", "ref:sihong-57hs-r", "--list", "--filter", "*/examples/*"});
   ASSERT_EQ(o.rc, 0) << o.text;
