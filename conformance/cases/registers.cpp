@@ -98,10 +98,11 @@ struct Gen {
     Case c = base(r, what);
     c.level = level;
     c.title = fmt::format("write {} = {} ({}) and read it back", hex16(r.address), show(r, v), why);
-    c.requirement = level == Level::observed
-                        ? fmt::format("{} states no range; a write of {} (the type's {}) is recorded.", hex16(r.address), show(r, v), why)
-                        : fmt::format("{} accepts {} ({} of {}..{}) and reads it back.", hex16(r.address), show(r, v), why,
-                                      show(r, r.range->min), show(r, r.range->max));
+    c.requirement = level == Level::observed ? fmt::format("{} states no range; a write of {} (the type's {}) is recorded.",
+                                                           hex16(r.address), show(r, v), why)
+                    : r.range ? fmt::format("{} accepts {} ({} of {}..{}) and reads it back.", hex16(r.address), show(r, v), why,
+                                            show(r, r.range->min), show(r, r.range->max))
+                              : fmt::format("{} accepts {} and reads it back (MBAP v1.1b3 §6.5).", hex16(r.address), show(r, v));
     c.touches.push_back({r.address, r.words});
     auto w = words_for(r, v);
     auto st = cases::write_step(g, r, w);
@@ -160,7 +161,9 @@ struct Gen {
     double hi = has_range ? r.range->max : double(cases::type_max(r));
     if (r.type == DataType::f32 && !has_range) return;  // no float bounds to test
     if (r.type == DataType::bitfield && !has_range) return;  // reserved bits make type bounds meaningless
-    Level lv = has_range ? Level::must : Level::observed;
+    // A coil's values are the type itself (MBAP v1.1b3 §6.5: OFF or ON); other
+    // registers without a stated range are written at the type's bounds, OBSERVED.
+    Level lv = has_range || r.type == DataType::bit ? Level::must : Level::observed;
     write_in_range(r, "write-min", lo, lv, "minimum");
     if (hi != lo) write_in_range(r, "write-max", hi, lv, "maximum");
     double mid = r.type == DataType::f32 ? (lo + hi) / 2 : std::floor((lo + hi) / 2);
