@@ -78,7 +78,11 @@ class Target {
 //   ref:<device-id>[?unit=N&fault=NAME[,NAME]]
 //   tcp://HOST:PORT?unit=N   rtu-tcp://HOST:PORT?unit=N
 //   rtu:///dev/ttyUSB0?baud=115200&parity=N&data=8&stop=1&unit=N
-//   plugin:PATH.so[?device=ID&unit=N]
+//   plugin:PATH.so[?device=ID&unit=N&config=TEXT]
+// Live kinds also take timeout=MS (the longest wait for a reply and for the
+// connection, default 1000), silence=MS (a fixed silence window instead of
+// the measured one) and gap=MS (the pause of a split frame, RTU kinds).
+// rtu:// defaults to the standard's 19200 baud 8E1 (MB-SL v1.02 §2.5.1).
 // Throws std::invalid_argument (bad URI) or std::runtime_error (cannot open).
 std::unique_ptr<Target> open_target(const std::string& uri);
 

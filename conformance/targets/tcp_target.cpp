@@ -55,7 +55,12 @@ class TcpTarget final : public Target {
     if (!ctx_) throw std::invalid_argument(fmt::format("target '{}': {}", info_.uri, modbus_strerror(errno)));
     auto ms = timeout_.count();
     modbus_set_response_timeout(ctx_, uint32_t(ms / 1000), uint32_t(ms % 1000) * 1000);
-    connect();
+    try {
+      connect();
+    } catch (...) {
+      modbus_free(ctx_);
+      throw;
+    }
   }
   ~TcpTarget() override {
     modbus_close(ctx_);
