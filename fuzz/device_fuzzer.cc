@@ -21,8 +21,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     adu.push_back(uint8_t(c >> 8));
   }
   ref::Device& d = fuzz::fresh_device(index, slave);
-  auto before = d.holding_image();
+  auto before = fuzz::holding_image(d);
   auto reply = d.handle_rtu(adu);
-  fuzz::check_exchange("device_fuzzer", d, adu, reply, before, d.holding_image());
+  fuzz::check_exchange("device_fuzzer", d, adu, reply, before, fuzz::holding_image(d));
   return 0;
 }

@@ -52,6 +52,11 @@ const KnownDifference kKnownDifferences[] = {
     {"device-specific-functions",
      [](auto pdu, auto&, auto&) { return pdu[0] == 7 || pdu[0] == 8 || pdu[0] == 17 || pdu[0] == 43; }},
     {"extra-holding-registers", [](auto pdu, auto&, auto&) { return holding_range_touches_extra(pdu); }},
+    // MBAP §6.11 Figure 21: "Byte Count == N" (N = quantity / 8, rounded up) is
+    // a condition for executing FC 15; libmodbus 3.1.6 writes the coils whatever
+    // the byte count says (the engine answers 03 and writes nothing).
+    {"fc15-byte-count-unchecked",
+     [](auto pdu, auto&, auto&) { return pdu[0] == 15 && pdu.size() >= 6 && pdu[5] != (be16(pdu, 3) + 7) / 8; }},
 };
 
 struct Pair {

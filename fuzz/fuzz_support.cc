@@ -43,17 +43,38 @@ void finding(const char* harness, const std::string& what) {
 
 uint8_t default_slave(const spec::Spec& s) { return uint8_t(s.serial.slave_default.value_or(1)); }
 
+namespace {
+struct Pooled {
+  std::unique_ptr<ref::Device> device;
+  std::map<uint16_t, uint16_t> factory_stored;  // the stored image right after factory_reset
+};
+}  // namespace
+
 ref::Device& fresh_device(size_t spec_index, uint8_t slave_id) {
-  static std::vector<std::unique_ptr<ref::Device>> pool(specs().size());
-  auto& d = pool.at(spec_index);
-  if (!d) {
-    d = std::make_unique<ref::Device>(specs()[spec_index], slave_id);
+  static std::vector<Pooled> pool(specs().size());
+  Pooled& p = pool.at(spec_index);
+  if (!p.device) {
+    p.device = std::make_unique<ref::Device>(specs()[spec_index], slave_id);
+    p.device->factory_reset();
+    p.factory_stored = p.device->stored_image();
   } else {
-    d->factory_reset();
-    d->power_cycle();
+    // Only a save command changes the stored image; restoring it is the
+    // factory reset's work, so skip that when nothing was saved.
+    if (p.device->stored_image() != p.factory_stored) p.device->factory_reset();
   }
-  d->set_slave_id(slave_id);
-  return *d;
+  p.device->power_cycle();
+  p.device->set_slave_id(slave_id);
+  return *p.device;
+}
+
+Image holding_image(const ref::Device& d) {
+  static std::map<const spec::Spec*, std::vector<uint16_t>> addresses;
+  auto& a = addresses[&d.spec()];
+  if (a.empty())
+    for (const auto& [addr, v] : d.holding_image()) a.push_back(addr);
+  Image img(a.size());
+  for (size_t i = 0; i < a.size(); ++i) img[i] = d.word(a[i]);
+  return img;
 }
 
 std::string hex_or_silence(const std::optional<Bytes>& b) { return b ? to_hex(*b) : std::string("(silence)"); }
@@ -69,23 +90,22 @@ bool exception_code_known(const spec::Spec& s, uint8_t code) {
   return false;
 }
 
-std::string image_diff(const std::map<uint16_t, uint16_t>& a, const std::map<uint16_t, uint16_t>& b) {
-  for (const auto& [addr, v] : a) {
-    auto it = b.find(addr);
-    if (it == b.end() || it->second != v) {
+std::string image_diff(const ref::Device& d, const Image& a, const Image& b) {
+  std::vector<uint16_t> addrs;
+  for (const auto& [addr, v] : d.holding_image()) addrs.push_back(addr);
+  for (size_t i = 0; i < a.size() && i < b.size() && i < addrs.size(); ++i)
+    if (a[i] != b[i]) {
       char buf[96];
-      std::snprintf(buf, sizeof buf, "holding 0x%04X changed %04X -> %04X", addr, v, it == b.end() ? 0 : it->second);
+      std::snprintf(buf, sizeof buf, "holding 0x%04X changed %04X -> %04X", addrs[i], a[i], b[i]);
       return buf;
     }
-  }
   return "holding image changed";
 }
 
 }  // namespace
 
 void check_exchange(const char* harness, const ref::Device& device, std::span<const uint8_t> adu,
-                    const std::optional<Bytes>& reply, const std::map<uint16_t, uint16_t>& before,
-                    const std::map<uint16_t, uint16_t>& after) {
+                    const std::optional<Bytes>& reply, const Image& before, const Image& after) {
   const spec::Spec& s = device.spec();
   auto ctx = [&](const std::string& what) {
     return s.device.id + " (slave " + std::to_string(device.slave_id()) + "): " + what + "\n  sent:  " +
@@ -124,7 +144,7 @@ void check_exchange(const char* harness, const ref::Device& device, std::span<co
   const bool rejected = reply && reply->size() == 5 && ((*reply)[1] & 0x80);
   if (!crc || (!addressed && !broadcast) || rejected)
     MBC_FUZZ_CHECK(before == after, harness,
-                   ctx((rejected ? "an exception reply, yet " : "an invalid or foreign frame, yet ") + image_diff(before, after)));
+                   ctx((rejected ? "an exception reply, yet " : "an invalid or foreign frame, yet ") + image_diff(device, before, after)));
 }
 
 }  // namespace mbc::fuzz

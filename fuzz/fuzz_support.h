@@ -47,6 +47,12 @@ uint8_t default_slave(const spec::Spec&);
 // 400 KB of tables). fresh_device() returns it in its factory state.
 ref::Device& fresh_device(size_t spec_index, uint8_t slave_id);
 
+// The holding-register image (the words of every holding register the spec
+// maps, in address order): ref::Device::holding_image() as a flat vector, so
+// harnesses can take it before and after every frame cheaply.
+using Image = std::vector<uint16_t>;
+Image holding_image(const ref::Device&);
+
 // The invariants of one RTU exchange with a reference device, from the
 // standard and the device's spec (never from the engine's code):
 //  * a reply is a well-formed RTU frame (4..256 bytes, CRC right) from the
@@ -58,8 +64,7 @@ ref::Device& fresh_device(size_t spec_index, uint8_t slave_id);
 //    reply ("rejection changes nothing", MBAP v1.1b3 §7);
 //  * a CRC error is answered only as the spec's crc_error policy says.
 void check_exchange(const char* harness, const ref::Device& device, std::span<const uint8_t> adu,
-                    const std::optional<Bytes>& reply, const std::map<uint16_t, uint16_t>& before,
-                    const std::map<uint16_t, uint16_t>& after);
+                    const std::optional<Bytes>& reply, const Image& before, const Image& after);
 
 // "01 03 00 00 00 01 84 0A" or "(silence)".
 std::string hex_or_silence(const std::optional<Bytes>& b);

@@ -35,9 +35,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
           adu.push_back(uint8_t(c & 0xFF));
           adu.push_back(uint8_t(c >> 8));
         }
-        auto before = d.holding_image();
+        auto before = fuzz::holding_image(d);
         auto reply = d.handle_rtu(adu);
-        fuzz::check_exchange(kHarness, d, adu, reply, before, d.holding_image());
+        fuzz::check_exchange(kHarness, d, adu, reply, before, fuzz::holding_image(d));
         break;
       }
       case fuzz::kAdvanceMs: {

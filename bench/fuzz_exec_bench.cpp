@@ -1,0 +1,165 @@
+// Fuzz harness throughput and coverage, each beside a baseline measured in
+// the same run (absolute numbers depend on the machine; the ratios travel):
+//
+//   1. in-process executions per second of the single-frame (device_fuzzer)
+//      and session (session_fuzzer) harnesses against the baseline
+//      libmodbus_reply_fuzzer (modbus_reply on the equivalent mapping), each
+//      fed its seed corpus and deterministic one-byte mutations of it. The
+//      harness bodies are the ones in fuzz/, compiled in under other names
+//      (fuzz/CMakeLists.txt), so this runs in any build, gcc included.
+//   2. with --fuzzers DIR (the bin/ of a -DMBCONFORM_FUZZ=ON build): every
+//      libFuzzer binary run for a fixed -runs=N from its seeds, its exec/s
+//      and the edges it reached ("cov:" in libFuzzer's last status line).
+//
+// Usage (from the source root): build/bin/mbc_fuzz_bench [--seconds S] [--fuzzers build-fuzz/bin] [--runs N]
+#include <sys/wait.h>
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <regex>
+#include <string>
+#include <vector>
+
+extern "C" int mbc_bench_device_one_input(const uint8_t*, size_t);
+extern "C" int mbc_bench_session_one_input(const uint8_t*, size_t);
+extern "C" int mbc_bench_libmodbus_one_input(const uint8_t*, size_t);
+
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+using Input = std::vector<uint8_t>;
+using Harness = int (*)(const uint8_t*, size_t);
+
+std::vector<Input> load_dir(const fs::path& dir) {
+  std::vector<fs::path> files;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir, ec))
+    if (e.is_regular_file()) files.push_back(e.path());
+  std::sort(files.begin(), files.end());
+  std::vector<Input> out;
+  for (const auto& f : files) {
+    std::ifstream in(f, std::ios::binary);
+    out.emplace_back(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  return out;
+}
+
+// The seeds, then each seed with one byte changed (xorshift, fixed seed): the
+// kind of input a fuzzer spends most of its time on.
+std::vector<Input> workload(const std::vector<Input>& seeds, size_t mutants_per_seed) {
+  std::vector<Input> w = seeds;
+  uint64_t x = 0x9E3779B97F4A7C15ull;
+  auto next = [&] {
+    x ^= x << 13, x ^= x >> 7, x ^= x << 17;
+    return x;
+  };
+  for (const auto& s : seeds)
+    for (size_t i = 0; i < mutants_per_seed && !s.empty(); ++i) {
+      Input m = s;
+      m[next() % m.size()] = uint8_t(next());
+      w.push_back(std::move(m));
+    }
+  return w;
+}
+
+double execs_per_second(Harness h, const std::vector<Input>& inputs, double seconds) {
+  if (inputs.empty()) return 0;
+  long n = 0;
+  auto t0 = Clock::now();
+  auto end = t0 + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
+  do {
+    for (const auto& in : inputs) h(in.data(), in.size());
+    n += long(inputs.size());
+  } while (Clock::now() < end);
+  return double(n) / std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+struct FuzzerRun {
+  bool ok = false;
+  long cov = -1, ft = -1, execs_per_sec = -1;
+};
+
+// One libFuzzer binary for exactly `runs` executions from its seeds.
+FuzzerRun run_fuzzer(const fs::path& bin, const fs::path& seeds, const fs::path& dict, long runs) {
+  fs::path work = fs::temp_directory_path() / ("mbc_fuzz_bench_" + bin.filename().string() + std::to_string(getpid()));
+  fs::remove_all(work);
+  fs::create_directories(work);
+  fs::path log = work / "log";
+  std::string cmd = bin.string() + " -seed=1 -runs=" + std::to_string(runs) + " -max_len=512 -print_final_stats=1";
+  if (fs::exists(dict)) cmd += " -dict=" + dict.string();
+  cmd += " " + work.string() + " " + seeds.string() + " > " + log.string() + " 2>&1";
+  int rc = std::system(cmd.c_str());
+  FuzzerRun r;
+  r.ok = rc == 0;
+  std::ifstream in(log);
+  std::string line;
+  std::regex status(R"(cov: (\d+) ft: (\d+).*exec/s: (\d+))"), avg(R"(stat::average_exec_per_sec:\s+(\d+))");
+  std::smatch m;
+  while (std::getline(in, line)) {
+    if (std::regex_search(line, m, status)) r.cov = std::stol(m[1]), r.ft = std::stol(m[2]), r.execs_per_sec = std::stol(m[3]);
+    if (std::regex_search(line, m, avg)) r.execs_per_sec = std::stol(m[1]);
+  }
+  fs::remove_all(work);
+  return r;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  double seconds = 3;
+  long runs = 20000;
+  fs::path fuzzers;
+  fs::path src = MBCONFORM_SOURCE_DIR;
+  for (int i = 1; i < argc; ++i) {
+    std::string a = argv[i];
+    if (a == "--seconds" && i + 1 < argc) seconds = std::atof(argv[++i]);
+    else if (a == "--runs" && i + 1 < argc) runs = std::atol(argv[++i]);
+    else if (a == "--fuzzers" && i + 1 < argc) fuzzers = argv[++i];
+    else {
+      std::fprintf(stderr, "usage: mbc_fuzz_bench [--seconds S] [--fuzzers DIR] [--runs N]\n");
+      return 2;
+    }
+  }
+  fs::path corpus = src / "corpus";
+  auto device = workload(load_dir(corpus / "device"), 8);
+  auto session = workload(load_dir(corpus / "session"), 8);
+  auto baseline_inputs = workload(load_dir(corpus / "differential"), 8);
+  if (device.empty() || session.empty() || baseline_inputs.empty()) {
+    std::fprintf(stderr, "mbc_fuzz_bench: no seeds under %s (run from the source root)\n", corpus.c_str());
+    return 2;
+  }
+  std::printf("1. in-process harness executions per second (%.0f s each, seeds + 8 one-byte mutants per seed)\n", seconds);
+  double base = execs_per_second(mbc_bench_libmodbus_one_input, baseline_inputs, seconds);
+  double dev = execs_per_second(mbc_bench_device_one_input, device, seconds);
+  double ses = execs_per_second(mbc_bench_session_one_input, session, seconds);
+  std::printf("   %-34s %12.0f exec/s  (baseline)\n", "libmodbus_reply (modbus_reply)", base);
+  std::printf("   %-34s %12.0f exec/s  %.2fx baseline\n", "device (one frame, 5 devices)", dev, dev / base);
+  std::printf("   %-34s %12.0f exec/s  %.2fx baseline\n", "session (frames + time + power)", ses, ses / base);
+  if (fuzzers.empty()) {
+    std::printf("2. libFuzzer runs: skipped (give --fuzzers build-fuzz/bin)\n");
+    return 0;
+  }
+  std::printf("2. libFuzzer, -runs=%ld -seed=1 from the seeds: edges reached (cov) and exec/s\n", runs);
+  const char* harnesses[] = {"libmodbus_reply", "device", "session", "differential", "rtu_frame", "reply_parser", "spec_loader"};
+  long base_execs = -1;
+  int failed = 0;
+  for (const char* h : harnesses) {
+    std::string seeds = std::string(h) == "libmodbus_reply" ? "differential" : h;
+    FuzzerRun r = run_fuzzer(fuzzers / (std::string(h) + "_fuzzer"), corpus / seeds, src / "fuzz" / (seeds + "_fuzzer.dict"), runs);
+    if (std::string(h) == "libmodbus_reply") base_execs = r.execs_per_sec;
+    failed += !r.ok;
+    std::printf("   %-16s cov %6ld  ft %6ld  %8ld exec/s", h, r.cov, r.ft, r.execs_per_sec);
+    if (base_execs > 0 && std::string(h) != "libmodbus_reply") std::printf("  %.2fx baseline", double(r.execs_per_sec) / double(base_execs));
+    std::printf("%s\n", r.ok ? "" : "  (exited non-zero: a finding?)");
+  }
+  return failed ? 1 : 0;
+}
