@@ -290,7 +290,11 @@ void apply_frame(Model& m, const Prediction& p, const Reply* rep) {
   bool acted = p.kind == Prediction::Kind::normal || p.kind == Prediction::Kind::silence || p.kind == Prediction::Kind::any;
   if (p.or_refused && rep && rep->pdu && !rep->pdu->empty() && ((*rep->pdu)[0] & 0x80)) acted = false;
   if (!acted) return;
-  for (const auto& [a, w] : p.updates) m.words[a] = w;
+  for (const auto& [a, w] : p.updates) {
+    m.words[a] = w;
+    // Written while a save is in progress: which value the save copies is not stated.
+    if (m.saving && m.saving->count(a)) (*m.saving)[a] = std::nullopt;
+  }
   // Persistence (spec registers[].persistence): stored on write unless the
   // do-not-persist switch is on; a save stores the save_command registers.
   const spec::Spec& s = m.view->spec();
@@ -324,9 +328,10 @@ void apply_frame(Model& m, const Prediction& p, const Reply* rep) {
 
 void apply_power_cycle(Model& m) {
   if (m.saving) {
-    // Power lost during a save: the stored value is the old or the new one.
+    // Power lost during a save: the store holds the old value, the value at
+    // the command, or one written since (when the save copies is not stated).
     for (auto& [a, w] : m.stored)
-      if (w != (*m.saving)[a]) w = std::nullopt;
+      if (w != (*m.saving)[a] || w != m.words[a]) w = std::nullopt;
     m.saving.reset();
   }
   for (auto& [a, w] : m.words) {
