@@ -19,8 +19,9 @@ for bin in "$BUILD"/bin/*_fuzzer; do
   name=$(basename "$bin" _fuzzer)
   seeds=$name
   [ "$name" = libmodbus_reply ] && seeds=differential  # same input format
+  dict=$seeds; [ "$name" = plugin ] && dict=device
   cp "$bin" "$OUT/"
-  cp "$SRC/fuzz/${seeds}_fuzzer.dict" "$OUT/${name}_fuzzer.dict" 2>/dev/null || true
+  cp "$SRC/fuzz/${dict}_fuzzer.dict" "$OUT/${name}_fuzzer.dict" 2>/dev/null || true
   cp "$SRC/fuzz/${name}_fuzzer.options" "$OUT/" 2>/dev/null || true
   rm -f "$OUT/${name}_fuzzer_seed_corpus.zip"
   for dir in "$SRC/corpus/$seeds" "$SRC/corpus/regressions/$name"; do

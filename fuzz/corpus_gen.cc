@@ -134,6 +134,12 @@ void device_and_session(Output& out) {
       }
     }
     if (session_examples.size() > 2) out.seed("session", id + "-examples", session_examples);
+    // plugin_fuzzer: a device's example frames in one input, as printed.
+    Bytes plugin;
+    for (const auto& ex : s.examples)
+      if (auto adu = parse_hex(ex.resolved_request ? *ex.resolved_request : ex.request); adu && !adu->empty())
+        fuzz::plugin_frame(plugin, *adu, false);
+    if (!plugin.empty()) out.seed("plugin", id + "-examples", plugin);
 
     // Each register: a read, then its valid and boundary values written and read
     // back, 24 registers per session seed. The first register of each table
@@ -231,6 +237,15 @@ void differential(Output& out) {
     Bytes pdu = pdu_of(*adu);
     in.insert(in.end(), pdu.begin(), pdu.end());
     out.seed("differential", "ex-" + ex.id, in);
+  }
+  // plugin_fuzzer: each modbus-standard example frame alone (the example
+  // plugin is a standard slave stack).
+  for (const auto& ex : s.examples) {
+    auto adu = parse_hex(ex.resolved_request ? *ex.resolved_request : ex.request);
+    if (!adu || adu->empty()) continue;
+    Bytes in;
+    fuzz::plugin_frame(in, *adu, false);
+    out.seed("plugin", "modbus-standard-ex-" + ex.id, in);
   }
   // Quantity limits (MBAP §6.1-6.4, 6.11, 6.12, 6.17) and the end of the
   // 256-item blocks both sides map.

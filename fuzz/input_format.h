@@ -11,6 +11,7 @@
 //       (the record kind is op % 4)
 //   differential_fuzzer: [flags][pdu...]   flags bit 0: broadcast (slave 0) else slave 1
 //   reply_parser_fuzzer: [n][request pdu: n bytes][reply pdu...]
+//   plugin_fuzzer:       records [flags][n][n bytes], flags bit 0: append the correct CRC
 //   rtu_frame_fuzzer, spec_loader_fuzzer: the bytes as they are.
 #pragma once
 
@@ -42,6 +43,13 @@ inline void session_advance(Bytes& in, uint16_t ms) {
   in.push_back(kAdvanceMs);
   in.push_back(uint8_t(ms >> 8));
   in.push_back(uint8_t(ms));
+}
+
+// Appends one plugin_fuzzer record.
+inline void plugin_frame(Bytes& in, std::span<const uint8_t> adu, bool fix_crc) {
+  in.push_back(fix_crc ? kFixCrc : 0);
+  in.push_back(uint8_t(adu.size() > 255 ? 255 : adu.size()));
+  in.insert(in.end(), adu.begin(), adu.begin() + (adu.size() > 255 ? 255 : adu.size()));
 }
 
 inline Bytes reply_parser_input(std::span<const uint8_t> request, std::span<const uint8_t> reply) {
