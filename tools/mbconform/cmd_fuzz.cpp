@@ -464,8 +464,14 @@ class Generator {
 using Open = std::function<std::unique_ptr<conf::Target>()>;
 
 // Runs `steps` on a fresh target; the first finding, if any.
+// A target that cannot be opened again (a server that died) reproduces nothing.
 std::optional<Finding> run_fresh(const Open& open, const Plan& p, const std::vector<Step>& steps) {
-  auto t = open();
+  std::unique_ptr<conf::Target> t;
+  try {
+    t = open();
+  } catch (const std::exception& e) {
+    return Finding{"cannot-reopen", e.what()};
+  }
   for (const auto& st : steps)
     if (auto f = execute(*t, p, st)) return f;
   return std::nullopt;
@@ -718,17 +724,21 @@ int run_fuzz(const FuzzArgs& a) {
   // Reduce: the last batch alone first (most findings need no earlier
   // state), else the whole history; then ddmin on fresh targets.
   Reducer red{open, plan, isolate, finding->kind};
-  std::vector<Step> candidate(history.begin() + long(last_probe), history.end());
-  if (!red.fails(candidate)) {
-    candidate = history;
-    if (!red.fails(candidate)) {
-      std::printf("the finding does not reproduce on a fresh target (timing or state outside the frames); saving all %zu steps\n",
-                  candidate.size());
-    }
+  std::vector<Step> last_batch(history.begin() + long(std::min(last_probe, history.size())), history.end());
+  std::vector<Step> minimal;
+  if (red.fails(last_batch)) {
+    minimal = red.minimize(last_batch);
+  } else if (red.fails(history)) {
+    minimal = red.minimize(history);
+  } else {
+    // Timing, state outside the frames, or a target that is gone: keep the
+    // last batch as it was sent, unreduced.
+    std::printf("the finding does not reproduce on a fresh target (timing, state outside the frames, or the target is gone); "
+                "saving the last %zu steps unreduced\n", last_batch.size());
+    minimal = last_batch;
   }
-  std::vector<Step> minimal = red.minimize(candidate);
   fs::path file = save_reproducer(a.out, uri, device, *finding, minimal);
-  std::printf("reduced to %zu step(s) in %d fresh-target runs; reproducer: %s\n", minimal.size(), red.runs, file.c_str());
+  std::printf("reproducer of %zu step(s) (%d fresh-target runs): %s\n", minimal.size(), red.runs, file.c_str());
   std::printf("replay: mbconform fuzz --replay %s --target '%s' --device %s\n", file.c_str(), uri.c_str(), device.c_str());
   return kExitFailed;
 }
