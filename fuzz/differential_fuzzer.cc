@@ -52,6 +52,11 @@ const KnownDifference kKnownDifferences[] = {
     {"device-specific-functions",
      [](auto pdu, auto&, auto&) { return pdu[0] == 7 || pdu[0] == 8 || pdu[0] == 17 || pdu[0] == 43; }},
     {"extra-holding-registers", [](auto pdu, auto&, auto&) { return holding_range_touches_extra(pdu); }},
+    // MBAP §4.1: codes 128-255 are reserved for exception responses, and an
+    // exception reply's function code is the request's + 0x80 (§7).
+    // libmodbus 3.1.6 adds 0x80 in a uint8_t: a request with FC 0xF6 gets
+    // "76 01" (a normal-looking reply for FC 0x76); the engine answers "F6 01".
+    {"exception-fc-overflow", [](auto pdu, auto&, auto&) { return pdu[0] >= 0x80; }},
     // MBAP §6.11 Figure 21: "Byte Count == N" (N = quantity / 8, rounded up) is
     // a condition for executing FC 15; libmodbus 3.1.6 writes the coils whatever
     // the byte count says (the engine answers 03 and writes nothing).
