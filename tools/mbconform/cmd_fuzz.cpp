@@ -20,11 +20,13 @@
 // command that replays it is printed. Exit 0: nothing found; 1: a finding;
 // 2: could not run.
 //
-// Safety with live drives (conformance/safety/safety.h): a frame that would
-// write a command or motion register needs --allow-motion, a persistent one
-// --allow-eeprom-writes; nothing ever writes the serial settings (slave id,
-// baud rate), and on live targets writes go only to registers the spec maps,
-// never to mutated addresses, and broadcast / other-slave frames only read.
+// Safety with live drives (conformance/safety/safety.h): writes only to
+// registers may_write() allows (command and motion registers need
+// --allow-motion, persistent ones --allow-eeprom-writes), the registers are
+// snapshotted first and restored afterwards; nothing ever writes the serial
+// settings (slave id, baud rate) or the "do not persist" switch; on live
+// targets writes go only to registers the spec maps, never to mutated
+// addresses, and broadcast / other-slave frames only read.
 #include <fmt/core.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -44,6 +46,7 @@
 #include "commands.h"
 #include "loader.h"
 #include "master/pdu.h"
+#include "safety/safety.h"
 #include "spec_values.h"
 #include "targets/target.h"
 
@@ -131,13 +134,10 @@ struct Plan {
     if (r.access == Access::ro || r.table == Table::input || r.table == Table::discrete_input) return false;
     for (const auto& st : spec->serial.settings)
       if (st.register_address >= r.address && st.register_address <= r.last_address()) return false;
-    if (!info.live) return true;  // a simulation: everything but the line settings
-    // Same rules as conformance/safety/safety.h may_write().
-    bool command = r.access == Access::command || (r.command && (r.command->motion || r.command->eeprom));
-    if (command && !allow_motion) return false;
-    if (r.persistence.store != spec::Store::none && !allow_eeprom) return false;
-    return true;
+    if (forbidden.count(r.address)) return false;
+    return conf::may_write(*spec, r, info, policy()).allowed;  // a simulation (not live) allows everything
   }
+  conf::WritePolicy policy() const { return conf::WritePolicy{allow_motion, allow_eeprom}; }
 
   // Whether a request PDU may be sent to unit `unit` (0 = broadcast).
   bool safe(std::span<const uint8_t> pdu, bool foreign_or_broadcast) const {
@@ -189,6 +189,9 @@ Plan make_plan(const spec::Spec& s, const conf::TargetInfo& info, bool allow_mot
   p.allow_motion = allow_motion;
   p.allow_eeprom = allow_eeprom;
   for (const auto& st : s.serial.settings) p.forbidden.insert(st.register_address);
+  // The "do not persist" switch (57HS-R 0x0016) stays as Snapshot::take set it.
+  for (const auto& r : s.registers)
+    if (r.persistence.unless_register) p.forbidden.insert(*r.persistence.unless_register);
   for (const Register* r : fuzz::representative_registers(s)) {
     if (r->access != Access::wo && s.profile.function(fuzz::read_function(r->table))) p.readable.push_back(r);
     if (p.writable_register(*r)) p.writable.push_back(r);
@@ -424,10 +427,17 @@ class Generator {
 
   // Malformed framing (MB-SL v1.02 §2.5.1): the frame a correct device drops.
   std::optional<Step> malformed(const Bytes& pdu) {
+    // Over Modbus TCP the frame is the MBAP header's business: RTU bytes would
+    // only desynchronise the stream. On a byte stream without timing (TCP,
+    // RTU over TCP) a frame whose length is wrong swallows the next request
+    // (its end is found by counting bytes), so only length-keeping faults.
+    if (p_.info.framing != conf::Framing::rtu) return std::nullopt;
+    const bool stream = p_.info.kind == "tcp" || p_.info.kind == "rtu-tcp";
     uint8_t unit = p_.info.unit;
     Step s{Step::Kind::raw, unit, conf::rtu_frame(unit, pdu), {}, 0};
     Bytes& a = s.bytes;
-    switch (pick(6)) {
+    static const int kStreamCases[] = {0, 3, 4};
+    switch (stream ? kStreamCases[pick(3)] : int(pick(6))) {
       case 0: a[a.size() - 1 - pick(2)] ^= uint8_t(1u << pick(8)); break;  // CRC
       case 1: a.resize(1 + pick(a.size() - 1)); break;                       // truncated
       case 2: {                                                              // over 256 bytes
@@ -644,6 +654,21 @@ int run_fuzz(const FuzzArgs& a) {
     std::fprintf(stderr, "mbconform fuzz: --duration '%s': expected e.g. 500ms, 20s, 5m, 1h\n", a.duration.c_str());
     return kExitUsage;
   }
+  // A live drive gets back the values it had (conformance/safety/safety.h).
+  std::optional<conf::Snapshot> snapshot;
+  if (info.live) {
+    snapshot = conf::Snapshot::take(*target, s, plan.policy());
+    for (const auto& f : snapshot->failures()) std::fprintf(stderr, "mbconform fuzz: snapshot: %s\n", f.c_str());
+  }
+  auto restore = [&] {
+    if (!snapshot) return;
+    try {
+      auto t = open();
+      for (const auto& f : snapshot->restore(*t)) std::fprintf(stderr, "mbconform fuzz: NOT RESTORED: %s\n", f.c_str());
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "mbconform fuzz: could not restore the drive's registers: %s\n", e.what());
+    }
+  };
   uint64_t seed = a.seed.value_or(uint64_t(std::chrono::steady_clock::now().time_since_epoch().count()));
   std::printf("fuzzing %s as %s for %s, seed %llu, batches of %d frames (%zu readable, %zu writable registers)\n",
               info.uri.c_str(), device.c_str(), a.duration.c_str(), (unsigned long long)seed, a.batch,
@@ -715,6 +740,7 @@ int run_fuzz(const FuzzArgs& a) {
   target.reset();
 
   if (!finding) {
+    restore();
     std::printf("no finding: %ld frames in %ld batches, every probe answered\n", frames, batches);
     return kExitOk;
   }
@@ -737,6 +763,7 @@ int run_fuzz(const FuzzArgs& a) {
                 "saving the last %zu steps unreduced\n", last_batch.size());
     minimal = last_batch;
   }
+  restore();
   fs::path file = save_reproducer(a.out, uri, device, *finding, minimal);
   std::printf("reproducer of %zu step(s) (%d fresh-target runs): %s\n", minimal.size(), red.runs, file.c_str());
   std::printf("replay: mbconform fuzz --replay %s --target '%s' --device %s\n", file.c_str(), uri.c_str(), device.c_str());
