@@ -39,6 +39,39 @@ struct Checker {
     }
   }
 
+  // Every register an `operations:` entry names by key exists, and a write's
+  // value is one the register can hold.
+  void operations() {
+    auto key = [&](const std::string& pointer, const std::string& k) -> const Register* {
+      if (k.empty()) return nullptr;
+      const Register* r = s.find_by_key(k);
+      if (!r) error(pointer, "unknown-register-key", "no register has key '" + k + "'");
+      return r;
+    };
+    auto write = [&](const std::string& pointer, const RegisterWrite& w) {
+      const Register* r = key(pointer + "/register", w.key);
+      if (r && r->access == Access::ro)
+        error(pointer + "/register", "operation-writes-read-only", "register '" + w.key + "' is read-only");
+    };
+    const auto& ops = s.operations;
+    if (ops.save) write("/operations/save", *ops.save);
+    if (ops.factory_reset) write("/operations/factory_reset", *ops.factory_reset);
+    if (!ops.motion) return;
+    const auto& m = *ops.motion;
+    const std::string mp = "/operations/motion";
+    for (size_t i = 0; i < m.assumes.size(); ++i) key(mp + "/assumes/" + std::to_string(i) + "/register", m.assumes[i].key);
+    for (size_t i = 0; i < m.setup.size(); ++i) write(mp + "/setup/" + std::to_string(i), m.setup[i]);
+    key(mp + "/distance/register", m.distance_key);
+    key(mp + "/distance/reverse_register", m.reverse_distance_key);
+    for (auto [name, w] : {std::pair{"start_forward", &m.start_forward}, std::pair{"start_reverse", &m.start_reverse},
+                           std::pair{"stop", &m.stop}, std::pair{"emergency_stop", &m.emergency_stop}})
+      if (*w) write(mp + "/" + name, **w);
+    key(mp + "/position/register", m.position_key);
+    key(mp + "/position/high_register", m.position_high_key);
+    key(mp + "/status/register", m.status_key);
+    key(mp + "/positioning_needs_homing/position_command", m.position_command_key);
+  }
+
   void ids() {
     auto unique = [&](const char* what, const std::string& base, auto const& items) {
       std::map<std::string, size_t> seen;
@@ -357,6 +390,7 @@ void check_semantics(const Spec& spec, const JsonDocument& doc, const std::strin
   c.profile();
   c.serial();
   c.examples();
+  c.operations();
 }
 
 }  // namespace mbc::spec

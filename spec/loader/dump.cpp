@@ -3,6 +3,47 @@
 #include <cmath>
 
 namespace mbc::spec {
+
+namespace {
+
+nlohmann::json write_json(const std::optional<RegisterWrite>& w) {
+  if (!w) return nullptr;
+  return {{"register", w->key}, {"value", w->value}, {"settle_ms", double(w->settle_us) / 1000}, {"section", w->section}};
+}
+
+nlohmann::json operations_json(const Operations& o) {
+  nlohmann::json j = {{"section", o.section}, {"save", write_json(o.save)}, {"factory_reset", write_json(o.factory_reset)}};
+  if (!o.motion) {
+    j["motion"] = nullptr;
+    return j;
+  }
+  const MotionOperations& m = *o.motion;
+  auto list = [](const std::vector<RegisterWrite>& v) {
+    nlohmann::json a = nlohmann::json::array();
+    for (const auto& w : v) a.push_back(write_json(w));
+    return a;
+  };
+  j["motion"] = {{"section", m.section},
+                 {"assumes", list(m.assumes)},
+                 {"setup", list(m.setup)},
+                 {"distance", {{"register", m.distance_key}, {"reverse_register", m.reverse_distance_key},
+                               {"signed", m.signed_distance}, {"max", m.max_distance}}},
+                 {"start_forward", write_json(m.start_forward)},
+                 {"start_reverse", write_json(m.start_reverse)},
+                 {"position", {{"register", m.position_key}, {"high_register", m.position_high_key}}},
+                 {"max_speed_pulses_per_s", m.max_speed_pulses_per_s},
+                 {"decel_seconds", m.decel_seconds},
+                 {"stop", write_json(m.stop)},
+                 {"emergency_stop", write_json(m.emergency_stop)},
+                 {"status", {{"register", m.status_key}, {"running_mask", m.running_mask},
+                             {"running_when_set", m.running_when_set}, {"in_position_mask", m.in_position_mask}}},
+                 {"positioning_needs_homing", m.positioning_needs_homing},
+                 {"position_command", m.position_command_key}};
+  return j;
+}
+
+}  // namespace
+
 namespace {
 
 using nlohmann::json;
@@ -168,6 +209,7 @@ nlohmann::json to_json(const Spec& s) {
   for (const auto& e : s.errata)
     er.push_back({{"id", e.id}, {"section", e.section}, {"kind", e.kind}, {"printed", e.printed}, {"resolved", e.resolved}, {"why", e.why}});
   j["errata"] = er;
+  j["operations"] = operations_json(s.operations);
   return j;
 }
 

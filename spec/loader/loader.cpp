@@ -321,7 +321,65 @@ struct Builder {
       s.errata.push_back({str(e, "id"), str(e, "section"), str(e, "kind"), str(e, "printed"), str(e, "resolved"),
                           str(e, "why"), at("/errata/" + std::to_string(i))});
     }
+    if (r.contains("operations")) build_operations(s, r["operations"]);
     return s;
+  }
+
+  RegisterWrite register_write(const json& j, const std::string& p) {
+    RegisterWrite w;
+    w.key = str(j, "register");
+    w.value = j["value"].get<int64_t>();
+    w.settle_us = uint64_t(j.value("settle_ms", 0.0) * 1000);
+    w.section = str(j, "section");
+    w.loc = at(p);
+    return w;
+  }
+
+  std::optional<RegisterWrite> optional_write(const json& j, const char* key, const std::string& p) {
+    if (!j.contains(key)) return std::nullopt;
+    return register_write(j[key], p + "/" + key);
+  }
+
+  void build_operations(Spec& s, const json& o) {
+    const std::string p = "/operations";
+    s.operations.section = str(o, "section");
+    s.operations.save = optional_write(o, "save", p);
+    s.operations.factory_reset = optional_write(o, "factory_reset", p);
+    if (!o.contains("motion")) return;
+    const json& m = o["motion"];
+    const std::string mp = p + "/motion";
+    MotionOperations mo;
+    mo.loc = at(mp);
+    mo.section = str(m, "section");
+    for (const char* list : {"assumes", "setup"}) {
+      if (!m.contains(list)) continue;
+      auto& out = std::string(list) == "assumes" ? mo.assumes : mo.setup;
+      for (size_t i = 0; i < m[list].size(); ++i)
+        out.push_back(register_write(m[list][i], mp + "/" + list + "/" + std::to_string(i)));
+    }
+    const json& dist = m["distance"];
+    mo.distance_key = str(dist, "register");
+    mo.reverse_distance_key = str(dist, "reverse_register");
+    mo.signed_distance = dist.value("signed", false);
+    mo.max_distance = dist.value("max", int64_t(4000));
+    mo.start_forward = optional_write(m, "start_forward", mp);
+    mo.start_reverse = optional_write(m, "start_reverse", mp);
+    mo.stop = optional_write(m, "stop", mp);
+    mo.emergency_stop = optional_write(m, "emergency_stop", mp);
+    mo.position_key = str(m["position"], "register");
+    mo.position_high_key = str(m["position"], "high_register");
+    mo.max_speed_pulses_per_s = m["max_speed_pulses_per_s"].get<double>();
+    mo.decel_seconds = m["decel_seconds"].get<double>();
+    const json& st = m["status"];
+    mo.status_key = str(st, "register");
+    mo.running_mask = st["running_mask"].get<uint16_t>();
+    mo.running_when_set = st.value("running_when_set", true);
+    mo.in_position_mask = st.value("in_position_mask", uint16_t(0));
+    if (m.contains("positioning_needs_homing")) {
+      mo.positioning_needs_homing = true;
+      mo.position_command_key = str(m["positioning_needs_homing"], "position_command");
+    }
+    s.operations.motion = mo;
   }
 
   void build_register(Spec& s, const json& j, size_t index) {

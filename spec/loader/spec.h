@@ -271,6 +271,50 @@ struct Device {
   std::string section;
 };
 
+// A write of `value` to the register named by spec `key`, then `settle_us`
+// of (virtual) time before its effect can be read back.
+struct RegisterWrite {
+  std::string key;
+  int64_t value = 0;
+  uint64_t settle_us = 0;
+  std::string section;
+  SourceLoc loc;
+};
+
+// How a position move is set up, started, stopped and watched: the facts
+// motion properties need that a register table cannot state (`operations:
+// motion:` in the language). Registers by key; values raw; distances and
+// positions in pulses.
+struct MotionOperations {
+  std::string section;
+  std::vector<RegisterWrite> assumes;  // values the figures below assume (e.g. the microstep)
+  std::vector<RegisterWrite> setup;    // writes that set the profile before a move, in order
+  std::string distance_key, reverse_distance_key;  // reverse: for negative moves, when separate
+  bool signed_distance = false;
+  std::optional<RegisterWrite> start_forward, start_reverse;  // none: the distance write starts
+  int64_t max_distance = 4000;
+  std::string position_key, position_high_key;  // high: the high word in a second register
+  double max_speed_pulses_per_s = 0;  // what `setup` configures
+  double decel_seconds = 0;           // a normal stop from that speed
+  std::optional<RegisterWrite> stop, emergency_stop;
+  std::string status_key;
+  uint16_t running_mask = 0;
+  bool running_when_set = true;  // false: the mask is a "motion complete" bit
+  uint16_t in_position_mask = 0;
+  bool positioning_needs_homing = false;  // positioning refused until homed
+  std::string position_command_key;
+  SourceLoc loc;
+};
+
+// Device operations: which write saves, which restores factory defaults,
+// how a move is made (`operations:`; absent when the manual documents none).
+struct Operations {
+  std::string section;
+  std::optional<RegisterWrite> save;
+  std::optional<RegisterWrite> factory_reset;
+  std::optional<MotionOperations> motion;
+};
+
 struct Spec {
   std::string path;  // file it was loaded from
   Device device;
@@ -281,6 +325,7 @@ struct Spec {
   std::vector<Register> registers;  // resolved: blocks expanded, sorted by (table, address)
   std::vector<Example> examples;
   std::vector<Erratum> errata;
+  Operations operations;
 
   const Register* find_register(uint16_t address, Table table = Table::holding) const;
   // The register whose words cover `address` (a 2-word register covers two).
