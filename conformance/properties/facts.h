@@ -1,15 +1,16 @@
-// Device facts the properties need that the spec language does not name:
-// which value of which command register saves or factory-resets, and how a
-// position move is commanded and observed. Registers are named by their spec
-// `key`, so the spec stays the source of addresses, types and word orders;
-// every fact cites the manual section it comes from. All of them live in
-// facts.cpp, one table, nowhere else.
+// Device facts the properties need beyond the register table: which value of
+// which command register saves or factory-resets, and how a position move is
+// commanded and observed. They come from the spec's `operations:` section
+// (spec/README.md), registers named by key, each fact citing its section; so
+// a fifth drive gets the persistence and motion properties from its spec alone.
 #pragma once
 
 #include <cstdint>
 #include <optional>
 #include <string>
 #include <vector>
+
+#include "spec.h"
 
 namespace mbc::conf::props {
 
@@ -65,7 +66,7 @@ struct DeviceFacts {
   std::optional<MotionFacts> motion;
 };
 
-// The facts for a device id; nullptr when none are recorded.
-const DeviceFacts* facts_for(const std::string& device_id);
+// The facts of a spec's `operations:`; nullptr when it has none.
+const DeviceFacts* facts_for(const spec::Spec& spec);
 
 }  // namespace mbc::conf::props

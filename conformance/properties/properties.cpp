@@ -128,7 +128,7 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   std::unique_ptr<Target> probe = source.open();
   const spec::Spec& spec = *source.spec;
   c.id = fmt::format("prop.{}.{}", inv.name, spec.device.id);
-  const DeviceFacts* facts = facts_for(spec.device.id);
+  const DeviceFacts* facts = facts_for(spec);
   SpecView probe_view(spec, probe->info(), options.policy);
   if (std::string why = inv.skip_reason ? inv.skip_reason(probe_view, probe->info(), facts) : ""; !why.empty()) {
     c.outcome = Outcome::skip;
