@@ -11,6 +11,7 @@
 #include "codec/crc16.h"
 #include "codec/hex.h"
 #include "loader.h"
+#include "manuals_dir.h"
 
 using namespace mbc;
 namespace fs = std::filesystem;
@@ -85,13 +86,6 @@ TEST(Hex, StrictFormatIsUppercasePairsWithSingleSpaces) {
 // Completeness: every frame printed in a manual is an example in its spec.
 // The scan reads the manuals themselves (shared/manuals beside the checkout).
 namespace {
-
-std::optional<fs::path> manuals_dir() {
-  if (const char* env = std::getenv("MBCONFORM_MANUALS_DIR")) return fs::path(env);
-  for (fs::path p : {fs::path(MBCONFORM_SOURCE_DIR) / ".." / "shared" / "manuals", fs::path("/work/shared/manuals")})
-    if (fs::is_directory(p)) return p;
-  return std::nullopt;
-}
 
 // Runs of at least five bytes printed as hex pairs (or pairs run together,
 // "C9C1"), split on whitespace and punctuation.

@@ -14,18 +14,12 @@
 #include <set>
 
 #include "loader.h"
+#include "manuals_dir.h"
 
 using namespace mbc;
 namespace fs = std::filesystem;
 
 namespace {
-
-std::optional<fs::path> manuals_dir() {
-  if (const char* env = std::getenv("MBCONFORM_MANUALS_DIR")) return fs::path(env);
-  for (fs::path p : {fs::path(MBCONFORM_SOURCE_DIR) / ".." / "shared" / "manuals", fs::path("/work/shared/manuals")})
-    if (fs::is_directory(p)) return p;
-  return std::nullopt;
-}
 
 struct Printed {
   uint16_t address;
