@@ -19,6 +19,10 @@
 #include <filesystem>
 #include <fstream>
 
+#include <fcntl.h>
+#include <rapidcheck/detail/Configuration.h>
+#include <unistd.h>
+
 #include "commands.h"
 #include "loader.h"
 #include "properties/properties.h"
@@ -71,7 +75,7 @@ int replay_files(const PropsArgs& a) {
       auto target = conf::open_target(uri);
       spec::Spec s = a.spec_file.empty() ? spec::load_spec_by_id(r.device_id) : load_file(a.spec_file);
       conf::props::SpecView view(s, target->info(), a.policy);
-      conf::props::Session session(*target, view, conf::props::facts_for(s.device.id));
+      conf::props::Session session(*target, view, conf::props::facts_for(s));
       std::string why = conf::props::replay(session, r.steps);
       fmt::print("{} on {}: {}\n", path, uri, why.empty() ? "agrees with the model" : why);
       if (!why.empty()) rc = kExitFailed;
@@ -83,7 +87,23 @@ int replay_files(const PropsArgs& a) {
   return rc;
 }
 
+// RapidCheck prints "Using configuration: seed=..." (its own, unused here:
+// each property gets --seed) the first time it reads RC_PARAMS; read it quietly.
+void load_rapidcheck_quietly() {
+  std::fflush(stderr);
+  int saved = dup(STDERR_FILENO);
+  int null = open("/dev/null", O_WRONLY);
+  if (saved < 0 || null < 0) return;
+  dup2(null, STDERR_FILENO);
+  (void)rc::detail::configuration();
+  std::fflush(stderr);
+  dup2(saved, STDERR_FILENO);
+  close(null);
+  close(saved);
+}
+
 int run(PropsArgs& a) {
+  load_rapidcheck_quietly();
   if (!a.replay.empty()) return replay_files(a);
   if (a.list) {
     for (const auto& inv : conf::props::invariants())
