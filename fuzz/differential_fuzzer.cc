@@ -57,6 +57,11 @@ const KnownDifference kKnownDifferences[] = {
     // libmodbus 3.1.6 adds 0x80 in a uint8_t: a request with FC 0xF6 gets
     // "76 01" (a normal-looking reply for FC 0x76); the engine answers "F6 01".
     {"exception-fc-overflow", [](auto pdu, auto&, auto&) { return pdu[0] >= 0x80; }},
+    // MBAP §6.5 Figure 15 checks the output value (0x0000 or 0xFF00, else 03)
+    // before the address (else 02); libmodbus 3.1.6 checks the address first,
+    // so FC 05 with a bad value outside its map gets 02 there, 03 from the engine.
+    {"fc05-check-order",
+     [](auto pdu, auto&, auto&) { return pdu[0] == 5 && pdu.size() >= 5 && be16(pdu, 3) != 0 && be16(pdu, 3) != 0xFF00; }},
     // MBAP §6.11 Figure 21: "Byte Count == N" (N = quantity / 8, rounded up) is
     // a condition for executing FC 15; libmodbus 3.1.6 writes the coils whatever
     // the byte count says (the engine answers 03 and writes nothing).

@@ -40,9 +40,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
 
   // Hex: what to_hex prints, parse_hex_strict reads back exactly; the lenient
   // parser on arbitrary text never crashes and round-trips what it accepts.
+  // (No bytes print as "", which the strict format, a frame, does not accept.)
   std::string hex = to_hex(in);
   auto back = parse_hex_strict(hex);
-  check(back && *back == Bytes(in.begin(), in.end()), "parse_hex_strict(to_hex(x)) != x", in);
+  if (size > 0) check(back && *back == Bytes(in.begin(), in.end()), "parse_hex_strict(to_hex(x)) != x", in);
   std::string_view text(reinterpret_cast<const char*>(data), size);
   if (auto lenient = parse_hex(text)) {
     auto again = parse_hex(to_hex(*lenient));
