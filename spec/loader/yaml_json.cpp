@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <vector>
@@ -201,6 +202,30 @@ SourceLoc JsonDocument::where(const std::string& pointer) const {
   }
 }
 
+// Offset of the first byte that is not well-formed UTF-8 (Unicode 15 Table
+// 3-7: no overlongs, no surrogates, nothing past U+10FFFF), or npos. A spec is
+// UTF-8 text (YAML 1.2 §5.2); bytes that are not would reach the JSON Schema
+// validator's string functions, which assume valid UTF-8 (fuzz/README.md).
+static size_t first_invalid_utf8(std::string_view t) {
+  size_t i = 0;
+  while (i < t.size()) {
+    unsigned char c = uint8_t(t[i]);
+    size_t n = c < 0x80 ? 0 : (c >= 0xC2 && c <= 0xDF) ? 1 : (c >= 0xE0 && c <= 0xEF) ? 2 : (c >= 0xF0 && c <= 0xF4) ? 3 : 99;
+    if (n == 99 || i + n >= t.size() + (n ? 0 : 1)) return i;
+    unsigned char c1 = n ? uint8_t(t[i + 1]) : 0;
+    unsigned char lo = 0x80, hi = 0xBF;
+    if (c == 0xE0) lo = 0xA0;
+    if (c == 0xED) hi = 0x9F;
+    if (c == 0xF0) lo = 0x90;
+    if (c == 0xF4) hi = 0x8F;
+    if (n && (c1 < lo || c1 > hi)) return i;
+    for (size_t k = 2; k <= n; ++k)
+      if ((uint8_t(t[i + k]) & 0xC0) != 0x80) return i;
+    i += n + 1;
+  }
+  return std::string_view::npos;
+}
+
 std::optional<JsonDocument> yaml_to_json(std::string_view text, const std::string& file,
                                          Diagnostics& out, const YamlLimits& limits) {
   if (text.size() > limits.max_bytes) {
@@ -209,6 +234,13 @@ std::optional<JsonDocument> yaml_to_json(std::string_view text, const std::strin
   }
   if (text.find('\0') != std::string_view::npos) {
     out.push_back({file, 1, 1, "yaml", "file contains NUL bytes (not a text file)"});
+    return std::nullopt;
+  }
+  if (size_t bad = first_invalid_utf8(text); bad != std::string_view::npos) {
+    int line = 1 + int(std::count(text.begin(), text.begin() + long(bad), '\n'));
+    size_t nl = text.rfind('\n', bad == 0 ? 0 : bad - 1);
+    int col = int(bad - (nl == std::string_view::npos || bad == 0 ? 0 : nl + 1)) + 1;
+    out.push_back({file, line, col, "yaml", "not UTF-8 text (YAML 1.2 §5.2): invalid byte sequence"});
     return std::nullopt;
   }
   if (auto d = check_nesting(text, file, limits.max_depth)) {
