@@ -40,12 +40,6 @@ Ran run_ref(const std::string& uri, const std::string& only_id = "") {
   return r;
 }
 
-const CaseResult* find(const DeviceRun& d, const std::string& id) {
-  for (const auto& c : d.cases)
-    if (c.id == id) return &c;
-  return nullptr;
-}
-
 class ReferenceDevice : public ::testing::TestWithParam<std::string> {};
 
 TEST_P(ReferenceDevice, EveryMustCasePasses) {
