@@ -1,10 +1,13 @@
 #include "yaml_json.h"
 
+#include <yaml-cpp/eventhandler.h>
+#include <yaml-cpp/parser.h>
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
 #include <charconv>
 #include <cmath>
+#include <sstream>
 #include <vector>
 
 namespace mbc::spec {
@@ -206,6 +209,19 @@ SourceLoc JsonDocument::where(const std::string& pointer) const {
 // 3-7: no overlongs, no surrogates, nothing past U+10FFFF), or npos. A spec is
 // UTF-8 text (YAML 1.2 §5.2); bytes that are not would reach the JSON Schema
 // validator's string functions, which assume valid UTF-8 (fuzz/README.md).
+// Counts documents without building them (the event handler ignores events).
+struct DocumentCounter final : YAML::EventHandler {
+  void OnDocumentStart(const YAML::Mark&) override {}
+  void OnDocumentEnd() override {}
+  void OnNull(const YAML::Mark&, YAML::anchor_t) override {}
+  void OnAlias(const YAML::Mark&, YAML::anchor_t) override {}
+  void OnScalar(const YAML::Mark&, const std::string&, YAML::anchor_t, const std::string&) override {}
+  void OnSequenceStart(const YAML::Mark&, const std::string&, YAML::anchor_t, YAML::EmitterStyle::value) override {}
+  void OnSequenceEnd() override {}
+  void OnMapStart(const YAML::Mark&, const std::string&, YAML::anchor_t, YAML::EmitterStyle::value) override {}
+  void OnMapEnd() override {}
+};
+
 static size_t first_invalid_utf8(std::string_view t) {
   size_t i = 0;
   while (i < t.size()) {
@@ -249,16 +265,24 @@ std::optional<JsonDocument> yaml_to_json(std::string_view text, const std::strin
   }
   YAML::Node root;
   try {
-    std::vector<YAML::Node> docs = YAML::LoadAll(std::string(text));
-    if (docs.empty()) {
+    // Documents are counted with a bounded loop, not YAML::LoadAll: yaml-cpp
+    // 0.7's LoadAll never ends on some malformed streams (a stray ',' at the
+    // top: jbeder/yaml-cpp#1040, fixed upstream by PR #1319), allocating a null
+    // document per turn (found by spec_loader_fuzzer: ", a" hung the loader).
+    std::istringstream stream{std::string(text)};
+    YAML::Parser parser(stream);
+    DocumentCounter counter;
+    int docs = 0;
+    while (docs < 2 && parser.HandleNextDocument(counter)) ++docs;
+    if (docs == 0) {
       out.push_back({file, 1, 1, "yaml", "empty document"});
       return std::nullopt;
     }
-    if (docs.size() > 1) {
-      out.push_back({file, 1, 1, "yaml", "more than one YAML document in the file"});
+    if (docs > 1) {
+      out.push_back({file, 1, 1, "yaml", "more than one YAML document in the file (or a ',' outside a flow collection)"});
       return std::nullopt;
     }
-    root = docs.front();
+    root = YAML::Load(std::string(text));
   } catch (const YAML::Exception& e) {
     out.push_back({file, e.mark.line + 1, e.mark.column + 1, "yaml", e.msg});
     return std::nullopt;
