@@ -180,32 +180,30 @@ struct Gen {
     }
   }
 
-  // A run of `n` holding registers the case may write whole, with in-range values.
+  // A run of `n` words of consecutive holding registers the case may write
+  // whole (starting and ending on register boundaries), with in-range values.
   std::optional<std::pair<uint16_t, std::vector<uint16_t>>> writable_run(int n) {
-    std::vector<uint16_t> words;
-    std::optional<uint16_t> start;
-    uint32_t next = 0;
+    std::vector<const Register*> run;
+    int words = 0;
     for (const auto& r : g.spec.registers) {
       if (r.table != Table::holding) continue;
       bool ok = r.access == Access::rw && cases::write_forbidden(g, r).empty() && r.type != spec::DataType::f32;
-      if (!ok || (start && r.address != next)) {
-        words.clear();
-        start.reset();
+      if (!ok || (!run.empty() && run.back()->last_address() + 1 != r.address)) {
+        run.clear();
+        words = 0;
         if (!ok) continue;
       }
-      if (!start) start = r.address;
-      double v = r.range ? r.range->min : r.default_value.value_or(0);
-      for (auto w : cases::encode(r, int64_t(v))) words.push_back(w);
-      next = r.last_address() + 1;
-      if (int(words.size()) >= n) {
-        words.resize(n);
-        // A run must not end inside a 2-word register.
-        if (const Register* end = g.spec.register_covering(uint16_t(*start + n - 1)); end && end->last_address() == uint32_t(*start + n - 1))
-          return std::make_pair(*start, words);
-        // Slide: restart from this register.
-        words.clear();
-        start = r.address;
-        for (auto w : cases::encode(r, int64_t(v))) words.push_back(w);
+      run.push_back(&r);
+      words += r.words;
+      while (words > n) {
+        words -= run.front()->words;
+        run.erase(run.begin());
+      }
+      if (words == n) {
+        std::vector<uint16_t> values;
+        for (const Register* x : run)
+          for (auto w : cases::encode(*x, int64_t(x->range ? x->range->min : x->default_value.value_or(0)))) values.push_back(w);
+        return std::make_pair(run.front()->address, values);
       }
     }
     return std::nullopt;

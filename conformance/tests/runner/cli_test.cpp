@@ -185,8 +185,10 @@ TEST_P(OverTheWire, EveryMustCasePasses) {
   ASSERT_TRUE(serve.wait_listening(1)) << serve.log();
   const auto* ep = serve.endpoint(t);
   ASSERT_NE(ep, nullptr);
-  std::string uri = t == "pty" ? "rtu://" + ep->address + "?baud=115200&unit=1"
-                               : t + "://127.0.0.1:" + std::to_string(ep->port()) + "?unit=1";
+  // A fixed 150 ms silence window: ctest runs in parallel on a loaded machine,
+  // where a reply can come later than the adaptive window expects.
+  std::string uri = t == "pty" ? "rtu://" + ep->address + "?baud=115200&unit=1&silence=150"
+                               : t + "://127.0.0.1:" + std::to_string(ep->port()) + "?unit=1&silence=150";
   Out o = run({"run", "--quiet", "--target", uri, "--device", p.device, "--out", dir / "r"});
   EXPECT_EQ(o.rc, 0) << o.text;
   auto j = nlohmann::json::parse(slurp(dir / "r/report.json"));

@@ -48,11 +48,16 @@ TEST_P(ReferenceDevice, EveryMustCasePasses) {
   EXPECT_TRUE(r.run.error.empty()) << r.run.error;
   size_t pass = 0;
   for (const auto& c : r.run.cases) {
-    if (c.level == Level::must) EXPECT_NE(c.outcome, Outcome::fail) << c.id << " [" << c.clause << "]: " << c.message;
+    if (c.level == Level::must) {
+      EXPECT_NE(c.outcome, Outcome::fail) << c.id << " [" << c.clause << "]: " << c.message;
+    }
     if (c.outcome == Outcome::pass) ++pass;
     // OBSERVED never fails; MUST never ends as "observed".
-    if (c.level == Level::observed) EXPECT_TRUE(c.outcome == Outcome::observed || c.outcome == Outcome::skip) << c.id;
-    else EXPECT_NE(c.outcome, Outcome::observed) << c.id;
+    if (c.level == Level::observed) {
+      EXPECT_TRUE(c.outcome == Outcome::observed || c.outcome == Outcome::skip) << c.id;
+    } else {
+      EXPECT_NE(c.outcome, Outcome::observed) << c.id;
+    }
   }
   EXPECT_GT(pass, 10u);
   EXPECT_GT(r.run.frames_sent, r.run.cases.size() / 2);
