@@ -154,28 +154,39 @@ class RtuTarget final : public Target {
 
   Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override {
     Bytes adu = rtu_frame(unit, pdu);
+    // Only well-formed exchanges with a slave time the device (a broadcast has no reply).
+    bool timed = unit != 0;
     if (ctx_ && !pdu.empty() && pdu.size() <= serve::kMaxRtuAdu - 3) {
-      return exchange(adu, unit, [&] {
+      return exchange(adu, unit, timed, [&] {
         Bytes raw{unit};
         raw.insert(raw.end(), pdu.begin(), pdu.end());
+        auto t = Clock::now();
         if (modbus_send_raw_request(ctx_, raw.data(), int(raw.size())) < 0)
           throw std::runtime_error(fmt::format("target '{}': send: {}", info_.uri, modbus_strerror(errno)));
+        return t;
       });
     }
-    return exchange(adu, unit, [&] { write_all(fd(), adu, info_.uri); });
+    return exchange(adu, unit, timed, [&] {
+      auto t = Clock::now();
+      write_all(fd(), adu, info_.uri);
+      return t;
+    });
   }
 
   Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
     Bytes adu(bytes.begin(), bytes.end());
     uint8_t slave = adu.empty() ? info_.unit : adu[0];
-    return exchange(adu, slave, [&] {
+    return exchange(adu, slave, false, [&] {
       size_t split = gap_after ? std::min(*gap_after, adu.size()) : adu.size();
+      auto t = Clock::now();
       write_all(fd(), std::span(adu).first(split), info_.uri);
       if (split < adu.size()) {
         if (serial_) tcdrain(fd_);  // the first part is on the wire before the pause starts
         std::this_thread::sleep_for(split_gap_);
+        t = Clock::now();
         write_all(fd(), std::span(adu).subspan(split), info_.uri);
       }
+      return t;
     });
   }
 
@@ -191,14 +202,19 @@ class RtuTarget final : public Target {
     return fd_;
   }
 
+  // `send` writes the request and returns when its last part started out.
+  // Latency runs from there (on a serial line: from when the request left
+  // the UART) to the reply's last byte.
   template <class Send>
-  Reply exchange(const Bytes& adu, uint8_t slave, Send send) {
+  Reply exchange(const Bytes& adu, uint8_t slave, bool timed, Send send) {
     if (drain(fd()) > 0) window_.late_reply();  // a reply came after its window closed
-    send();
-    if (serial_) tcdrain(fd_);
+    auto t0 = send();
+    if (serial_) {
+      tcdrain(fd_);
+      t0 = Clock::now();
+    }
     Reply r;
     r.request = adu;
-    auto t0 = Clock::now();
     auto first_by = t0 + window_.window();
     auto wire = info_.baud ? serve::wire_time(serve::kMaxRtuAdu, *info_.baud) : microseconds(0);
     auto hard = first_by + window_.timeout() + 2 * wire;
@@ -213,7 +229,7 @@ class RtuTarget final : public Target {
       fd_ = -1;
     }
     decode_rtu_reply(r, slave);
-    if (!r.frame.empty() && slave != 0) window_.record(r.latency);
+    if (!r.frame.empty() && timed) window_.record(r.latency);
     return r;
   }
 

@@ -73,11 +73,12 @@ class TcpTarget final : public Target {
   Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override {
     uint16_t tid = next_tid_++;
     Bytes adu = serve::mbap_reply(serve::Mbap{tid, 0, 0, unit}, pdu);
-    return exchange(adu, serve::Mbap{tid, 0, 0, unit}, std::nullopt);
+    // Only well-formed exchanges with a unit time the device (a broadcast has no reply).
+    return exchange(adu, serve::Mbap{tid, 0, 0, unit}, std::nullopt, unit != 0);
   }
 
   Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
-    return exchange(Bytes(bytes.begin(), bytes.end()), serve::parse_mbap(bytes), gap_after);
+    return exchange(Bytes(bytes.begin(), bytes.end()), serve::parse_mbap(bytes), gap_after, false);
   }
 
   void advance(std::chrono::microseconds) override {
@@ -98,20 +99,22 @@ class TcpTarget final : public Target {
     return h && h->length_ok() && b.size() >= h->adu_size();
   }
 
-  Reply exchange(const Bytes& adu, std::optional<serve::Mbap> sent, std::optional<size_t> gap_after) {
+  // Latency runs from the start of the request's last write to the reply's last byte.
+  Reply exchange(const Bytes& adu, std::optional<serve::Mbap> sent, std::optional<size_t> gap_after, bool timed) {
     if (!connected_) connect();  // the server closed it after the last exchange (e.g. a bad MBAP length)
     int fd = modbus_get_socket(ctx_);
     if (drain(fd) > 0) window_.late_reply();
     in_.clear();
     size_t split = gap_after ? std::min(*gap_after, adu.size()) : adu.size();
+    auto t0 = Clock::now();
     write_all(fd, std::span(adu).first(split), info_.uri);
     if (split < adu.size()) {
       std::this_thread::sleep_for(kReplyEndSilence);  // two TCP segments
+      t0 = Clock::now();
       write_all(fd, std::span(adu).subspan(split), info_.uri);
     }
     Reply r;
     r.request = adu;
-    auto t0 = Clock::now();
     auto first_by = t0 + window_.window();
     ReadResult rr;
     for (;;) {
@@ -130,7 +133,7 @@ class TcpTarget final : public Target {
     }
     judge_mbap(r, sent);
     if (sent && r.frame.empty()) remember_stale(sent->transaction);
-    if (!r.frame.empty() && sent && sent->unit != 0) window_.record(r.latency);
+    if (!r.frame.empty() && timed) window_.record(r.latency);
     return r;
   }
 
