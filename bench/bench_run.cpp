@@ -103,8 +103,8 @@ int main(int argc, char** argv) {
       over += ratio > 1.5;
     }
   }
-  fmt::print("serve paces its replies (wire time + t3.5); a pty delivers the requests at once, so at low rates the\n"
-             "wall time can fall under the bound, which counts the requests' line time too.\n");
+  fmt::print("serve holds each reply for the line time of the request and the reply plus t3.5, so the pty\n"
+             "behaves like the wire: the bound is a true lower bound and the ratio is the runner's overhead.\n");
   std::filesystem::remove_all(dir);
   return over ? 1 : 0;
 }

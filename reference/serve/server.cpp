@@ -294,10 +294,14 @@ struct Server::Impl {
   }
 
   // The engine's reply leaves after the line time a real RS-485 bus would
-  // take: the reply's characters plus the inter-frame gap (MB-SL §2.5.1.1).
-  void send_reply(Link& l, Bytes bytes, Clock::time_point now) {
+  // take: a pty or socket delivers the request at once, where a line would
+  // still be clocking it in, so both frames' characters count, plus the
+  // inter-frame gap after the reply (MB-SL §2.5.1.1). The gap that ends the
+  // request is already in `now` on a pty (frame end is found by silence).
+  void send_reply(Link& l, size_t request_bytes, Bytes bytes, Clock::time_point now) {
     Clock::time_point at = now;
-    if (l.rtu() && opt.line_rate) at += wire_time(bytes.size(), *opt.line_rate) + frame_gap(*opt.line_rate);
+    if (l.rtu() && opt.line_rate)
+      at += wire_time(request_bytes + bytes.size(), *opt.line_rate) + frame_gap(*opt.line_rate);
     l.out.push_back({std::move(bytes), at});
   }
 
@@ -309,7 +313,7 @@ struct Server::Impl {
       auto reply = bus.handle_rtu(l.in);
       if (reply) {
         trace(l, "tx", *reply, describe_rtu(*reply, Direction::reply));
-        send_reply(l, std::move(*reply), now);
+        send_reply(l, l.in.size(), std::move(*reply), now);
       } else {
         trace(l, "--", {}, "no reply");
       }
@@ -338,7 +342,7 @@ struct Server::Impl {
         if (reply) {
           Bytes out = mbap_reply(*h, *reply);
           trace(l, "tx", out, head + describe_pdu(*reply, Direction::reply));
-          send_reply(l, std::move(out), now);
+          send_reply(l, adu.size(), std::move(out), now);
         } else {
           trace(l, "--", {}, "no reply");
         }
