@@ -254,12 +254,16 @@ class Sihong57hsR : public Behaviour {
 
   // §6.1 0x0011: the microstep enum names its pulses per revolution
   // ("1000 pulses/rev"), so the number comes from the spec.
+  // A code the enum does not list (only an injected fault or a corrupted
+  // EEPROM image can store one: the engine refuses it on the wire) runs at
+  // the default code's resolution rather than stopping the device.
   static double pulses_per_rev(const Device& d) {
     const auto& r = d.reg_by_key("microstep");
-    int64_t code = d.value(r);
-    for (const auto& v : d.spec().find_enum(r.enum_id)->values)
-      if (v.value == code) return std::stod(v.name.en);
-    throw std::logic_error("0x0011 holds a microstep code the spec does not list");
+    const auto& values = d.spec().find_enum(r.enum_id)->values;
+    for (int64_t code : {d.value(r), int64_t(r.default_value.value_or(0))})
+      for (const auto& v : values)
+        if (v.value == code) return std::stod(v.name.en);
+    return std::stod(values.front().name.en);
   }
   static double pulses_per_s(const Device& d, double rpm) { return rpm * pulses_per_rev(d) / 60; }
   // Acceleration (pulses/s^2) from the start speed to the max speed in the

@@ -305,12 +305,25 @@ struct Server::Impl {
     l.out.push_back({std::move(bytes), at});
   }
 
+  // A reference device that fails internally (a bug, or a state only an
+  // injected fault reaches) drops that one frame, says why on stderr, and
+  // the server goes on serving every other client.
+  template <class F>
+  std::optional<Bytes> guarded(Link& l, F&& handle) {
+    try {
+      return handle();
+    } catch (const std::exception& e) {
+      std::fputs(fmt::format("{} !! device error, frame dropped: {}\n", l.name, e.what()).c_str(), stderr);
+      return std::nullopt;
+    }
+  }
+
   void handle_rtu_frame(Link& l, Clock::time_point now) {
     if (l.overflow) {
       trace(l, "rx", l.in, fmt::format("dropped: {} bytes, over the {}-byte RTU limit", l.in.size() + l.overflow, kMaxRtuAdu));
     } else {
       trace(l, "rx", l.in, describe_rtu(l.in, Direction::request));
-      auto reply = bus.handle_rtu(l.in);
+      auto reply = guarded(l, [&] { return bus.handle_rtu(l.in); });
       if (reply) {
         trace(l, "tx", *reply, describe_rtu(*reply, Direction::reply));
         send_reply(l, l.in.size(), std::move(*reply), now);
@@ -338,7 +351,7 @@ struct Server::Impl {
         trace(l, "rx", adu, fmt::format("{}protocol {}: not Modbus, ignored", head, h->protocol));
       } else {
         trace(l, "rx", adu, head + describe_pdu(pdu, Direction::request));
-        auto reply = bus.handle_pdu(h->unit, pdu);
+        auto reply = guarded(l, [&] { return bus.handle_pdu(h->unit, pdu); });
         if (reply) {
           Bytes out = mbap_reply(*h, *reply);
           trace(l, "tx", out, head + describe_pdu(*reply, Direction::reply));
