@@ -207,7 +207,7 @@ std::string needs_power_cycle(const SpecView& v, const TargetInfo& t, const Devi
 
 void write_command(Session& s, const CommandFact& c, const char* what) {
   const Register* r = s.spec().find_by_key(c.key);
-  if (!r) fail(fmt::format("device facts name register key '{}', which the spec does not have", c.key));
+  if (!r) fail(fmt::format("the spec's operations name register key '{}', which the spec does not have", c.key));
   Bytes req = s.view().write_request(*r, uint32_t(c.value));
   expect_normal(s.send(req, fmt::format("{}: {} = {} ({})", what, c.key, c.value, c.section)), req, what);
   if (c.settle_us) s.advance(c.settle_us);
@@ -329,7 +329,7 @@ std::vector<Invariant> make_invariants() {
                  return v.image_reads().empty() ? std::string("no readable registers") : std::string();
                },
                responses_well_formed});
-  v.push_back({"persistence", "spec registers[].persistence, default; device facts (save, factory reset)",
+  v.push_back({"persistence", "spec registers[].persistence, default; operations (save, factory reset)",
                "After a power cycle persistent registers keep their stored values and volatile ones return to their "
                "defaults; a factory reset restores the spec's defaults.",
                needs_power_cycle, persistence});

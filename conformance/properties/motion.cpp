@@ -25,7 +25,7 @@ constexpr uint64_t kSampleUs = 20'000;
 
 const Register& reg(Session& s, const std::string& key) {
   const Register* r = s.spec().find_by_key(key);
-  if (!r) fail(fmt::format("device facts name register key '{}', which spec {} does not have", key, s.spec().device.id));
+  if (!r) fail(fmt::format("the spec's operations name register key '{}', which spec {} does not have", key, s.spec().device.id));
   return *r;
 }
 
@@ -240,7 +240,7 @@ void homing_gate(Session& s) {
 
 std::function<std::string(const SpecView&, const TargetInfo&, const DeviceFacts*)> needs_motion(bool homing_gate = false) {
   return [homing_gate](const SpecView& v, const TargetInfo& t, const DeviceFacts* f) -> std::string {
-    if (!f || !f->motion) return "no motion facts recorded for this device (conformance/properties/facts.cpp)";
+    if (!f || !f->motion) return "the spec has no operations: motion: section (spec/README.md)";
     if (homing_gate && !f->motion->positioning_needs_homing) return "the manual does not make positioning wait for homing";
     if (!t.virtual_clock) return "needs a target on a virtual clock (ref:); live motion is not sampled in real time yet";
     if (t.live) return "live target";
@@ -252,16 +252,16 @@ std::function<std::string(const SpecView&, const TargetInfo&, const DeviceFacts*
 
 std::vector<Invariant> motion_invariants() {
   return {
-      {"motion-position-exact", "device facts (motion); the manuals' position moves",
+      {"motion-position-exact", "spec operations.motion; the manuals' position moves",
        "A completed position move ends exactly at the commanded position.", needs_motion(), position_exact},
-      {"motion-speed-limit", "device facts (motion): the configured maximum speed",
+      {"motion-speed-limit", "spec operations.motion: the speed the setup configures",
        "Between any two samples the axis never travels faster than the configured maximum speed.", needs_motion(),
        speed_limit},
-      {"motion-status-agrees", "device facts (motion): the status word's running / in-position bits",
+      {"motion-status-agrees", "spec operations.motion: the status word's running / in-position bits",
        "The status word says running while the position changes, never running and in position at once, and "
        "stopped (in position) once a move has ended.",
        needs_motion(), status_agrees},
-      {"motion-stops", "device facts (motion): stop and emergency-stop commands",
+      {"motion-stops", "spec operations.motion: stop and emergency-stop commands",
        "An emergency stop stops the axis at once; a normal stop ends within the deceleration time.", needs_motion(),
        stops},
       {"motion-homing-gate", "7TRSM5740Q §5.2", "A drive that needs homing refuses positioning until it is homed.",
