@@ -9,7 +9,7 @@ packages=(
   libyaml-cpp-dev libvalijson-dev nlohmann-json3-dev libcli11-dev libfmt-dev
   libmodbus-dev libgtest-dev libgmock-dev librapidcheck-dev libbenchmark-dev
   clang libfuzzer-14-dev libclang-rt-14-dev
-  socat mbpoll python3 python3-pymodbus python3-yaml
+  socat mbpoll python3 python3-pymodbus python3-serial python3-serial-asyncio python3-yaml
 )
 missing=()
 for p in "${packages[@]}"; do
