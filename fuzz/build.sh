@@ -17,6 +17,9 @@ cmake --build "$BUILD" --target fuzz_all -j "$(nproc)"
 mkdir -p "$OUT"
 for bin in "$BUILD"/bin/*_fuzzer; do
   name=$(basename "$bin" _fuzzer)
+  # plugin_fuzzer needs a vendor's plugin at run time ($MBCONFORM_PLUGIN):
+  # it is run by the vendor (fuzz/README.md), not by a hosted engine.
+  [ "$name" = plugin ] && continue
   seeds=$name
   [ "$name" = libmodbus_reply ] && seeds=differential  # same input format
   dict=$seeds; [ "$name" = plugin ] && dict=device
