@@ -10,4 +10,8 @@ build/bin/mbconform spec errata --out reports/manuals
 # The conformance run: every case against every reference device in-process.
 # Full reports (JUnit, JSON, HTML) go to a dated directory under reports/runs/;
 # the stable summary (no dates, no times) is committed as reports/reference/.
-build/bin/mbconform run --quiet --out "reports/runs/$(date -u +%Y%m%dT%H%M%SZ)" --summary reports/reference
+run_dir="reports/runs/$(date -u +%Y%m%dT%H%M%SZ)"
+build/bin/mbconform run --quiet --out "$run_dir" --summary reports/reference
+# The property tests of the profile invariants on every reference device (a
+# fixed seed, so the main job is repeatable; `mbconform props` alone draws one).
+build/bin/mbconform props --quiet --seed 1 --out "$run_dir/props"
