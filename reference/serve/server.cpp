@@ -6,6 +6,8 @@
 #include <netinet/in.h>
 #include <netinet/tcp.h>
 #include <poll.h>
+
+#include <type_traits>
 #include <pty.h>
 #include <signal.h>
 #include <sys/socket.h>
@@ -286,8 +288,14 @@ struct Server::Impl {
 
   // ---- frames ----
 
-  void trace(const Link& l, const char* dir, std::span<const uint8_t> bytes, const std::string& what) {
+  // `what` is built only when tracing: decoding every frame for nobody cost
+  // a tenth of a one-client exchange.
+  template <class What>
+  void trace(const Link& l, const char* dir, std::span<const uint8_t> bytes, What&& describe) {
     if (!opt.trace) return;
+    std::string what;
+    if constexpr (std::is_invocable_v<What>) what = describe();
+    else what = std::string(describe);
     std::string line = bytes.empty() ? fmt::format("{} {} {}\n", l.name, dir, what)
                                      : fmt::format("{} {} {} | {}\n", l.name, dir, to_hex(bytes), what);
     std::fputs(line.c_str(), stderr);
@@ -320,12 +328,12 @@ struct Server::Impl {
 
   void handle_rtu_frame(Link& l, Clock::time_point now) {
     if (l.overflow) {
-      trace(l, "rx", l.in, fmt::format("dropped: {} bytes, over the {}-byte RTU limit", l.in.size() + l.overflow, kMaxRtuAdu));
+      trace(l, "rx", l.in, [&] { return fmt::format("dropped: {} bytes, over the {}-byte RTU limit", l.in.size() + l.overflow, kMaxRtuAdu); });
     } else {
-      trace(l, "rx", l.in, describe_rtu(l.in, Direction::request));
+      trace(l, "rx", l.in, [&] { return describe_rtu(l.in, Direction::request); });
       auto reply = guarded(l, [&] { return bus.handle_rtu(l.in); });
       if (reply) {
-        trace(l, "tx", *reply, describe_rtu(*reply, Direction::reply));
+        trace(l, "tx", *reply, [&] { return describe_rtu(*reply, Direction::reply); });
         send_reply(l, l.in.size(), std::move(*reply), now);
       } else {
         trace(l, "--", {}, "no reply");
@@ -339,22 +347,22 @@ struct Server::Impl {
   void handle_mbap_frames(Link& l, Clock::time_point now) {
     while (auto h = parse_mbap(l.in)) {
       if (!h->length_ok()) {  // the stream cannot be re-synchronised: drop the connection
-        trace(l, "rx", l.in, fmt::format("MBAP length {} out of 2..254: closing", h->length));
+        trace(l, "rx", l.in, [&] { return fmt::format("MBAP length {} out of 2..254: closing", h->length); });
         l.closed = true;
         return;
       }
       if (l.in.size() < h->adu_size()) return;
       std::span<const uint8_t> adu(l.in.data(), h->adu_size());
       auto pdu = adu.subspan(kMbapHeader);
-      std::string head = fmt::format("tid {} unit {} ", h->transaction, h->unit);
+      auto head = [&] { return fmt::format("tid {} unit {} ", h->transaction, h->unit); };
       if (h->protocol != 0) {  // MB TCP §3.1.3: protocol 0 is Modbus; anything else is not ours
-        trace(l, "rx", adu, fmt::format("{}protocol {}: not Modbus, ignored", head, h->protocol));
+        trace(l, "rx", adu, [&] { return fmt::format("{}protocol {}: not Modbus, ignored", head(), h->protocol); });
       } else {
-        trace(l, "rx", adu, head + describe_pdu(pdu, Direction::request));
+        trace(l, "rx", adu, [&] { return head() + describe_pdu(pdu, Direction::request); });
         auto reply = guarded(l, [&] { return bus.handle_pdu(h->unit, pdu); });
         if (reply) {
           Bytes out = mbap_reply(*h, *reply);
-          trace(l, "tx", out, head + describe_pdu(*reply, Direction::reply));
+          trace(l, "tx", out, [&] { return head() + describe_pdu(*reply, Direction::reply); });
           send_reply(l, adu.size(), std::move(out), now);
         } else {
           trace(l, "--", {}, "no reply");
