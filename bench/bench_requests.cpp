@@ -4,20 +4,30 @@
 //      vs modbus_reply on a modbus_mapping_t with an unconnected TCP context
 //      (its send fails with EBADF; the decode + build work is what is timed).
 //   2. TCP loopback, 1 and 16 libmodbus client threads: `mbconform serve`
-//      (subprocess) vs a select()-loop libmodbus server thread.
+//      (subprocess) vs a select()-loop libmodbus server thread and a null
+//      responder (a poll loop that answers every request with fixed bytes,
+//      only the transaction id copied: the most this machine does over
+//      loopback). Rounds are interleaved and the median of each is kept.
+//      Targets: 16 clients, serve >= 0.85x the null responder; 1 client,
+//      serve >= 1.0x libmodbus. A null responder that does not beat both
+//      servers means the machine was too busy to measure: the run is invalid.
 // Usage: mbc_bench [path/to/mbconform]   (default build/bin/mbconform; run
 // from the source root so the spec directory is found). Loopback only;
 // every loop is bounded and the subprocess is killed at the end.
 #include <modbus.h>
 
 #include <arpa/inet.h>
+#include <fcntl.h>
 #include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <poll.h>
 #include <signal.h>
 #include <sys/select.h>
 #include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cstdio>
@@ -162,6 +172,68 @@ struct LibmodbusServer {
   ~LibmodbusServer() { stop = true; th.join(); }
 };
 
+// The null responder: every 12-byte FC 03 request (MBAP + PDU, as the
+// clients send them) gets the same 29-byte reply, its transaction id copied
+// from the request. No decoding, no device: the loopback ceiling.
+struct NullResponder {
+  int port = free_port();
+  std::atomic<bool> stop{false};
+  std::atomic<bool> listening{false};
+  std::thread th;
+
+  NullResponder() {
+    th = std::thread([this] {
+      int server = socket(AF_INET, SOCK_STREAM | SOCK_NONBLOCK, 0);
+      int one = 1;
+      setsockopt(server, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+      sockaddr_in a{};
+      a.sin_family = AF_INET;
+      a.sin_port = htons(uint16_t(port));
+      a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+      bool ok = bind(server, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0 && listen(server, 64) == 0;
+      listening = true;
+      if (!ok) { close(server); return; }
+      uint8_t reply[9 + 2 * kRegs] = {0, 0, 0, 0, 0, 3 + 2 * kRegs, 1, 3, 2 * kRegs};
+      std::vector<pollfd> fds{{server, POLLIN, 0}};
+      std::vector<std::vector<uint8_t>> pending(1);
+      std::vector<uint8_t> out;
+      uint8_t buf[4096];
+      while (!stop.load()) {
+        if (poll(fds.data(), fds.size(), 50) <= 0) continue;
+        if (fds[0].revents & POLLIN) {
+          for (int c; (c = accept4(server, nullptr, nullptr, SOCK_NONBLOCK)) >= 0;) {
+            setsockopt(c, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+            fds.push_back({c, POLLIN, 0});
+            pending.emplace_back();
+          }
+        }
+        for (size_t i = 1; i < fds.size(); ++i) {
+          if (!(fds[i].revents & (POLLIN | POLLHUP | POLLERR))) continue;
+          ssize_t n = read(fds[i].fd, buf, sizeof buf);
+          if (n <= 0) { close(fds[i].fd); fds[i].fd = -1; continue; }
+          auto& in = pending[i];
+          in.insert(in.end(), buf, buf + n);
+          out.clear();
+          size_t at = 0;
+          for (; in.size() - at >= 12; at += 12) {
+            reply[0] = in[at];
+            reply[1] = in[at + 1];
+            out.insert(out.end(), reply, reply + sizeof reply);
+          }
+          in.erase(in.begin(), in.begin() + ptrdiff_t(at));
+          if (!out.empty() && send(fds[i].fd, out.data(), out.size(), MSG_NOSIGNAL) != ssize_t(out.size())) {
+            close(fds[i].fd);
+            fds[i].fd = -1;
+          }
+        }
+      }
+      for (auto& p : fds) if (p.fd >= 0) close(p.fd);
+    });
+    while (!listening.load()) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  ~NullResponder() { stop = true; th.join(); }
+};
+
 // `mbconform serve` as a subprocess; the port comes from its "listening tcp" line.
 struct MbconformServer {
   pid_t pid = -1;
@@ -200,6 +272,11 @@ void row(const char* name, double mine, double base) {
   std::printf("%-28s %14.0f %14.0f %8.2f\n", name, mine, base, mine / base);
 }
 
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -211,18 +288,39 @@ int main(int argc, char** argv) {
     std::printf("%-28s %14s %14s %8s\n", "scenario", "mbconform/s", "libmodbus/s", "ratio");
     row("in-process FC03 x10", dev, lib);
 
-    struct Case { const char* name; int threads; int per_thread; };
-    const Case cases[] = {{"tcp loopback, 1 client", 1, 20000}, {"tcp loopback, 16 clients", 16, 2500}};
+    struct Case { const char* name; int threads; int per_thread; double target; bool vs_null; };
+    const Case cases[] = {{"tcp loopback, 1 client", 1, 20000, 1.0, false},
+                          {"tcp loopback, 16 clients", 16, 2500, 0.85, true}};
+    constexpr int kRounds = 3;
     MbconformServer mbc(exe);
     LibmodbusServer base;
+    NullResponder null;
+    bool valid = true, met = true;
+    std::printf("\n%-28s %14s %14s %14s %9s %9s\n", "loopback (median of 3)", "serve/s", "libmodbus/s", "null/s",
+                "vs lib", "vs null");
     for (const auto& c : cases) {
-      double m = run_clients(mbc.port, c.threads, c.per_thread);
-      double b = run_clients(base.port, c.threads, c.per_thread);
-      row(c.name, m, b);
+      std::vector<double> m, b, n;
+      for (int r = 0; r < kRounds; ++r) {  // interleaved: a busy moment hits all three alike
+        m.push_back(run_clients(mbc.port, c.threads, c.per_thread));
+        b.push_back(run_clients(base.port, c.threads, c.per_thread));
+        n.push_back(run_clients(null.port, c.threads, c.per_thread));
+      }
+      double ms = median(m), bs = median(b), ns = median(n);
+      std::printf("%-28s %14.0f %14.0f %14.0f %9.2f %9.2f\n", c.name, ms, bs, ns, ms / bs, ms / ns);
+      if (ns <= ms || ns <= bs) {
+        valid = false;
+        std::printf("  INVALID: the null responder did not beat both servers (machine too busy to measure)\n");
+      }
+      double ratio = c.vs_null ? ms / ns : ms / bs;
+      bool ok = ratio >= c.target;
+      met &= ok;
+      std::printf("  target: serve >= %.2fx %s: %.2fx %s\n", c.target, c.vs_null ? "the null responder" : "libmodbus",
+                  ratio, ok ? "met" : "NOT met");
     }
+    std::printf("%s\n", !valid ? "run INVALID" : met ? "all targets met" : "a target was NOT met");
+    return valid ? (met ? 0 : 1) : 3;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "mbc_bench: %s\n", e.what());
-    return 1;
+    return 2;
   }
-  return 0;
 }
