@@ -1,13 +1,28 @@
-// plugin:PATH.so?device=ID&unit=N&config=...: a vendor's slave stack loaded
-// with dlopen through the C ABI of conformance/plugin/mbconform_plugin.h.
+// plugin:PATH.so?device=ID&unit=N&config=...&timeout=MS: a vendor's slave
+// stack through the C ABI of conformance/plugin/mbconform_plugin.h, run in a
+// child process (mbconform-plugin-host, conformance/plugin/host/) so that its
+// faults are findings, not mbconform's: a crash or an abort (the signal
+// named), a hang past the per-request watchdog (timeout=, 3000 ms by
+// default), or a broken contract (a reply longer than the capacity, a write
+// past it, a failure without an error message) fails the request with a
+// message saying which; the host is then restarted and the run goes on.
 // What the target can do follows the hooks the plugin fills in: handle_rtu
 // gives raw frames, power_cycle a power cycle, advance_time_us a virtual clock.
-#include <dlfcn.h>
+#include <fcntl.h>
 #include <fmt/core.h>
+#include <poll.h>
+#include <signal.h>
+#include <sys/prctl.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
 #include <stdexcept>
 
+#include "host_protocol.h"
 #include "loader.h"
 #include "master/pdu.h"
 #include "mbconform_plugin.h"
@@ -17,14 +32,150 @@
 namespace mbc::conf {
 namespace {
 
-// The fields every version-1 plugin has, up to and including last_error.
-constexpr size_t kV1Size = offsetof(mbconform_plugin_api_v1, last_error) + sizeof(void*);
+namespace host = plugin_host;
+constexpr int kDefaultTimeoutMs = 3000;
+
+// $MBCONFORM_PLUGIN_HOST, else mbconform-plugin-host beside the running executable.
+std::string host_path() {
+  if (const char* env = std::getenv("MBCONFORM_PLUGIN_HOST"); env && *env) return env;
+  std::error_code ec;
+  auto self = std::filesystem::read_symlink("/proc/self/exe", ec);
+  return (self.parent_path() / "mbconform-plugin-host").string();
+}
+
+std::string signal_text(int sig) {
+  const char* abbrev = sigabbrev_np(sig);
+  const char* desc = sigdescr_np(sig);
+  return fmt::format("SIG{} ({})", abbrev ? abbrev : std::to_string(sig).c_str(), desc ? desc : "unknown signal");
+}
+
+// One running host: its pid and the two pipe ends mbconform holds.
+class HostProcess {
+ public:
+  HostProcess(const std::string& library, const std::string& config) {
+    int req[2], resp[2];
+    if (pipe2(req, O_CLOEXEC) != 0 || pipe2(resp, O_CLOEXEC) != 0)
+      throw std::runtime_error(fmt::format("pipe: {}", std::strerror(errno)));
+    std::string exe = host_path();
+    pid_t parent = getpid();
+    pid_ = fork();
+    if (pid_ < 0) throw std::runtime_error(fmt::format("fork: {}", std::strerror(errno)));
+    if (pid_ == 0) {
+      // Its own process group (a terminal's Ctrl-C is mbconform's to handle),
+      // and it dies with mbconform.
+      setpgid(0, 0);
+      prctl(PR_SET_PDEATHSIG, SIGKILL);
+      if (getppid() != parent) _exit(127);
+      dup2(req[0], host::kRequestFd);
+      dup2(resp[1], host::kResponseFd);
+      execl(exe.c_str(), exe.c_str(), library.c_str(), config.c_str(), static_cast<char*>(nullptr));
+      _exit(127);
+    }
+    ::close(req[0]);
+    ::close(resp[1]);
+    to_ = req[1];
+    from_ = resp[0];
+  }
+  ~HostProcess() {
+    ::close(to_);  // the host destroys the instance and exits on EOF
+    ::close(from_);
+    for (int i = 0; i < 100; ++i) {
+      if (waitpid(pid_, nullptr, WNOHANG) == pid_) return;
+      usleep(10000);
+    }
+    kill(pid_, SIGKILL);
+    waitpid(pid_, nullptr, 0);
+  }
+  HostProcess(const HostProcess&) = delete;
+  HostProcess& operator=(const HostProcess&) = delete;
+
+  // The response, or an error saying why none came (the process is then gone).
+  struct Answer {
+    host::Response head;
+    Bytes payload;
+    std::string fault;  // set when the host crashed, hung or exited
+  };
+
+  // The create() answer the host writes first.
+  Answer call_hello(int timeout_ms) {
+    Answer a;
+    auto deadline = live::Clock::now() + std::chrono::milliseconds(timeout_ms);
+    if (!read_all(&a.head, sizeof a.head, deadline, a.fault, "create", timeout_ms)) return a;
+    a.payload.resize(a.head.length);
+    read_all(a.payload.data(), a.payload.size(), deadline, a.fault, "create", timeout_ms);
+    return a;
+  }
+
+  Answer call(const host::Request& q, std::span<const uint8_t> payload, int timeout_ms, const char* what) {
+    Answer a;
+    if (!write_all(&q, sizeof q) || !write_all(payload.data(), payload.size())) {
+      a.fault = died(what);
+      return a;
+    }
+    auto deadline = live::Clock::now() + std::chrono::milliseconds(timeout_ms);
+    if (!read_all(&a.head, sizeof a.head, deadline, a.fault, what, timeout_ms)) return a;
+    a.payload.resize(a.head.length);
+    read_all(a.payload.data(), a.payload.size(), deadline, a.fault, what, timeout_ms);
+    return a;
+  }
+
+ private:
+  bool write_all(const void* p, size_t n) {
+    auto* b = static_cast<const uint8_t*>(p);
+    while (n) {
+      ssize_t put = ::write(to_, b, n);
+      if (put < 0 && errno == EINTR) continue;
+      if (put <= 0) return false;
+      b += put;
+      n -= size_t(put);
+    }
+    return true;
+  }
+
+  bool read_all(void* p, size_t n, live::Clock::time_point deadline, std::string& fault, const char* what,
+                int timeout_ms) {
+    auto* b = static_cast<uint8_t*>(p);
+    while (n) {
+      auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - live::Clock::now()).count();
+      pollfd pf{from_, POLLIN, 0};
+      int rc = left > 0 ? ::poll(&pf, 1, int(left)) : 0;
+      if (rc < 0 && errno == EINTR) continue;
+      if (rc == 0) {
+        kill(pid_, SIGKILL);
+        waitpid(pid_, nullptr, 0);
+        fault = fmt::format("the plugin hung: no answer to {} within {} ms (watchdog: timeout= in the URI); killed",
+                            what, timeout_ms);
+        return false;
+      }
+      ssize_t got = ::read(from_, b, n);
+      if (got < 0 && errno == EINTR) continue;
+      if (got <= 0) {
+        fault = died(what);
+        return false;
+      }
+      b += got;
+      n -= size_t(got);
+    }
+    return true;
+  }
+
+  std::string died(const char* what) {
+    int st = 0;
+    if (waitpid(pid_, &st, 0) != pid_) return fmt::format("the plugin host vanished during {}", what);
+    if (WIFSIGNALED(st)) return fmt::format("the plugin crashed: {} during {}", signal_text(WTERMSIG(st)), what);
+    if (WIFEXITED(st) && WEXITSTATUS(st) == 127) return "the plugin host could not start (" + host_path() + ")";
+    return fmt::format("the plugin exited (status {}) during {}", WIFEXITED(st) ? WEXITSTATUS(st) : -1, what);
+  }
+
+  pid_t pid_ = -1;
+  int to_ = -1, from_ = -1;
+};
 
 class PluginTarget final : public Target {
  public:
   explicit PluginTarget(const Uri& u) {
     const std::string base = "plugin:" + u.path;
-    live::check_params(u, base, {"device", "unit", "config"});
+    live::check_params(u, base, {"device", "unit", "config", "timeout"});
     if (u.path.empty())
       throw std::invalid_argument("target 'plugin:': needs the library's path, e.g. plugin:./libmystack.so");
     int default_unit = 1;
@@ -37,60 +188,47 @@ class PluginTarget final : public Target {
       info_.device_id = *id;
     }
     int unit = live::int_param(u, base, "unit", default_unit, 1, 247);  // MB-SL v1.02 §2.2
-    std::string config = u.param("config").value_or("");
-
+    timeout_ms_ = live::int_param(u, base, "timeout", kDefaultTimeoutMs, 1, 3600 * 1000);
+    config_ = u.param("config").value_or("");
     // A path without a slash would make dlopen search the library path.
-    std::string path = u.path.find('/') == std::string::npos ? "./" + u.path : u.path;
-    handle_ = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
-    if (!handle_) throw std::runtime_error(fmt::format("target '{}': cannot load: {}", base, dlerror()));
-    auto entry = reinterpret_cast<mbconform_plugin_entry_fn>(dlsym(handle_, MBCONFORM_PLUGIN_ENTRY));
-    if (!entry) fail(fmt::format("target '{}': no {} symbol: not an mbconform plugin", base, MBCONFORM_PLUGIN_ENTRY));
-    api_ = entry();
-    if (!api_ || api_->abi_version != MBCONFORM_PLUGIN_ABI_VERSION || api_->struct_size < kV1Size)
-      fail(fmt::format("target '{}': plugin ABI version {} (size {}), this host speaks version {}", base,
-                       api_ ? api_->abi_version : 0, api_ ? api_->struct_size : 0, MBCONFORM_PLUGIN_ABI_VERSION));
-    if (!api_->create || !api_->destroy || (!api_->handle_rtu && !api_->handle_pdu))
-      fail(fmt::format("target '{}': the plugin lacks create, destroy or both handle hooks", base));
-    char error[256] = "";
-    instance_ = api_->create(config.c_str(), error, sizeof error);
-    if (!instance_) fail(fmt::format("target '{}': the plugin refused config '{}': {}", base, config, error));
+    library_ = u.path.find('/') == std::string::npos ? "./" + u.path : u.path;
+    library_ = std::filesystem::absolute(library_).string();
+    base_ = base;
+    std::string hello = start();
+    size_t space = hello.find(' ');
+    hooks_ = unsigned(std::stoul(hello.substr(0, space)));
 
     info_.kind = "plugin";
     info_.framing = Framing::rtu;
     info_.unit = uint8_t(unit);
-    info_.raw = api_->handle_rtu != nullptr;
-    info_.power_cycle = api_->power_cycle != nullptr;
-    info_.virtual_clock = api_->advance_time_us != nullptr;
-    info_.implementation = api_->name ? api_->name : "";
+    info_.raw = hooks_ & host::kHasRtu;
+    info_.power_cycle = hooks_ & host::kHasPowerCycle;
+    info_.virtual_clock = hooks_ & host::kHasAdvance;
+    info_.implementation = space == std::string::npos ? "" : hello.substr(space + 1);
     info_.uri = fmt::format("{}?{}unit={}{}", base, info_.device_id.empty() ? "" : "device=" + info_.device_id + "&",
-                            unit, config.empty() ? "" : "&config=" + config);
-  }
-
-  ~PluginTarget() override {
-    if (instance_) api_->destroy(instance_);
-    if (handle_) dlclose(handle_);
+                            unit, config_.empty() ? "" : "&config=" + config_);
   }
 
   const TargetInfo& info() const override { return info_; }
 
   Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override {
-    if (api_->handle_rtu) return exchange(rtu_frame(unit, pdu), unit);
+    if (hooks_ & host::kHasRtu) return exchange(rtu_frame(unit, pdu), unit);
     Reply r;
     r.request = rtu_frame(unit, pdu);
-    uint8_t out[MBCONFORM_RESPONSE_CAPACITY];
+    host::Request q{host::kPdu, unit, {0, 0}, uint32_t(pdu.size()), 0};
     auto t0 = live::Clock::now();
-    int n = api_->handle_pdu(instance_, unit, pdu.data(), pdu.size(), out, sizeof out);
+    Bytes out = call(q, pdu, "handle_pdu");
     r.latency = std::chrono::duration_cast<std::chrono::microseconds>(live::Clock::now() - t0);
-    check(n, "handle_pdu");
-    if (n > 0) {
-      r.frame = rtu_frame(unit, std::span(out, size_t(n)));  // framed here: the stack has no framing
-      r.pdu = Bytes(out, out + n);
+    if (!out.empty()) {
+      r.frame = rtu_frame(unit, out);  // framed here: the stack has no framing
+      r.pdu = std::move(out);
     }
     return r;
   }
 
   Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
-    if (!api_->handle_rtu) throw std::logic_error(info_.uri + ": the plugin has no handle_rtu: raw frames cannot be sent");
+    if (!(hooks_ & host::kHasRtu))
+      throw std::logic_error(info_.uri + ": the plugin has no handle_rtu: raw frames cannot be sent");
     // A gap inside a frame splits it in two for the receiver (MB-SL §2.5.1.1).
     if (gap_after && *gap_after < bytes.size()) {
       Reply first = exchange(Bytes(bytes.begin(), bytes.begin() + ptrdiff_t(*gap_after)), info_.unit);
@@ -102,45 +240,69 @@ class PluginTarget final : public Target {
   }
 
   void advance(std::chrono::microseconds dt) override {
-    if (!api_->advance_time_us) throw std::logic_error(info_.uri + ": the plugin has no advance_time_us");
-    api_->advance_time_us(instance_, uint64_t(dt.count()));
+    if (!(hooks_ & host::kHasAdvance)) throw std::logic_error(info_.uri + ": the plugin has no advance_time_us");
+    call({host::kAdvance, 0, {0, 0}, 0, uint64_t(dt.count())}, {}, "advance_time_us");
   }
 
   void power_cycle() override {
-    if (!api_->power_cycle) throw std::logic_error(info_.uri + ": the plugin has no power_cycle");
-    check(api_->power_cycle(instance_), "power_cycle");
+    if (!(hooks_ & host::kHasPowerCycle)) throw std::logic_error(info_.uri + ": the plugin has no power_cycle");
+    call({host::kPowerCycle, 0, {0, 0}, 0, 0}, {}, "power_cycle");
   }
 
  private:
-  [[noreturn]] void fail(const std::string& what) {
-    dlclose(handle_);
-    handle_ = nullptr;
-    throw std::runtime_error(what);
+  // Starts a host and returns its create() answer; throws when there is none.
+  std::string start() {
+    process_ = std::make_unique<HostProcess>(library_, config_);
+    auto a = process_->call_hello(timeout_ms_);
+    std::string text(a.payload.begin(), a.payload.end());
+    if (!a.fault.empty() || a.head.status != 0) {
+      process_.reset();
+      throw std::runtime_error(fmt::format("target '{}': {}", base_, a.fault.empty() ? text : a.fault));
+    }
+    return text;
   }
 
-  void check(int rc, const char* hook) const {
-    if (rc >= 0) return;
-    const char* why = api_->last_error ? api_->last_error(instance_) : nullptr;
-    throw std::runtime_error(fmt::format("{}: {} failed: {}", info_.uri, hook, why && *why ? why : "no message"));
+  // One request; the reply payload. A fault of the plugin throws, naming the
+  // signal, the hang or the contract broken, after restarting the host.
+  Bytes call(const host::Request& q, std::span<const uint8_t> payload, const char* what) {
+    if (!process_) start();
+    auto a = process_->call(q, payload, timeout_ms_, what);
+    if (!a.fault.empty()) {
+      process_.reset();
+      std::string restarted;
+      try {
+        start();
+        restarted = "; host restarted";
+      } catch (const std::exception& e) {
+        restarted = fmt::format("; restart failed: {}", e.what());
+      }
+      throw std::runtime_error(fmt::format("{}: {}{}", info_.uri, a.fault, restarted));
+    }
+    std::string text(a.payload.begin(), a.payload.end());
+    if (a.head.status == host::kContract)
+      throw std::runtime_error(fmt::format("{}: the plugin broke its contract: {}", info_.uri, text));
+    if (a.head.status < 0)
+      throw std::runtime_error(fmt::format("{}: {} failed: {}", info_.uri, what, text.empty() ? "no message" : text));
+    return a.payload;
   }
 
   Reply exchange(Bytes adu, uint8_t slave) {
     Reply r;
-    uint8_t out[MBCONFORM_RESPONSE_CAPACITY];
+    host::Request q{host::kRtu, 0, {0, 0}, uint32_t(adu.size()), 0};
     auto t0 = live::Clock::now();
-    int n = api_->handle_rtu(instance_, adu.data(), adu.size(), out, sizeof out);
+    Bytes out = call(q, adu, "handle_rtu");
     r.latency = std::chrono::duration_cast<std::chrono::microseconds>(live::Clock::now() - t0);
     r.request = std::move(adu);
-    check(n, "handle_rtu");
-    r.frame.assign(out, out + std::min<size_t>(size_t(n), sizeof out));
+    r.frame = std::move(out);
     decode_rtu_reply(r, slave);
     return r;
   }
 
   TargetInfo info_;
-  void* handle_ = nullptr;
-  const mbconform_plugin_api_v1* api_ = nullptr;
-  void* instance_ = nullptr;
+  std::string base_, library_, config_;
+  int timeout_ms_ = kDefaultTimeoutMs;
+  unsigned hooks_ = 0;
+  std::unique_ptr<HostProcess> process_;
 };
 
 }  // namespace

@@ -1,0 +1,62 @@
+/* A deliberately broken plugin for the plugin host's tests: a PDU stack
+ * that answers FC 03 with zeros and everything else with exception 01, and
+ * breaks in one way (BROKEN_MODE) on a request with function code 0x41:
+ *   1 segfault   2 abort   3 loop forever   4 a length over the capacity
+ *   5 a negative length without an error message */
+#include <signal.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "mbconform_plugin.h"
+
+static int instance_token;
+
+static void* create(const char* config, char* error, size_t error_size) {
+  (void)config;
+  (void)error;
+  (void)error_size;
+  return &instance_token;
+}
+
+static void destroy(void* instance) { (void)instance; }
+
+static int handle_pdu(void* instance, uint8_t unit, const uint8_t* pdu, size_t len, uint8_t* out, size_t cap) {
+  (void)instance;
+  (void)unit;
+  if (len >= 1 && pdu[0] == 0x41) {
+    switch (BROKEN_MODE) {
+      case 1: {
+        volatile int* nowhere = NULL;
+        *nowhere = 1;
+        break;
+      }
+      case 2: abort();
+      case 3: {
+        volatile int spin = 1;
+        while (spin) {
+        }
+        break;
+      }
+      case 4: memset(out, 0x41, cap); return (int)cap + 88;
+      case 5: return -1;
+    }
+  }
+  if (len == 5 && pdu[0] == 3) {
+    size_t qty = (size_t)(pdu[3] << 8 | pdu[4]);
+    if (qty >= 1 && qty <= 125 && 2 + 2 * qty <= cap) {
+      out[0] = 3;
+      out[1] = (uint8_t)(2 * qty);
+      memset(out + 2, 0, 2 * qty);
+      return (int)(2 + 2 * qty);
+    }
+  }
+  out[0] = (uint8_t)((len ? pdu[0] : 0) | 0x80);
+  out[1] = 1;
+  return 2;
+}
+
+static const mbconform_plugin_api_v1 api = {
+    MBCONFORM_PLUGIN_ABI_VERSION, sizeof(mbconform_plugin_api_v1), "broken test plugin", create, destroy, NULL,
+    handle_pdu, NULL, NULL, NULL, NULL};
+
+MBCONFORM_PLUGIN_EXPORT const mbconform_plugin_api_v1* mbconform_plugin_v1(void) { return &api; }
