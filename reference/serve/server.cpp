@@ -10,6 +10,7 @@
 #include <type_traits>
 #include <pty.h>
 #include <signal.h>
+#include <sys/resource.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <termios.h>
@@ -98,6 +99,16 @@ namespace {
 constexpr milliseconds kTcpFrameGap{10};
 // The loop wakes at least this often so the virtual clock drives the axes.
 constexpr milliseconds kMaxSleep{50};
+// Bytes of a TCP connection's input held at once: what the kernel holds
+// beyond it is read once frames have been consumed (a client streaming
+// requests is served at the rate it reads, and the buffer never grows).
+constexpr size_t kInputBound = 16 * 1024;
+// Reply bytes queued for one connection: past it, nothing more is read from
+// that client until it reads its replies (or goes idle and is dropped).
+constexpr size_t kOutputBound = 64 * 1024;
+// After accept fails for want of descriptors (EMFILE, ENFILE), listeners rest
+// this long instead of waking the loop for the same failure again.
+constexpr milliseconds kAcceptBackoff{100};
 
 volatile sig_atomic_t g_stop = 0;
 extern "C" void on_stop_signal(int) { g_stop = 1; }
@@ -141,10 +152,15 @@ struct Link {
   Clock::time_point last_rx;
   std::deque<Outgoing> out;
   size_t out_offset = 0;  // bytes of out.front() already sent
+  size_t out_bytes = 0;   // queued, not yet sent
   bool closed = false;
+  bool eof = false;       // the peer shut its side: answer what came, then close
 
   bool rtu() const { return transport != Transport::tcp; }
   bool socket() const { return transport != Transport::pty; }
+  // Its replies pile up unread: consume and read nothing more for now.
+  bool backed_up() const { return out_bytes >= kOutputBound; }
+  bool wants_input() const { return !eof && !backed_up() && (rtu() || in.size() < kInputBound); }
 };
 
 struct Listener {
@@ -170,6 +186,7 @@ struct Server::Impl {
   std::vector<StoredImage> saved;      // per device: the image last written to disk
   Clock::time_point clock_at;          // the bus clock stands at this real time
   sigset_t run_mask;                   // the mask ppoll waits with (stop signals open)
+  Clock::time_point accept_resume;     // listeners rest until then after EMFILE
 
   Impl(ref::Bus b, Options o) : bus(std::move(b), o.faults), opt(std::move(o)) {}
 
@@ -275,6 +292,17 @@ struct Server::Impl {
     sigaction(SIGINT, &sa, nullptr);
     sigaction(SIGTERM, &sa, nullptr);
     std::signal(SIGPIPE, SIG_IGN);
+    // Room for the connection cap: the soft descriptor limit (often 1024)
+    // raised toward the hard one. A lower hard limit stays as it is; EMFILE
+    // is then handled by backing off (accept_all).
+    rlimit nofile{};
+    if (getrlimit(RLIMIT_NOFILE, &nofile) == 0 && nofile.rlim_cur != RLIM_INFINITY) {
+      rlim_t want = rlim_t(opt.max_connections) + 64;
+      if (nofile.rlim_cur < want) {
+        nofile.rlim_cur = nofile.rlim_max == RLIM_INFINITY ? want : std::min(want, nofile.rlim_max);
+        setrlimit(RLIMIT_NOFILE, &nofile);
+      }
+    }
 
     for (const auto& e : opt.endpoints) {
       if (e.transport == Transport::pty)
@@ -310,6 +338,7 @@ struct Server::Impl {
     Clock::time_point at = now;
     if (l.rtu() && opt.line_rate)
       at += wire_time(request_bytes + bytes.size(), *opt.line_rate) + frame_gap(*opt.line_rate);
+    l.out_bytes += bytes.size();
     l.out.push_back({std::move(bytes), at});
   }
 
@@ -344,15 +373,21 @@ struct Server::Impl {
   }
 
   // Modbus TCP: frames are delimited by the MBAP length, never by timing.
+  // Consumed frames are erased once at the end (linear in the input), and
+  // consuming stops while the client leaves its replies unread.
   void handle_mbap_frames(Link& l, Clock::time_point now) {
-    while (auto h = parse_mbap(l.in)) {
+    size_t at = 0;
+    while (!l.backed_up()) {
+      std::span<const uint8_t> rest(l.in.data() + at, l.in.size() - at);
+      auto h = parse_mbap(rest);
+      if (!h) break;
       if (!h->length_ok()) {  // the stream cannot be re-synchronised: drop the connection
-        trace(l, "rx", l.in, [&] { return fmt::format("MBAP length {} out of 2..254: closing", h->length); });
+        trace(l, "rx", rest, [&] { return fmt::format("MBAP length {} out of 2..254: closing", h->length); });
         l.closed = true;
         return;
       }
-      if (l.in.size() < h->adu_size()) return;
-      std::span<const uint8_t> adu(l.in.data(), h->adu_size());
+      if (rest.size() < h->adu_size()) break;
+      std::span<const uint8_t> adu = rest.first(h->adu_size());
       auto pdu = adu.subspan(kMbapHeader);
       auto head = [&] { return fmt::format("tid {} unit {} ", h->transaction, h->unit); };
       if (h->protocol != 0) {  // MB TCP §3.1.3: protocol 0 is Modbus; anything else is not ours
@@ -368,8 +403,9 @@ struct Server::Impl {
           trace(l, "--", {}, "no reply");
         }
       }
-      l.in.erase(l.in.begin(), l.in.begin() + ptrdiff_t(h->adu_size()));
+      at += h->adu_size();
     }
+    l.in.erase(l.in.begin(), l.in.begin() + ptrdiff_t(at));
   }
 
   microseconds rtu_gap(const Link& l) const {
@@ -416,8 +452,9 @@ struct Server::Impl {
 
   void read_link(Link& l, Clock::time_point now) {
     uint8_t buf[4096];
-    for (;;) {
-      ssize_t n = ::read(l.fd, buf, sizeof buf);
+    while (l.wants_input()) {
+      size_t room = l.rtu() ? sizeof buf : std::min(sizeof buf, kInputBound - l.in.size());
+      ssize_t n = ::read(l.fd, buf, room);
       if (n > 0) {
         l.last_rx = now;
         for (ssize_t i = 0; i < n; ++i) {
@@ -429,13 +466,17 @@ struct Server::Impl {
         // A short read drained what the kernel held; poll is level-triggered
         // and reports anything newer, so skip the read that would say EAGAIN
         // (one syscall per request, a fifth of a one-client exchange).
-        if (size_t(n) < sizeof buf) return;
+        if (size_t(n) < room) return;
         continue;
       }
       if (n < 0 && errno == EINTR) continue;
       if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) return;
-      // 0 = the peer closed; an error on a pty master (EIO) means no client: wait for the next.
-      if (l.socket()) l.closed = true;
+      // An error on a pty master (EIO) means no client: wait for the next.
+      if (!l.socket()) return;
+      // 0: the peer shut its sending side (maybe only that: a half-closed
+      // socket still gets the replies to what it sent); an error: gone.
+      if (n == 0) l.eof = true;
+      else l.closed = true;
       return;
     }
   }
@@ -451,14 +492,33 @@ struct Server::Impl {
         if (l.socket()) l.closed = true;
         l.out.clear();  // pty without a reader: the reply is lost, as on a bus nobody listens to
         l.out_offset = 0;
+        l.out_bytes = 0;
         return;
       }
       l.out_offset += size_t(n);
       if (l.out_offset == b.size()) {
+        l.out_bytes -= b.size();
         l.out.pop_front();
         l.out_offset = 0;
       }
     }
+  }
+
+  size_t socket_links() const {
+    size_t n = 0;
+    for (const auto& l : links) n += l.socket() && !l.closed;
+    return n;
+  }
+
+  // At the cap, the connection unused the longest makes room (Implementation
+  // Guide V1.0b §4.2.1.2: "the oldest unused connection is closed").
+  void make_room() {
+    Link* oldest = nullptr;
+    for (auto& l : links)
+      if (l.socket() && !l.closed && (!oldest || l.last_rx < oldest->last_rx)) oldest = &l;
+    if (!oldest) return;
+    if (opt.trace) std::fputs((oldest->name + " closed: connection cap, unused the longest\n").c_str(), stderr);
+    oldest->closed = true;
   }
 
   void accept_all(const Listener& s, Clock::time_point now) {
@@ -466,13 +526,37 @@ struct Server::Impl {
       sockaddr_storage ss{};
       socklen_t len = sizeof ss;
       int fd = accept4(s.fd, reinterpret_cast<sockaddr*>(&ss), &len, SOCK_NONBLOCK | SOCK_CLOEXEC);
-      if (fd < 0) return;  // EAGAIN, or an aborted connection
+      if (fd < 0) {
+        // Out of descriptors: the pending connection stays queued and poll
+        // would report it at once, forever. Rest the listeners a while.
+        if (errno == EMFILE || errno == ENFILE || errno == ENOBUFS || errno == ENOMEM) {
+          accept_resume = now + kAcceptBackoff;
+          if (opt.trace) std::fprintf(stderr, "accept: %s: not accepting for %lld ms\n", std::strerror(errno),
+                                      (long long)kAcceptBackoff.count());
+        }
+        return;  // EAGAIN, or an aborted connection
+      }
+      if (opt.max_connections && socket_links() >= opt.max_connections) make_room();
       int one = 1;
       setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);  // replies are small and wanted now
+      setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &one, sizeof one);  // Guide §4.3.2: find peers that vanished
       Link l(fd, s.transport, fmt::format("{} {}", to_string(s.transport), sockaddr_text(ss)));
       l.last_rx = now;
       if (opt.trace) std::fputs((l.name + " connected\n").c_str(), stderr);
       links.push_back(std::move(l));
+    }
+  }
+
+  // A half-closed peer whose replies are out, and a connection idle past the
+  // timeout, are closed.
+  void retire_links(Clock::time_point now) {
+    for (auto& l : links) {
+      if (l.closed || !l.socket()) continue;
+      if (l.eof && l.out.empty() && (!l.rtu() || l.in.empty())) l.closed = true;
+      if (opt.idle_timeout_s > 0 && now - l.last_rx >= std::chrono::seconds(opt.idle_timeout_s)) {
+        if (opt.trace) std::fputs((l.name + " closed: idle\n").c_str(), stderr);
+        l.closed = true;
+      }
     }
   }
 
@@ -513,14 +597,17 @@ struct Server::Impl {
       process_input(now);
       for (auto& l : links)
         if (!l.closed) write_link(l, now);
+      retire_links(now);
       drop_closed_links();
 
       std::vector<pollfd>& fds = poll_fds;  // kept between rounds: no allocation per request
       fds.clear();
-      for (const auto& s : listeners) fds.push_back({s.fd, POLLIN, 0});
+      // Resting listeners are polled for nothing (fd -1 is skipped) so the indexes stay.
+      bool accepting = now >= accept_resume;
+      for (const auto& s : listeners) fds.push_back({accepting ? s.fd : -1, POLLIN, 0});
       for (const auto& l : links) {
         bool due = !l.out.empty() && l.out.front().not_before <= now;
-        fds.push_back({l.fd, short(POLLIN | (due ? POLLOUT : 0)), 0});
+        fds.push_back({l.fd, short((l.wants_input() ? POLLIN : 0) | (due ? POLLOUT : 0)), 0});
       }
       int timeout = poll_timeout_ms(now);
       timespec ts{timeout / 1000, long(timeout % 1000) * 1000000L};
@@ -537,6 +624,7 @@ struct Server::Impl {
       for (size_t k = 0; i < fds.size(); ++k, ++i) {
         Link& l = links[k];
         if (fds[i].revents & (POLLIN | POLLHUP | POLLERR)) read_link(l, now);
+        if ((fds[i].revents & POLLERR) && l.socket()) l.closed = true;
         if (!l.closed && (fds[i].revents & POLLOUT)) write_link(l, now);
       }
     }

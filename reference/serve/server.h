@@ -44,6 +44,13 @@ struct Options {
   std::optional<int> line_rate;  // pace RTU replies at this rate's wire time
   bool trace = false;            // every frame to stderr
   faults::FaultSet faults;       // injected into every device served (empty: correct devices)
+  // A TCP connection that sent nothing for this long is closed (0: never).
+  // The default is one no CI gate reaches.
+  int idle_timeout_s = 600;
+  // TCP connections served at once; at the cap the oldest unused one is
+  // closed for the newcomer (Modbus Messaging on TCP/IP Implementation Guide
+  // V1.0b §4.2.1.2).
+  size_t max_connections = 4096;
 };
 
 class Server {
@@ -58,6 +65,10 @@ class Server {
   // endpoint on stdout. Throws std::runtime_error when one cannot be opened.
   void open();
   // Serves until SIGINT or SIGTERM, then saves the EEPROM images. Returns 0.
+  // Every round does bounded work per connection (input read up to a bound,
+  // frames consumed in linear time, no reading from a client whose replies
+  // pile up unread), so a stop signal is seen within one round whatever the
+  // clients do.
   int run();
 
  private:

@@ -19,6 +19,8 @@ struct ServeArgs {
   bool trace = false;
   std::vector<std::string> faults;  // --fault NAME[,NAME], repeatable
   bool list_faults = false;
+  int idle_timeout_s = serve::Options{}.idle_timeout_s;
+  size_t max_connections = serve::Options{}.max_connections;
 };
 
 // Argument mistakes become CLI::ValidationError: message + exit 2.
@@ -33,6 +35,8 @@ serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_
   o.eeprom_dir = a.eeprom_dir;
   o.trace = a.trace;
   o.line_rate = a.line_rate;
+  o.idle_timeout_s = a.idle_timeout_s;
+  o.max_connections = a.max_connections;
   try {
     for (const auto& f : a.faults)
       for (auto x : faults::parse_faults(f).list()) o.faults.add(x);
@@ -85,6 +89,13 @@ void add_serve_command(CLI::App& app, int& exit_code) {
   cmd->add_flag("--trace", a.trace, "log every frame to stderr");
   cmd->add_option("--fault", a.faults,
                   "NAME[,NAME]: serve deliberately broken devices (every device served); repeatable; see --list-faults");
+  cmd->add_option("--idle-timeout", a.idle_timeout_s, "SECONDS: close a TCP connection silent this long (0: never)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 86400 * 365));
+  cmd->add_option("--max-connections", a.max_connections,
+                  "N: TCP connections at once; at the cap the one unused the longest is closed")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1000000));
   cmd->add_flag("--list-faults", a.list_faults, "print the faults --fault takes, one per line, and exit");
   cmd->callback([&exit_code, cmd, tcp, rtu_tcp, pty] {
     if (a.list_faults) {

@@ -1,5 +1,7 @@
 #include "serve_process.h"
 
+#include <sys/resource.h>
+
 #include <fcntl.h>
 #include <poll.h>
 #include <signal.h>
@@ -35,7 +37,7 @@ TempDir::~TempDir() {
 
 int Listening::port() const { return std::stoi(address.substr(address.rfind(':') + 1)); }
 
-ServeProcess::ServeProcess(std::vector<std::string> args) {
+ServeProcess::ServeProcess(std::vector<std::string> args, int max_files) {
   log_path_ = log_dir_ / "stderr.log";
   int out[2];
   if (pipe(out) != 0) throw std::runtime_error("pipe failed");
@@ -47,6 +49,10 @@ ServeProcess::ServeProcess(std::vector<std::string> args) {
     dup2(err, STDERR_FILENO);
     close(out[0]);
     close(out[1]);
+    if (max_files > 0) {
+      rlimit lim{rlim_t(max_files), rlim_t(max_files)};
+      setrlimit(RLIMIT_NOFILE, &lim);
+    }
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);

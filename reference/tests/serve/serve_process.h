@@ -36,7 +36,8 @@ struct Listening {
 class ServeProcess {
  public:
   // Starts `mbconform serve <args>` (stderr goes to a log file read by log()).
-  explicit ServeProcess(std::vector<std::string> args);
+  // `max_files` > 0: the child's RLIMIT_NOFILE, soft and hard (EMFILE tests).
+  explicit ServeProcess(std::vector<std::string> args, int max_files = 0);
   ~ServeProcess();  // SIGKILL if still running
   ServeProcess(const ServeProcess&) = delete;
   ServeProcess& operator=(const ServeProcess&) = delete;
@@ -52,6 +53,7 @@ class ServeProcess {
   // Waits for an exit without signalling (for argument errors).
   std::optional<int> wait_exit(std::chrono::milliseconds timeout = std::chrono::seconds(10));
   std::string log() const;  // stderr so far
+  pid_t pid() const { return pid_; }
 
  private:
   pid_t pid_ = -1;
