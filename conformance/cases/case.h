@@ -48,6 +48,10 @@ struct Step {
   std::optional<size_t> gap_after;      // raw steps: an inter-character gap after that many bytes
   std::chrono::microseconds dt{0};      // advance steps
   Expect expect;
+  // pdu writes (FC 06/16): when >= 0, the value words are the registers the
+  // read at step `words_from` got, filled in by the runner (a broadcast that
+  // writes back what the target held). Not sent when that read failed.
+  int words_from = -1;
   // A setup step (restoring a given state): its failure fails the case with
   // "setup:" but it is not the requirement itself.
   bool setup = false;

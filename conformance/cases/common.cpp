@@ -177,6 +177,36 @@ std::pair<int64_t, int64_t> plain_values(const Register& r) {
   return {0, 1};
 }
 
+std::optional<Step> fill_words(const Step& st, const std::optional<Bytes>& reply) {
+  if (st.words_from < 0) return st;
+  if (!reply || reply->size() < 2 || (*reply)[0] != 3 || reply->size() != size_t(2 + (*reply)[1])) return std::nullopt;
+  Step out = st;
+  size_t words = (*reply)[1] / 2;
+  // FC 06: address, value; FC 16: address, quantity, byte count, values.
+  size_t at = st.pdu.size() >= 1 && st.pdu[0] == 6 ? 3 : 6;
+  if (st.pdu.size() != at + 2 * words) return std::nullopt;
+  std::copy(reply->begin() + 2, reply->end(), out.pdu.begin() + ptrdiff_t(at));
+  std::string vals;
+  for (size_t i = 0; i < words; ++i) vals += fmt::format("{}{:02X}{:02X}", i ? " " : "", (*reply)[2 + 2 * i], (*reply)[3 + 2 * i]);
+  out.what += fmt::format(" [{}]", vals);
+  return out;
+}
+
+bool is_broadcast_write(const Step& st) {
+  if (st.kind == Step::Kind::pdu) return st.unit == 0 && !st.pdu.empty() && (st.pdu[0] < 1 || st.pdu[0] > 4);
+  if (st.kind == Step::Kind::raw) return st.adu.size() >= 2 && st.adu[0] == 0 && (st.adu[1] < 1 || st.adu[1] > 4);
+  return false;
+}
+
+std::vector<std::string> planned_broadcast_writes(const std::vector<Case>& cases) {
+  std::vector<std::string> out;
+  for (const auto& c : cases)
+    if (c.skip_reason.empty())
+      for (const auto& st : c.steps)
+        if (is_broadcast_write(st)) out.push_back(fmt::format("{}: {}", c.id, st.what));
+  return out;
+}
+
 std::string describe(const Expect& e) {
   if (!e.text.empty()) return e.text;
   switch (e.kind) {

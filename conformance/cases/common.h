@@ -65,6 +65,18 @@ const spec::Register* plain_register(const GenContext&);
 // bounds, or 0 and 1 when it states no range.
 std::pair<int64_t, int64_t> plain_values(const spec::Register&);
 
+// Step `st` with its value words taken from `read_reply` (an FC 03 reply)
+// when st.words_from is set; nullopt when the reply holds no usable words.
+std::optional<Step> fill_words(const Step& st, const std::optional<Bytes>& read_reply);
+
+// Whether a step sends a request to unit 0 that is not a read: every drive on
+// a serial line acts on it (MB-SL v1.02 §2.1).
+bool is_broadcast_write(const Step& st);
+
+// The broadcast writes the cases would send, one line each ("<case id>:
+// write 0x0048 = ..."): what every drive on the line would receive (--plan).
+std::vector<std::string> planned_broadcast_writes(const std::vector<Case>& cases);
+
 // "exception 03", "echo", ...
 std::string describe(const Expect&);
 

@@ -79,7 +79,6 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
                  std::vector<std::string>& errata) {
   for (const auto& e : ex.errata)
     if (std::find(errata.begin(), errata.end(), e) == errata.end()) errata.push_back(e);
-  add_given(g, ex, b, touches);
   auto req = parse_hex(ex.resolved_request.value_or(ex.request));
   if (!req || req->size() < 2) {
     b.skip = "the printed request is not a frame (erratum without a resolved reading)";
@@ -89,6 +88,26 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
   bool broadcast = printed_slave == 0;
   uint8_t unit = broadcast ? 0 : g.target.unit;
   bool crc_valid = req->size() >= 4 && crc_ok(*req);
+  // A broadcast write reaches every drive on the line: what the target holds
+  // is read first and broadcast back after the example (the runner restores
+  // only the target).
+  std::vector<std::pair<size_t, std::pair<uint16_t, int>>> held;
+  if (broadcast) {
+    if (auto tcp = broadcast_not_applicable(g.target); !tcp.empty()) {
+      b.skip = tcp;
+      return;
+    }
+    if (auto bw = broadcast_forbidden(g.target, g.policy, (*req)[1]); !bw.empty() && b.skip.empty()) b.skip = bw;
+    if (crc_valid && cases::has_fc(g.spec, 3))
+      for (auto range : written_by(Bytes(req->begin() + 1, req->end() - 2))) {
+        held.push_back({b.steps.size(), range});
+        auto rd = cases::read_range_step(g, spec::Table::holding, range.first, uint16_t(range.second),
+                                         cases::normal("what the target holds, broadcast back at the end"));
+        rd->what = "first: " + rd->what;
+        b.steps.push_back(std::move(*rd));
+      }
+  }
+  add_given(g, ex, b, touches);
 
   // Expected reply.
   Expect e;
@@ -139,11 +158,28 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
     s.adu = std::move(adu);
   }
   s.expect = std::move(e);
+  // A write of part of a multi-word value (FC 06 to one word of a u32): the
+  // words it does not write are read first and expected unchanged after, so
+  // the case does not assume what a live drive holds there.
+  std::map<uint16_t, size_t> untouched;  // word address -> the step that read it before
   if (s.kind == Step::Kind::pdu) {
     for (auto [addr, n] : written_by(s.pdu)) {
       touches.push_back({addr, n});
       if (const spec::Register* r = g.spec.register_covering(addr))
         if (auto why = cases::write_forbidden(g, *r); !why.empty() && g.target.live && b.skip.empty()) b.skip = why;
+      for (uint32_t a = addr; a < uint32_t(addr) + uint32_t(n); ++a) {
+        const spec::Register* r = g.spec.register_covering(uint16_t(a));
+        if (!r || r->words < 2) continue;
+        for (uint32_t w = r->address; w <= r->last_address(); ++w) {
+          if ((w >= addr && w < uint32_t(addr) + uint32_t(n)) || untouched.count(uint16_t(w))) continue;
+          auto rd = cases::read_range_step(g, spec::Table::holding, uint16_t(w), 1,
+                                           cases::normal("the word the write leaves alone"));
+          if (!rd) continue;
+          rd->what = fmt::format("first: {} (the other word of {})", rd->what, hex16(r->address));
+          untouched[uint16_t(w)] = b.steps.size();
+          b.steps.push_back(std::move(*rd));
+        }
+      }
     }
   }
   b.steps.push_back(std::move(s));
@@ -156,7 +192,38 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
     want.words = cases::encode(*r, int64_t(v.value));
     want.text = fmt::format("{} = {} (after: the effect the manual states)", hex16(v.address), v.value);
     if (r->table == spec::Table::coil || r->table == spec::Table::discrete_input) want.words = {uint16_t(v.value != 0)};
-    if (auto rd = cases::read_step(g, *r, want)) b.steps.push_back(std::move(*rd));
+    bool partial = r->table == spec::Table::holding && r->words > 1 && untouched.count(r->address) + untouched.count(uint16_t(r->address + 1));
+    if (!partial) {
+      if (auto rd = cases::read_step(g, *r, want)) b.steps.push_back(std::move(*rd));
+      continue;
+    }
+    // Word by word: the written ones hold the stated value's words, the others what they held.
+    for (int i = 0; i < r->words; ++i) {
+      uint16_t at = uint16_t(r->address + i);
+      Expect one;
+      if (auto it = untouched.find(at); it != untouched.end()) {
+        one.kind = Expect::Kind::unchanged;
+        one.memo = int(it->second);
+        one.text = fmt::format("{} unchanged (the write covers only part of {})", hex16(at), hex16(r->address));
+      } else {
+        one.kind = Expect::Kind::registers;
+        one.words = {want.words[size_t(i)]};
+        one.text = fmt::format("{:04X} (word {} of {} = {}: the effect the manual states)", want.words[size_t(i)], i,
+                               hex16(v.address), v.value);
+      }
+      if (auto rd = cases::read_range_step(g, spec::Table::holding, at, 1, one)) b.steps.push_back(std::move(*rd));
+    }
+  }
+  for (auto [at, range] : held) {
+    Step back;
+    back.unit = 0;
+    std::vector<uint16_t> placeholder(size_t(range.second), 0);
+    back.pdu = range.second == 1 && cases::has_fc(g.spec, 6) ? write_single_register(range.first, 0)
+                                                             : write_multiple_registers(range.first, placeholder);
+    back.words_from = int(at);
+    back.what = fmt::format("broadcast back what the target held at {} (every drive on the line)", hex16(range.first));
+    back.expect.text = "no check (put back)";
+    b.steps.push_back(std::move(back));
   }
 }
 

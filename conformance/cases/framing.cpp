@@ -116,28 +116,52 @@ struct Gen {
                              : "Broadcast requests get no reply (MB-SL v1.02 §2.1).";
       if (!stated) c.requirement += " The manual does not say; recorded against the standard.";
       c.touches.push_back({r->address, 1});
-      if (g.target.framing != Framing::rtu) {
-        c.skip_reason = "broadcast is a serial-line feature (MB-SL v1.02 §2.1)";
+      if (auto tcp = broadcast_not_applicable(g.target); !tcp.empty()) {
+        c.skip_reason = tcp;
       } else if (auto why = cases::write_forbidden(g, *r); !why.empty()) {
         c.skip_reason = why;
+      } else if (auto bw = broadcast_forbidden(g.target, g.policy, 6); !bw.empty()) {
+        c.skip_reason = bw;
+      } else if (!cases::has_fc(g.spec, 3)) {
+        c.skip_reason = "the profile has no FC 03 to read the value the target holds";
       } else {
-        auto set = cases::write_step(g, *r, lo);
-        set->setup = true;
-        set->what = "first: " + set->what;
-        c.steps.push_back(std::move(*set));
-        Step b;
-        b.unit = bcast;
-        b.pdu = write_single_register(r->address, hi[0]);
-        b.what = fmt::format("broadcast write {} = {:04X}", hex16(r->address), hi[0]);
-        b.expect = effect ? Expect{} : cases::silence("silence (broadcast)");
-        if (effect) b.expect.text = "no check (the no-reply case checks silence)";
-        c.steps.push_back(std::move(b));
-        if (effect) {
+        // Every drive on the line takes a broadcast and only the target is
+        // restored: "no reply" writes what the target already holds; "applied"
+        // writes a new value, then broadcasts the held value back.
+        auto broadcast = [&](uint16_t value, const std::string& what, Expect e) {
+          Step b;
+          b.unit = bcast;
+          b.pdu = write_single_register(r->address, value);
+          b.what = fmt::format("broadcast write {} = {}", hex16(r->address), what);
+          b.expect = std::move(e);
+          return b;
+        };
+        Expect unchanged;  // for the no-reply case
+        unchanged.kind = Expect::Kind::unchanged;
+        unchanged.memo = 0;
+        unchanged.text = "the value the target held before";
+        c.steps.push_back(*cases::read_step(g, *r, cases::normal("the value the target holds")));
+        if (!effect) {
+          Step b = broadcast(0, "the value the target holds", cases::silence("silence (broadcast)"));
+          b.words_from = 0;
+          c.steps.push_back(std::move(b));
+          c.steps.push_back(*cases::read_step(g, *r, unchanged));
+        } else {
+          auto set = cases::write_step(g, *r, lo);
+          set->setup = true;
+          set->what = "first: " + set->what;
+          c.steps.push_back(std::move(*set));
+          Expect none;
+          none.text = "no check (the no-reply case checks silence)";
+          c.steps.push_back(broadcast(hi[0], fmt::format("{:04X}", hi[0]), none));
           Expect want;
           want.kind = Expect::Kind::registers;
           want.words = hi;
           want.text = fmt::format("{:04X} (the broadcast value)", hi[0]);
           c.steps.push_back(*cases::read_step(g, *r, want));
+          Step back = broadcast(0, "the value the target held (put back on every drive)", none);
+          back.words_from = 0;
+          c.steps.push_back(std::move(back));
         }
       }
       out.push_back(std::move(c));

@@ -155,6 +155,9 @@ void broadcast_unanswered(Session& s) {
   if (serial.broadcast_writes == "ignored" && got != old)
     fail(fmt::format("{}: read back 0x{:X}; the spec says broadcast writes are ignored", what, got));
   if (got != raw && got != old) fail(fmt::format("{}: read back 0x{:X}, neither the old 0x{:X} nor the new value", what, got, old));
+  // Every drive on the line took the write; the snapshot restores only the
+  // target, so the value it held goes back out the same way.
+  if (got != old) s.send_to(bcast, v.write_request(r, old), fmt::format("broadcast back {} = 0x{:X}", describe(r), old));
 }
 
 // ---- responses well formed ------------------------------------------------
@@ -319,6 +322,7 @@ std::vector<Invariant> make_invariants() {
                "Broadcast requests are never answered; broadcast writes are applied when the spec says so.",
                [](const SpecView& v, const TargetInfo& t, const DeviceFacts* f) {
                  if (!v.spec().serial.broadcast_address) return std::string("the spec has no broadcast address");
+                 if (!v.broadcast_unavailable().empty()) return v.broadcast_unavailable();
                  return needs_writable(v, t, f);
                },
                broadcast_unanswered});

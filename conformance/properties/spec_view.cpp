@@ -72,6 +72,8 @@ uint32_t to_raw(const Register& r, double v) {
 }  // namespace
 
 SpecView::SpecView(const spec::Spec& s, const TargetInfo& target, const WritePolicy& policy) : spec_(&s) {
+  broadcast_unavailable_ = broadcast_not_applicable(target);
+  if (broadcast_unavailable_.empty()) broadcast_unavailable_ = broadcast_forbidden(target, policy, 6);
   for (const auto& r : s.registers) {
     if (r.table != Table::holding) continue;
     // The safety rules (safety.h) decide on live targets; a live run also

@@ -47,6 +47,9 @@ class SpecView {
   const std::vector<const spec::Register*>& image_registers() const { return image_; }
 
   bool supports(int fc) const { return spec_->profile.function(fc) != nullptr; }
+  // Why broadcast writes may not be sent on this target (Modbus TCP, or a
+  // live target without --allow-broadcast: safety.h), or empty.
+  const std::string& broadcast_unavailable() const { return broadcast_unavailable_; }
   // The quantity limit of FC 03/04/16: the spec's max_quantity capped by the
   // standard's (MBAP v1.1b3 §6.3: 125, §6.12: 123).
   int quantity_limit(int fc) const;
@@ -78,6 +81,7 @@ class SpecView {
   const spec::Spec* spec_;
   std::vector<const spec::Register*> writable_, read_only_, image_;
   std::vector<std::pair<uint16_t, uint16_t>> image_reads_;
+  std::string broadcast_unavailable_;
 };
 
 // Sends one request PDU to the unit and returns the reply (a Session's send,

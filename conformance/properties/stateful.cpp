@@ -398,7 +398,10 @@ struct StepCmd final : rc::state::Command<Model, Sut> {
     if (!v.writable().empty()) weights.push_back({30, 1});              // valid write
     weights.push_back({4, 3});                                          // other slave
     if (m.raw) weights.push_back({4, 4});                               // corrupted byte
-    if (v.spec().serial.broadcast_address && !v.writable().empty()) weights.push_back({4, 5});
+    // Random broadcast writes reach drives no snapshot restores: reference targets only
+    // (broadcast-unanswered puts back what it broadcasts on a live line).
+    if (v.spec().serial.broadcast_address && v.broadcast_unavailable().empty() && !m.live && !v.writable().empty())
+      weights.push_back({4, 5});
     if (m.virtual_clock) weights.push_back({6, 6});                     // time passes
     if (m.power_cycle) weights.push_back({4, 7});
     if (m.facts && m.facts->save && !m.live) weights.push_back({3, 8});

@@ -88,6 +88,16 @@ code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
       for (const auto& f : d.restore_failures) h += "<li>" + esc(f) + "</li>";
       h += "</ul>";
     }
+    if (!d.safety_notes.empty()) {
+      h += "<p><b>Not kept before the run:</b></p><ul>";
+      for (const auto& f : d.safety_notes) h += "<li>" + esc(f) + "</li>";
+      h += "</ul>";
+    }
+    if (!d.broadcast_writes.empty()) {
+      h += "<p class=observed><b>Broadcast writes sent (every drive on the line received them):</b></p><ul>";
+      for (const auto& f : d.broadcast_writes) h += "<li>" + esc(f) + "</li>";
+      h += "</ul>";
+    }
     // Registers: the worst outcome of each register's cases.
     std::map<uint16_t, std::vector<const CaseResult*>> by_reg;
     for (const auto& r : d.cases)

@@ -71,6 +71,8 @@ nlohmann::json report_json(const RunReport& rep) {
     dj["wire_time_bound_seconds"] = d.wire_time_bound_seconds;
     dj["latencies_us"] = d.latencies_us;
     dj["restore_failures"] = d.restore_failures;
+    dj["safety_notes"] = d.safety_notes;
+    dj["broadcast_writes"] = d.broadcast_writes;
     dj["interrupted"] = d.interrupted;
     dj["error"] = d.error;
     dj["cases"] = nlohmann::json::array();

@@ -35,6 +35,12 @@ struct Counts {
 };
 Counts count(const DeviceRun&);
 
+// Creates `dir` and checks a file can be written into it, before a run sends
+// its first frame; what is wrong, or empty. out_dir_ok prints it as
+// "COMMAND: error: --out: ..." and returns false (the caller exits 2).
+std::string out_dir_problem(const std::string& dir);
+bool out_dir_ok(const std::string& dir, const char* command);
+
 // Writes junit.xml, report.json and (unless junit_only) report.html into
 // `dir` (created). Throws std::runtime_error when a file cannot be written.
 void write_reports(const RunReport&, const std::string& dir, bool junit_only = false);

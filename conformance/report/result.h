@@ -61,6 +61,11 @@ struct DeviceRun {
   std::optional<int> baud;          // for the wire-time bound
   double wire_time_bound_seconds = 0;  // bytes at the baud rate + 3.5 char gaps
   std::vector<std::string> restore_failures;  // registers a live run could not put back
+  // What the safety rules kept out of the snapshot (registers a drive would
+  // not read before the run), one line each, with address ranges.
+  std::vector<std::string> safety_notes;
+  // Every broadcast write sent (unit 0: every drive on the line took it).
+  std::vector<std::string> broadcast_writes;
   bool interrupted = false;
   // Set when the run against this target had to stop (the target kept
   // throwing: a lost connection, a device that cannot go on).

@@ -26,8 +26,10 @@ std::string summary_table(const RunReport& rep) {
     for (const auto& r : d.cases)
       if (r.outcome == Outcome::fail && r.level == Level::must)
         s += fmt::format("FAIL {} [{}]\n     {}\n", r.id, r.clause, r.message);
-  for (const auto& d : rep.devices)
+  for (const auto& d : rep.devices) {
     if (!d.error.empty()) s += fmt::format("{}: {}\n", d.device_id, d.error);
+    for (const auto& b : d.broadcast_writes) s += fmt::format("{}: broadcast sent: {}\n", d.device_id, b);
+  }
   if (rep.interrupted) s += "interrupted: the reports hold the cases run so far\n";
   return s;
 }

@@ -68,7 +68,15 @@ class CaseRunner {
     std::vector<std::optional<Bytes>> replies;
     std::vector<std::string> failures;
     bool setup_failed = false;
-    for (const auto& st : c.steps) {
+    for (const auto& step : c.steps) {
+      auto filled = cases::fill_words(step, step.words_from >= 0 && size_t(step.words_from) < replies.size()
+                                                ? replies[size_t(step.words_from)] : std::nullopt);
+      if (!filled) {  // what the target held could not be read: nothing is written back blind
+        failures.push_back(fmt::format("{}: not sent: step {} read no value to write", step.what, step.words_from));
+        replies.push_back(std::nullopt);
+        continue;
+      }
+      const Step& st = *filled;
       FrameRecord fr;
       fr.step = st.what;
       fr.expected_text = cases::describe(st.expect);
@@ -85,6 +93,7 @@ class CaseRunner {
         continue;
       }
       Exchange x = send(st);
+      if (cases::is_broadcast_write(st)) run_.broadcast_writes.push_back(fmt::format("{}: {}", c.id, st.what));
       fr.request = x.reply.request;
       fr.request_decoded = x.request_pdu.empty() ? "(not a frame)" : describe_pdu(x.request_pdu, true);
       if (!x.reply.silent()) fr.actual = x.reply.frame;

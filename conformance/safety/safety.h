@@ -1,5 +1,6 @@
 // Safety with live drives: a drive moves a machine. Before a run writes
-// anything it snapshots every readable, writable register; afterwards (and on
+// anything it snapshots every readable, writable register of every table the
+// run may write (holding registers and coils); afterwards (and on
 // error or SIGINT) it writes them back and verifies. Command and motion
 // registers are never written without --allow-motion; persistent registers
 // are not written without --allow-eeprom-writes unless the spec names a
@@ -19,6 +20,7 @@ namespace mbc::conf {
 struct WritePolicy {
   bool allow_motion = false;
   bool allow_eeprom_writes = false;
+  bool allow_broadcast = false;  // live targets: requests to unit 0 (every drive on the line acts on them)
 };
 
 struct WriteDecision {
@@ -34,20 +36,39 @@ struct WriteDecision {
 // Snapshot::take turns on before the run writes anything.
 WriteDecision may_write(const spec::Spec&, const spec::Register& r, const TargetInfo& target, const WritePolicy&);
 
+// Why a request with function code `fc` may not go to unit 0 on `target`, or
+// empty. On a serial line unit 0 is the broadcast address: every drive acts
+// on the request and none answers (MB-SL v1.02 §2.1), so a snapshot of the
+// addressed drive cannot put the others back. A tcp:// target may be a
+// gateway that forwards unit 0 to its RS-485 line as a broadcast, so the rule
+// holds on every transport. Reads (FC 01-04) are not executed in broadcast
+// (MB-SL v1.02 §6.1.2: "function code prohibited in broadcasts") and pass.
+std::string broadcast_forbidden(const TargetInfo& target, const WritePolicy&, int fc);
+
+// Modbus TCP addresses a server by its IP address; the unit identifier
+// reaches a device behind a gateway. A server reached directly takes 0xFF,
+// and 0 as well (Modbus Messaging on TCP/IP Implementation Guide V1.0b
+// §4.4.1.2; spec/devices/modbus-standard.yaml, serial.broadcast): on an MBAP
+// target unit 0 is not a broadcast the target can be judged on. The reason a
+// broadcast case does not apply there, or empty on an RTU target.
+std::string broadcast_not_applicable(const TargetInfo& target);
+
 // The registers' values before the run, and putting them back.
 class Snapshot {
  public:
-  // Reads every readable, writable (rw) holding register of the spec that the
-  // policy lets the run write (FC 03, in chunks within the profile's
-  // max_quantity). Registers it cannot read are listed in failures(). When
+  // Reads every writable (rw) register of the spec, in every table, that the
+  // policy lets the run write (FC 03 for holding registers, FC 01 for coils,
+  // in chunks within the profile's max_quantity). Registers it cannot read
+  // are listed in failures() as one line with address ranges. When
   // the spec names a "do not persist" switch (Persistence.unless_register,
   // 57HS-R 0x0016) it is read, kept, and turned on, so the run's writes stay
   // out of EEPROM; turning it on and back off costs one stored write each.
   // `spec` must outlive the snapshot.
   static Snapshot take(Target&, const spec::Spec&, const WritePolicy&);
-  // Writes every changed register back (FC 06, or FC 16 for 2-word registers
-  // and where FC 06 is not in the profile), reads back to verify, and puts
-  // the switch back last; returns the registers it could not restore, as
+  // Writes every changed register back (FC 06/05, or FC 16/15 for 2-word
+  // registers and where the single write is not in the profile), reads each
+  // back, then verifies the whole snapshot once more, and puts the switch
+  // back last; returns the registers it could not restore, as
   // messages. Idempotent: it may run again after an interrupted restore.
   std::vector<std::string> restore(Target&) const;
   const std::vector<std::string>& failures() const { return failures_; }
@@ -56,6 +77,7 @@ class Snapshot {
   std::optional<std::pair<uint16_t, uint16_t>> persist_switch() const { return switch_; }
 
   struct Kept {
+    spec::Table table = spec::Table::holding;
     uint16_t address = 0;
     int words = 1;
     uint16_t value[2] = {0, 0};  // in wire order (lower address first)

@@ -630,14 +630,17 @@ std::optional<Bytes> Bus::handle_rtu(std::span<const uint8_t> adu) {
   return d ? d->handle_rtu(adu) : std::nullopt;
 }
 
+Device* Bus::direct(uint8_t unit) {
+  return (unit == 0 || unit == 0xFF) && devices_.size() == 1 ? devices_.front().get() : nullptr;
+}
+
 std::optional<Bytes> Bus::handle_pdu(uint8_t unit, std::span<const uint8_t> pdu) {
+  if (Device* d = direct(unit)) return d->handle_pdu(pdu, false);
   if (unit == 0) {
     for (auto& d : devices_) d->handle_pdu(pdu, true);
     return std::nullopt;
   }
   Device* d = find(unit);
-  // Modbus TCP: 0xFF addresses the server itself when it is a single device.
-  if (!d && unit == 0xFF && devices_.size() == 1) d = devices_.front().get();
   return d ? d->handle_pdu(pdu, false) : std::nullopt;
 }
 

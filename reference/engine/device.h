@@ -154,8 +154,13 @@ class Bus {
  public:
   void add(std::unique_ptr<Device> d) { devices_.push_back(std::move(d)); }
   std::optional<Bytes> handle_rtu(std::span<const uint8_t> adu);
-  // Modbus TCP / RTU-over-TCP unit addressing: the unit id picks the device.
+  // Modbus TCP unit addressing: the unit id picks the device. Unit 0 is a
+  // broadcast to every device, except where the bus has one device: then the
+  // server is reached directly and 0, like 0xFF, addresses it (Modbus
+  // Messaging on TCP/IP Implementation Guide V1.0b §4.4.1.2).
   std::optional<Bytes> handle_pdu(uint8_t unit, std::span<const uint8_t> pdu);
+  // The device a TCP unit id 0 or 0xFF reaches directly (one device served), or null.
+  Device* direct(uint8_t unit);
   Device* find(uint8_t slave_id);
   std::vector<std::unique_ptr<Device>>& devices() { return devices_; }
   void advance(uint64_t dt_us);

@@ -390,6 +390,7 @@ std::optional<Bytes> FaultyBus::handle_rtu(std::span<const uint8_t> adu) {
 
 std::optional<Bytes> FaultyBus::handle_pdu(uint8_t unit, std::span<const uint8_t> pdu) {
   if (faults_.empty() || bus_.devices().empty()) return bus_.handle_pdu(unit, pdu);
+  if (ref::Device* d = bus_.direct(unit)) return device_pdu(*d, pdu, false);
   if (unit == 0) {
     if (faults_.has(Fault::ignore_broadcast)) return std::nullopt;
     if (faults_.has(Fault::answer_broadcast)) {
@@ -404,7 +405,6 @@ std::optional<Bytes> FaultyBus::handle_pdu(uint8_t unit, std::span<const uint8_t
     return std::nullopt;
   }
   ref::Device* d = bus_.find(unit);
-  if (!d && unit == 0xFF && bus_.devices().size() == 1) d = bus_.devices().front().get();
   if (!d && faults_.has(Fault::reply_other_slave)) d = bus_.devices().front().get();
   if (!d) return std::nullopt;
   return device_pdu(*d, pdu, false);

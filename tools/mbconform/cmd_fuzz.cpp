@@ -44,6 +44,7 @@
 
 #include "codec/crc16.h"
 #include "commands.h"
+#include "report/report.h"
 #include "loader.h"
 #include "master/pdu.h"
 #include "safety/safety.h"
@@ -599,6 +600,7 @@ struct FuzzArgs {
 constexpr size_t kHistoryCap = 20000;
 
 int run_fuzz(const FuzzArgs& a) {
+  if (!conf::out_dir_ok(a.out, "mbconform fuzz")) return kExitUsage;
   std::unique_ptr<conf::Target> target;
   try {
     target = conf::open_target(a.target);

@@ -138,6 +138,7 @@ int run(PropsArgs& a) {
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
   report.version = "mbconform 0.1";
   std::string out = a.out.empty() ? "reports/runs/props-" + utc_now("%Y%m%dT%H%M%SZ") : a.out;
+  if (!conf::out_dir_ok(out, "mbconform props")) return kExitUsage;
   bool failed = false;
   std::vector<std::pair<std::string, std::string>> regressions;  // file name, text
 
@@ -156,7 +157,7 @@ int run(PropsArgs& a) {
     if (info.live) {
       try {
         snap = conf::Snapshot::take(*probe, *src.spec, a.policy);
-        for (const auto& f : snap->failures()) dr.restore_failures.push_back("not kept before the run: " + f);
+        for (const auto& f : snap->failures()) dr.safety_notes.push_back(f);
       } catch (const std::exception& e) {
         fmt::print(stderr, "mbconform props: error: target {}: cannot read the registers to keep: {}\n", uri, e.what());
         return kExitUsage;
@@ -220,6 +221,7 @@ void add_props_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--replay", a.replay, "FILE: replay a regression file through the model (on ref:ID, or --target)");
   cmd->add_flag("--allow-motion", a.policy.allow_motion, "live targets: let properties write command and motion registers");
   cmd->add_flag("--allow-eeprom-writes", a.policy.allow_eeprom_writes, "live targets: let properties write persistent registers");
+  cmd->add_flag("--allow-broadcast", a.policy.allow_broadcast, "live targets: let properties write to unit 0 (every drive on the line)");
   cmd->add_flag("--list", a.list, "print the invariants and exit");
   cmd->add_flag("--quiet", a.quiet, "do not print counterexamples (they are in the reports)");
   cmd->callback([&exit_code] { exit_code = run(a); });

@@ -20,6 +20,7 @@
 #include <regex>
 
 #include "cases/case.h"
+#include "cases/common.h"
 #include "commands.h"
 #include "loader.h"
 #include "report/report.h"
@@ -116,9 +117,11 @@ int run(const RunArgs& a) {
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
   report.version = "mbconform 0.1";
 
+  bool dry = a.list || a.plan;
+  const std::string out = a.out.empty() ? "reports/runs/" + utc_now("%Y%m%dT%H%M%SZ") : a.out;
+  if (!dry && !conf::out_dir_ok(out, "mbconform run")) return kExitUsage;
   std::signal(SIGINT, on_signal);
   std::signal(SIGTERM, on_signal);
-  bool dry = a.list || a.plan;
   bool tty = isatty(STDOUT_FILENO) && !a.quiet;
   for (const auto& uri : targets) {
     spec::Spec s;
@@ -167,6 +170,7 @@ int run(const RunArgs& a) {
         if (!c.skip_reason.empty()) fmt::print("  (skip: {})\n", c.skip_reason);
         for (const auto& l : conf::plan_lines(c, info)) fmt::print("{}\n", l);
       }
+      for (const auto& b : conf::cases::planned_broadcast_writes(cases)) fmt::print("# every drive on the line receives: {}\n", b);
       continue;
     }
 
@@ -189,7 +193,7 @@ int run(const RunArgs& a) {
     if (info.live) {
       try {
         snap = conf::Snapshot::take(*target, s, a.policy);
-        for (const auto& f : snap->failures()) snap_notes.push_back("not kept before the run: " + f);
+        for (const auto& f : snap->failures()) snap_notes.push_back(f);
       } catch (const std::exception& e) {
         fmt::print(stderr, "mbconform run: error: target {}: cannot read the registers to keep: {}\n", uri, e.what());
         return kExitUsage;
@@ -203,7 +207,7 @@ int run(const RunArgs& a) {
       } catch (const std::exception& e) {
         dr.restore_failures.push_back(fmt::format("restore stopped: {}", e.what()));
       }
-      for (auto& n : snap_notes) dr.restore_failures.push_back(std::move(n));
+      for (auto& n : snap_notes) dr.safety_notes.push_back(std::move(n));
       for (const auto& f : dr.restore_failures) fmt::print(stderr, "mbconform run: {}: {}\n", s.device.id, f);
     }
     report.devices.push_back(std::move(dr));
@@ -217,7 +221,6 @@ int run(const RunArgs& a) {
   std::signal(SIGTERM, SIG_DFL);
   if (dry) return kExitOk;
 
-  std::string out = a.out.empty() ? "reports/runs/" + utc_now("%Y%m%dT%H%M%SZ") : a.out;
   try {
     conf::write_reports(report, out, a.junit_only);
     if (!a.summary_dir.empty()) {
@@ -258,6 +261,7 @@ void add_run_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--summary", a->summary_dir, "also write the stable summary.md and summary.json into this directory");
   cmd->add_flag("--allow-motion", a->policy.allow_motion, "live targets: allow writes to command and motion registers");
   cmd->add_flag("--allow-eeprom-writes", a->policy.allow_eeprom_writes, "live targets: allow writes that wear EEPROM/flash");
+  cmd->add_flag("--allow-broadcast", a->policy.allow_broadcast, "live targets: allow writes to unit 0 (every drive on the line takes them)");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
   cmd->add_flag("--quiet", a->quiet, "no progress line");
   cmd->callback([a, &exit_code] { exit_code = run(*a); });

@@ -3,6 +3,7 @@
 // the way it was, including the "do not persist" switch of the 57HS-R
 // (0x0016, manual §6.1), checked end to end through serve's EEPROM files.
 #include <fmt/core.h>
+#include <fmt/ranges.h>
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -112,7 +113,7 @@ TEST(Snapshot, RestoresChangedRegistersOverTheWire) {
     EXPECT_FALSE(snap.persist_switch());
     // Every kept register holds what the spec says it powers up with.
     for (const auto& k : snap.kept()) {
-      const Register* r = s.find_register(k.address);
+      const Register* r = s.find_register(k.address, k.table);
       ASSERT_TRUE(r);
       if (r->words == 1 && r->default_value && !r->is_signed()) {
         EXPECT_EQ(k.value[0], uint16_t(int64_t(*r->default_value))) << k.name;
@@ -120,8 +121,8 @@ TEST(Snapshot, RestoresChangedRegistersOverTheWire) {
     }
     int changed = 0;
     for (const auto& k : snap.kept()) {
-      const Register* r = s.find_register(k.address);
-      if (is_serial_setting(s, *r) || changed == 5) continue;
+      const Register* r = s.find_register(k.address, k.table);
+      if (k.table != spec::Table::holding || is_serial_setting(s, *r) || changed == 5) continue;
       if (auto v = other_value(*r, k.value[0])) {
         write(*t, k.address, *v);
         ++changed;
@@ -131,8 +132,58 @@ TEST(Snapshot, RestoresChangedRegistersOverTheWire) {
     auto failed = snap.restore(*t);
     EXPECT_TRUE(failed.empty()) << failed.front();
     for (const auto& k : snap.kept())
-      EXPECT_EQ(read(*t, k.address, k.words), std::vector<uint16_t>(k.value, k.value + k.words)) << k.name;
+      if (k.table == spec::Table::holding)
+        EXPECT_EQ(read(*t, k.address, k.words), std::vector<uint16_t>(k.value, k.value + k.words)) << k.name;
   }
+}
+
+std::vector<bool> read_coils(Target& t, uint16_t address, int n) {
+  Bytes req = read_request(1, address, uint16_t(n));
+  Reply r = t.transact(req);
+  if (!r.pdu) throw std::runtime_error("no reply reading coils");
+  return judge_reply(req, *r.pdu).bits;
+}
+
+// Coils drive outputs: a run that writes them puts every one back. Flip every
+// writable coil of modbus-standard through FC 05, then restore and read back.
+TEST(Snapshot, RestoresCoils) {
+  auto s = spec::load_spec_by_id("modbus-standard");
+  ServeProcess serve({"--device", "modbus-standard@1", "--tcp", "127.0.0.1:0"});
+  ASSERT_TRUE(serve.wait_listening(1)) << serve.log();
+  auto t = open_target(fmt::format("tcp://{}?unit=1", serve.endpoint("tcp")->address));
+  Snapshot snap = Snapshot::take(*t, s, {});
+  EXPECT_TRUE(snap.failures().empty()) << snap.failures().front();
+  int coils = 0;
+  for (const auto& k : snap.kept()) {
+    if (k.table != spec::Table::coil) continue;
+    ++coils;
+    Bytes req = write_single_coil(k.address, k.value[0] == 0);
+    Reply r = t->transact(req);
+    ASSERT_TRUE(r.pdu && judge_reply(req, *r.pdu).ok()) << k.name;
+    ASSERT_EQ(read_coils(*t, k.address, 1), std::vector<bool>{k.value[0] == 0}) << k.name;
+  }
+  ASSERT_GT(coils, 0) << "modbus-standard has writable coils";
+  auto failed = snap.restore(*t);
+  EXPECT_TRUE(failed.empty()) << failed.front();
+  for (const auto& k : snap.kept())
+    if (k.table == spec::Table::coil) EXPECT_EQ(read_coils(*t, k.address, 1), std::vector<bool>{k.value[0] != 0}) << k.name;
+}
+
+// Registers a drive will not read before the run are one finding: one line,
+// adjacent addresses as ranges (the HSC60 serves none of modbus-standard's
+// 0x0200 block).
+TEST(Snapshot, UnreadableRegistersAreOneLineWithRanges) {
+  auto s = spec::load_spec_by_id("modbus-standard");
+  ServeProcess serve({"--device", "hsc60@1", "--tcp", "127.0.0.1:0"});
+  ASSERT_TRUE(serve.wait_listening(1)) << serve.log();
+  auto t = open_target(fmt::format("tcp://{}?unit=1", serve.endpoint("tcp")->address));
+  Snapshot snap = Snapshot::take(*t, s, {});
+  ASSERT_EQ(snap.failures().size(), 1u) << fmt::format("{}", fmt::join(snap.failures(), "\n"));
+  const std::string& line = snap.failures().front();
+  EXPECT_EQ(line.find("could not be read before the run"), 0u) << line;
+  EXPECT_NE(line.find("0x0200-0x"), std::string::npos) << line;
+  EXPECT_EQ(line.find('\n'), std::string::npos) << line;
+  snap.restore(*t);
 }
 
 // 57HS-R §6.1: RW/S registers are stored on write unless 0x0016 = 1. The
@@ -158,7 +209,7 @@ TEST(Snapshot, DoNotPersistSwitchKeepsRunWritesOutOfEeprom) {
   ASSERT_TRUE(sw);
   const Register* stored = nullptr;  // a register the switch keeps out of EEPROM
   for (const auto& k : snap.kept()) {
-    const Register* r = s.find_register(k.address);
+    const Register* r = s.find_register(k.address, k.table);
     if (r->persistence.unless_register == sw->address && !is_serial_setting(s, *r) && other_value(*r, k.value[0])) {
       stored = r;
       break;
@@ -193,7 +244,7 @@ TEST(Snapshot, KeepsOnlyWhatThePolicyLetsTheRunWrite) {
   auto t = open_target(fmt::format("tcp://{}?unit={}", serve.endpoint("tcp")->address, slave));
   Snapshot snap = Snapshot::take(*t, s, {});
   for (const auto& k : snap.kept()) {
-    const Register* r = s.find_register(k.address);
+    const Register* r = s.find_register(k.address, k.table);
     EXPECT_TRUE(may_write(s, *r, t->info(), {}).allowed) << k.name;
     EXPECT_FALSE(r->command) << k.name;
     EXPECT_EQ(r->access, spec::Access::rw) << k.name;

@@ -63,10 +63,10 @@ class Mbpoll : public ::testing::TestWithParam<std::string> {
     // 8N1 as the pty takes no notice of parity; mbpoll defaults to even.
     return fmt::format("-m rtu -b 19200 -P none {}", server_->endpoint("pty")->address);
   }
-  Result mbpoll(const spec::Register& r, const std::string& write_value = "") {
+  Result mbpoll(const spec::Register& r, const std::string& write_value = "", int unit = 1) {
     const char* type = r.table == spec::Table::input ? "3" : "4";
     // -c is for reads only; a write sends as many values as given.
-    std::string cmd = fmt::format("{} -a 1 -t {} -r {} -1 -o 1 {} {}", MBPOLL, type, r.address + 1,
+    std::string cmd = fmt::format("{} -a {} -t {} -r {} -1 -o 1 {} {}", MBPOLL, unit, type, r.address + 1,
                                   write_value.empty() ? "-c 1" : "", target_args());
     if (!write_value.empty()) cmd += " -- " + write_value;
     return run(cmd);
@@ -96,6 +96,18 @@ TEST_P(Mbpoll, WritesARegisterAndReadsItBack) {
   EXPECT_NE(w.output.find("Written 1 references"), std::string::npos) << w.output;
   Result res = mbpoll(*r);
   EXPECT_EQ(value_of(res.output, r->address + 1), word) << res.output;
+}
+
+// Modbus Messaging on TCP/IP Implementation Guide V1.0b §4.4.1.2: a server
+// reached directly takes unit 0xFF, "The value 0 is also accepted"; on TCP,
+// serving one device, unit 0 is that device, not a broadcast.
+TEST_P(Mbpoll, UnitZeroOnTcpAddressesTheServerItself) {
+  if (GetParam() != "tcp") GTEST_SKIP() << "unit 0 is the broadcast address on a serial line (MB-SL v1.02 §2.1)";
+  const spec::Register* r = pick_default_word(spec_);
+  ASSERT_TRUE(r);
+  Result res = mbpoll(*r, "", 0);
+  EXPECT_EQ(res.status, 0) << res.output;
+  EXPECT_EQ(value_of(res.output, r->address + 1), uint16_t(int64_t(*r->default_value) & 0xFFFF)) << res.output;
 }
 
 INSTANTIATE_TEST_SUITE_P(Serve, Mbpoll, ::testing::Values("tcp", "pty"));
