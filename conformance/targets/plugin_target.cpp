@@ -13,6 +13,7 @@
 #include <poll.h>
 #include <signal.h>
 #include <sys/prctl.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -65,6 +66,8 @@ class HostProcess {
       // and it dies with mbconform.
       setpgid(0, 0);
       prctl(PR_SET_PDEATHSIG, SIGKILL);
+      rlimit no_core{0, 0};  // a crashing vendor stack is a finding, not a core file
+      setrlimit(RLIMIT_CORE, &no_core);
       if (getppid() != parent) _exit(127);
       dup2(req[0], host::kRequestFd);
       dup2(resp[1], host::kResponseFd);
