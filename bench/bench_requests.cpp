@@ -4,10 +4,11 @@
 //      vs modbus_reply on a modbus_mapping_t with an unconnected TCP context
 //      (its send fails with EBADF; the decode + build work is what is timed).
 //   2. TCP loopback, 1 and 16 libmodbus client threads: `mbconform serve`
-//      (subprocess) vs a select()-loop libmodbus server thread and a null
+//      (subprocess) vs a select()-loop libmodbus server and a null
 //      responder (a poll loop that answers every request with fixed bytes,
 //      only the transaction id copied: the most this machine does over
-//      loopback). Rounds are interleaved and the median of each is kept.
+//      loopback), each in a process of its own like serve. Rounds are
+//      interleaved (5 rounds) and the median of each is kept.
 //      Targets: 16 clients, serve >= 0.85x the null responder; 1 client,
 //      serve >= 1.0x libmodbus. A null responder that does not beat both
 //      servers means the machine was too busy to measure: the run is invalid.
@@ -124,115 +125,126 @@ int free_port() {
   return ntohs(a.sin_port);
 }
 
-// libmodbus multi-client server (tests/bandwidth-server-many-up.c pattern).
-struct LibmodbusServer {
+// The baselines run in their own processes, as `mbconform serve` does, so
+// that all three servers meet the same scheduler on a shared machine (a thread
+// of this process would be favoured while the clients wait).
+volatile sig_atomic_t g_child_stop = 0;
+extern "C" void on_child_stop(int) { g_child_stop = 1; }
+
+// Forks a server loop `serve(port)` on a free port; stops it with SIGTERM.
+struct ChildServer {
+  pid_t pid = -1;
   int port = free_port();
-  std::atomic<bool> stop{false};
-  std::atomic<bool> listening{false};
-  std::thread th;
 
-  LibmodbusServer() {
-    th = std::thread([this] {
-      modbus_t* ctx = modbus_new_tcp("127.0.0.1", port);
-      modbus_set_slave(ctx, 1);
-      modbus_mapping_t* map = modbus_mapping_new(0, 0, kMapRegs, 0);
-      int server = modbus_tcp_listen(ctx, 32);
-      listening = true;
-      if (server < 0) { modbus_mapping_free(map); modbus_free(ctx); return; }
-      fd_set refset;
-      FD_ZERO(&refset);
-      FD_SET(server, &refset);
-      int fdmax = server;
-      uint8_t query[MODBUS_TCP_MAX_ADU_LENGTH];
-      while (!stop.load()) {
-        fd_set rdset = refset;
-        timeval tv{0, 50000};
-        int n = select(fdmax + 1, &rdset, nullptr, nullptr, &tv);
-        if (n <= 0) continue;
-        for (int fd = 0; fd <= fdmax; ++fd) {
-          if (!FD_ISSET(fd, &rdset)) continue;
-          if (fd == server) {
-            int c = accept(server, nullptr, nullptr);
-            if (c >= 0 && c < FD_SETSIZE) { FD_SET(c, &refset); if (c > fdmax) fdmax = c; }
-            else if (c >= 0) close(c);
-          } else {
-            modbus_set_socket(ctx, fd);
-            int rc = modbus_receive(ctx, query);
-            if (rc > 0) modbus_reply(ctx, query, rc, map);
-            else if (rc == -1) { close(fd); FD_CLR(fd, &refset); }
-          }
-        }
-      }
-      for (int fd = 0; fd <= fdmax; ++fd) if (FD_ISSET(fd, &refset)) close(fd);
-      modbus_mapping_free(map);
-      modbus_free(ctx);
-    });
-    while (!listening.load()) std::this_thread::sleep_for(std::chrono::milliseconds(1));
-  }
-  ~LibmodbusServer() { stop = true; th.join(); }
-};
-
-// The null responder: every 12-byte FC 03 request (MBAP + PDU, as the
-// clients send them) gets the same 29-byte reply, its transaction id copied
-// from the request. No decoding, no device: the loopback ceiling.
-struct NullResponder {
-  int port = free_port();
-  std::atomic<bool> stop{false};
-  std::atomic<bool> listening{false};
-  std::thread th;
-
-  NullResponder() {
-    th = std::thread([this] {
-      int server = socket(AF_INET, SOCK_STREAM | SOCK_NONBLOCK, 0);
-      int one = 1;
-      setsockopt(server, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+  template <class Loop>
+  explicit ChildServer(Loop&& serve) {
+    pid = fork();
+    if (pid < 0) throw std::runtime_error("fork failed");
+    if (pid == 0) {
+      signal(SIGTERM, on_child_stop);
+      serve(port);
+      _exit(0);
+    }
+    // Ready when it accepts a connection.
+    for (int i = 0; i < 500; ++i) {
+      int s = socket(AF_INET, SOCK_STREAM, 0);
       sockaddr_in a{};
       a.sin_family = AF_INET;
       a.sin_port = htons(uint16_t(port));
       a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-      bool ok = bind(server, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0 && listen(server, 64) == 0;
-      listening = true;
-      if (!ok) { close(server); return; }
-      uint8_t reply[9 + 2 * kRegs] = {0, 0, 0, 0, 0, 3 + 2 * kRegs, 1, 3, 2 * kRegs};
-      std::vector<pollfd> fds{{server, POLLIN, 0}};
-      std::vector<std::vector<uint8_t>> pending(1);
-      std::vector<uint8_t> out;
-      uint8_t buf[4096];
-      while (!stop.load()) {
-        if (poll(fds.data(), fds.size(), 50) <= 0) continue;
-        if (fds[0].revents & POLLIN) {
-          for (int c; (c = accept4(server, nullptr, nullptr, SOCK_NONBLOCK)) >= 0;) {
-            setsockopt(c, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
-            fds.push_back({c, POLLIN, 0});
-            pending.emplace_back();
-          }
-        }
-        for (size_t i = 1; i < fds.size(); ++i) {
-          if (!(fds[i].revents & (POLLIN | POLLHUP | POLLERR))) continue;
-          ssize_t n = read(fds[i].fd, buf, sizeof buf);
-          if (n <= 0) { close(fds[i].fd); fds[i].fd = -1; continue; }
-          auto& in = pending[i];
-          in.insert(in.end(), buf, buf + n);
-          out.clear();
-          size_t at = 0;
-          for (; in.size() - at >= 12; at += 12) {
-            reply[0] = in[at];
-            reply[1] = in[at + 1];
-            out.insert(out.end(), reply, reply + sizeof reply);
-          }
-          in.erase(in.begin(), in.begin() + ptrdiff_t(at));
-          if (!out.empty() && send(fds[i].fd, out.data(), out.size(), MSG_NOSIGNAL) != ssize_t(out.size())) {
-            close(fds[i].fd);
-            fds[i].fd = -1;
-          }
-        }
-      }
-      for (auto& p : fds) if (p.fd >= 0) close(p.fd);
-    });
-    while (!listening.load()) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+      bool up = connect(s, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0;
+      close(s);
+      if (up) return;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    throw std::runtime_error("a baseline server did not start");
   }
-  ~NullResponder() { stop = true; th.join(); }
+  ~ChildServer() {
+    kill(pid, SIGTERM);
+    waitpid(pid, nullptr, 0);
+  }
 };
+
+// libmodbus multi-client server (tests/bandwidth-server-many-up.c pattern).
+void libmodbus_server(int port) {
+  modbus_t* ctx = modbus_new_tcp("127.0.0.1", port);
+  modbus_set_slave(ctx, 1);
+  modbus_mapping_t* map = modbus_mapping_new(0, 0, kMapRegs, 0);
+  int server = modbus_tcp_listen(ctx, 32);
+  if (server < 0) return;
+  fd_set refset;
+  FD_ZERO(&refset);
+  FD_SET(server, &refset);
+  int fdmax = server;
+  uint8_t query[MODBUS_TCP_MAX_ADU_LENGTH];
+  while (!g_child_stop) {
+    fd_set rdset = refset;
+    timeval tv{0, 50000};
+    int n = select(fdmax + 1, &rdset, nullptr, nullptr, &tv);
+    if (n <= 0) continue;
+    for (int fd = 0; fd <= fdmax; ++fd) {
+      if (!FD_ISSET(fd, &rdset)) continue;
+      if (fd == server) {
+        int c = accept(server, nullptr, nullptr);
+        if (c >= 0 && c < FD_SETSIZE) { FD_SET(c, &refset); if (c > fdmax) fdmax = c; }
+        else if (c >= 0) close(c);
+      } else {
+        modbus_set_socket(ctx, fd);
+        int rc = modbus_receive(ctx, query);
+        if (rc > 0) modbus_reply(ctx, query, rc, map);
+        else if (rc == -1) { close(fd); FD_CLR(fd, &refset); }
+      }
+    }
+  }
+}
+
+// The null responder: every 12-byte FC 03 request (MBAP + PDU, as the
+// clients send them) gets the same 29-byte reply, its transaction id copied
+// from the request. No decoding, no device: the loopback ceiling.
+void null_responder(int port) {
+  int server = socket(AF_INET, SOCK_STREAM | SOCK_NONBLOCK, 0);
+  int one = 1;
+  setsockopt(server, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_port = htons(uint16_t(port));
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  if (bind(server, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0 || listen(server, 64) != 0) return;
+  uint8_t reply[9 + 2 * kRegs] = {0, 0, 0, 0, 0, 3 + 2 * kRegs, 1, 3, 2 * kRegs};
+  std::vector<pollfd> fds{{server, POLLIN, 0}};
+  std::vector<std::vector<uint8_t>> pending(1);
+  std::vector<uint8_t> out;
+  uint8_t buf[4096];
+  while (!g_child_stop) {
+    if (poll(fds.data(), fds.size(), 50) <= 0) continue;
+    if (fds[0].revents & POLLIN) {
+      for (int c; (c = accept4(server, nullptr, nullptr, SOCK_NONBLOCK)) >= 0;) {
+        setsockopt(c, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+        fds.push_back({c, POLLIN, 0});
+        pending.emplace_back();
+      }
+    }
+    for (size_t i = 1; i < fds.size(); ++i) {
+      if (!(fds[i].revents & (POLLIN | POLLHUP | POLLERR))) continue;
+      ssize_t n = read(fds[i].fd, buf, sizeof buf);
+      if (n <= 0) { close(fds[i].fd); fds[i].fd = -1; continue; }
+      auto& in = pending[i];
+      in.insert(in.end(), buf, buf + n);
+      out.clear();
+      size_t at = 0;
+      for (; in.size() - at >= 12; at += 12) {
+        reply[0] = in[at];
+        reply[1] = in[at + 1];
+        out.insert(out.end(), reply, reply + sizeof reply);
+      }
+      in.erase(in.begin(), in.begin() + ptrdiff_t(at));
+      if (!out.empty() && send(fds[i].fd, out.data(), out.size(), MSG_NOSIGNAL) != ssize_t(out.size())) {
+        close(fds[i].fd);
+        fds[i].fd = -1;
+      }
+    }
+  }
+}
 
 // `mbconform serve` as a subprocess; the port comes from its "listening tcp" line.
 struct MbconformServer {
@@ -289,14 +301,14 @@ int main(int argc, char** argv) {
     row("in-process FC03 x10", dev, lib);
 
     struct Case { const char* name; int threads; int per_thread; double target; bool vs_null; };
-    const Case cases[] = {{"tcp loopback, 1 client", 1, 20000, 1.0, false},
-                          {"tcp loopback, 16 clients", 16, 2500, 0.85, true}};
-    constexpr int kRounds = 3;
+    const Case cases[] = {{"tcp loopback, 1 client", 1, 8000, 1.0, false},
+                          {"tcp loopback, 16 clients", 16, 1000, 0.85, true}};
+    constexpr int kRounds = 5;
     MbconformServer mbc(exe);
-    LibmodbusServer base;
-    NullResponder null;
+    ChildServer base(libmodbus_server);
+    ChildServer null(null_responder);
     bool valid = true, met = true;
-    std::printf("\n%-28s %14s %14s %14s %9s %9s\n", "loopback (median of 3)", "serve/s", "libmodbus/s", "null/s",
+    std::printf("\n%-28s %14s %14s %14s %9s %9s\n", "loopback (median of 5)", "serve/s", "libmodbus/s", "null/s",
                 "vs lib", "vs null");
     for (const auto& c : cases) {
       std::vector<double> m, b, n;
