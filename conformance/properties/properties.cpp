@@ -144,6 +144,14 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   int runs = 0;
   std::vector<Step> last_failure;
   std::string last_failure_text;
+  // On a live line every drive takes a broadcast write: the report names each one sent.
+  nlohmann::json broadcasts = nlohmann::json::array();
+  auto note_broadcasts = [&](const Session& session) {
+    if (!shared->info().live) return;
+    for (const auto& st : session.steps())
+      if (st.kind == Step::Kind::frame && st.frame.size() >= 2 && st.frame[0] == 0 && (st.frame[1] < 1 || st.frame[1] > 4))
+        broadcasts.push_back(fmt::format("{} ({})", to_hex(st.frame), st.note));
+  };
   auto property = [&] {
     std::shared_ptr<Target> target = fresh_per_case ? std::shared_ptr<Target>(source.open()) : shared;
     // One view for every run: RapidCheck keeps generated values (and the
@@ -154,8 +162,10 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
       inv.check(session);
     } catch (...) {
       last_failure = session.steps();
+      note_broadcasts(session);
       throw;
     }
+    note_broadcasts(session);
   };
 
   rc::detail::TestParams params;
@@ -168,6 +178,7 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   meta.description = inv.requirement;
   QuietListener quiet;
   rc::detail::TestResult result = rc::detail::checkTestable(property, meta, params, quiet);
+  if (!broadcasts.empty()) c.extra["broadcast_writes"] = broadcasts;
 
   c.extra["seed"] = seed;
   c.extra["target"] = source.uri;

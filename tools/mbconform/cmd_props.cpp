@@ -172,6 +172,7 @@ int run(PropsArgs& a) {
     for (const auto& inv : conf::props::invariants()) {
       if (!a.only.empty() && std::find(a.only.begin(), a.only.end(), inv.name) == a.only.end()) continue;
       conf::CaseResult c = conf::props::run_invariant(inv, src, opt);
+      for (const auto& b : c.extra.value("broadcast_writes", nlohmann::json::array())) dr.broadcast_writes.push_back(c.id + ": " + b.get<std::string>());
       fmt::print("  {:<34} {:<5} {:>5} cases {:>8.1f} ms{}\n", c.id, conf::to_string(c.outcome), c.extra.value("cases", 0),
                  c.duration_ms, c.outcome == conf::Outcome::skip ? "  (" + c.message + ")" : "");
       if (c.outcome == conf::Outcome::fail) {

@@ -399,3 +399,38 @@ TEST(RunCli, PartialWriteDoesNotAssumeTheOtherWords) {
 }
 
 }  // namespace
+
+namespace {
+
+// props on a live line: broadcast-unanswered is skipped without
+// --allow-broadcast; with it, the report names every broadcast write sent and
+// the other drive holds what it held (each broadcast value is put back).
+TEST(PropsCli, BroadcastNeedsItsFlagAndIsReported) {
+  TempDir dir;
+  ServeProcess serve({"--device", "hsc60@1", "--device", "hsc60@2", "--pty", dir / "tty", "--tcp", "127.0.0.1:0"});
+  ASSERT_TRUE(serve.wait_listening(2)) << serve.log();
+  const std::string line = "rtu://" + (dir / "tty") + "?baud=115200&unit=1&silence=150";
+  const std::string other = "tcp://127.0.0.1:" + std::to_string(serve.endpoint("tcp")->port()) + "?unit=2";
+  auto spec = mbc::spec::load_spec_by_id("hsc60");
+  auto before = holding_image(other, spec);
+  auto props = [&](const std::string& out, bool allow) {
+    std::vector<std::string> args{"props", "--target", line, "--device", "hsc60", "--only", "broadcast-unanswered",
+                                  "--cases", "10", "--seed", "7", "--out", dir / out};
+    if (allow) args.push_back("--allow-broadcast");
+    return run(args);
+  };
+  Out gated = props("gated", false);
+  EXPECT_EQ(gated.rc, 0) << gated.text;
+  auto gj = nlohmann::json::parse(slurp(dir / "gated/report.json"));
+  EXPECT_EQ(gj["devices"][0]["cases"][0]["outcome"], "skip");
+  EXPECT_NE(gj["devices"][0]["cases"][0]["message"].get<std::string>().find("--allow-broadcast"), std::string::npos);
+  Out sent = props("sent", true);
+  EXPECT_EQ(sent.rc, 0) << sent.text;
+  auto sj = nlohmann::json::parse(slurp(dir / "sent/report.json"));
+  EXPECT_EQ(sj["devices"][0]["cases"][0]["outcome"], "pass") << sj["devices"][0]["cases"][0].dump();
+  EXPECT_FALSE(sj["devices"][0]["broadcast_writes"].empty());
+  EXPECT_EQ(holding_image(other, spec), before) << "unit 2 was left changed by unit 1's properties";
+  EXPECT_EQ(serve.stop(SIGTERM).value_or(-1), 0) << serve.log();
+}
+
+}  // namespace
