@@ -25,10 +25,12 @@
 #include <string>
 #include <vector>
 
-#include "codec/crc16.h"
 #include "fuzz_support.h"
 #include "input_format.h"
-#include "master/pdu.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "spec_values.h"
 
 namespace fs = std::filesystem;
@@ -149,7 +151,7 @@ void device_and_session(Output& out) {
     int in_session = 0, part = 1;
     std::set<Table> first_seen;
     for (const Register* r : regs) {
-      Bytes read = conf::read_request(fuzz::read_function(r->table), r->address, uint16_t(r->words));
+      Bytes read = read_request(fuzz::read_function(r->table), r->address, uint16_t(r->words));
       bool read_ok = s.profile.function(read[0]) && r->access != Access::wo;
       std::vector<Bytes> writes;
       if (r->access != Access::ro)
@@ -197,11 +199,11 @@ void device_and_session(Output& out) {
       uint16_t a = first == s.registers.end() ? 0 : first->address;
       for (int q : {*f.max_quantity, *f.max_quantity + 1}) {
         Bytes pdu;
-        if (f.code <= 4) pdu = conf::read_request(uint8_t(f.code), a, uint16_t(q));
-        else if (f.code == 16) pdu = conf::write_multiple_registers(a, std::vector<uint16_t>(size_t(std::min(q, 127)), 0));
+        if (f.code <= 4) pdu = read_request(uint8_t(f.code), a, uint16_t(q));
+        else if (f.code == 16) pdu = write_multiple_registers(a, std::vector<uint16_t>(size_t(std::min(q, 127)), 0));
         else {
           std::unique_ptr<bool[]> bits(new bool[size_t(std::min(q, 2000))]());
-          pdu = conf::write_multiple_coils(a, std::span<const bool>(bits.get(), size_t(std::min(q, 2000))));
+          pdu = write_multiple_coils(a, std::span<const bool>(bits.get(), size_t(std::min(q, 2000))));
         }
         Bytes adu{slave};
         adu.insert(adu.end(), pdu.begin(), pdu.end());
@@ -254,21 +256,21 @@ void differential(Output& out) {
     for (int q : {0, 1, *f.max_quantity, *f.max_quantity + 1})
       for (uint16_t a : {uint16_t(0), uint16_t(0x00FF)}) {
         Bytes pdu;
-        if (f.code <= 4) pdu = conf::read_request(uint8_t(f.code), a, uint16_t(q));
-        else if (f.code == 16) pdu = conf::write_multiple_registers(a, std::vector<uint16_t>(size_t(std::min(q, 125)), 0x1234));
+        if (f.code <= 4) pdu = read_request(uint8_t(f.code), a, uint16_t(q));
+        else if (f.code == 16) pdu = write_multiple_registers(a, std::vector<uint16_t>(size_t(std::min(q, 125)), 0x1234));
         else {
           std::unique_ptr<bool[]> bits(new bool[size_t(std::min(q, 1976))]);
           std::fill_n(bits.get(), size_t(std::min(q, 1976)), true);
-          pdu = conf::write_multiple_coils(a, std::span<const bool>(bits.get(), size_t(std::min(q, 1976))));
+          pdu = write_multiple_coils(a, std::span<const bool>(bits.get(), size_t(std::min(q, 1976))));
         }
         Bytes in{0};
         in.insert(in.end(), pdu.begin(), pdu.end());
         out.seed("differential", fmt::format("fc{:02}-at-{:04X}-quantity-{}", f.code, a, q), in);
       }
   }
-  out.seed("differential", "fc22-mask", prefixed(0, conf::mask_write_register(0x0004, 0x00F2, 0x0025)));
+  out.seed("differential", "fc22-mask", prefixed(0, mask_write_register(0x0004, 0x00F2, 0x0025)));
   std::vector<uint16_t> w(3, 0x00FF);
-  out.seed("differential", "fc23-read-write", prefixed(0, conf::read_write_registers(0x0003, 6, 0x000E, w)));
+  out.seed("differential", "fc23-read-write", prefixed(0, read_write_registers(0x0003, 6, 0x000E, w)));
   out.seed("differential", "fc05-bad-value", Bytes{0, 5, 0, 1, 0x12, 0x34});
   out.seed("differential", "fc99-unknown", Bytes{0, 0x63, 0, 0, 0, 1});
 }

@@ -8,11 +8,14 @@
 #include <cstdint>
 #include <string_view>
 
-#include "codec/crc16.h"
 #include "fuzz_support.h"
 #include "input_format.h"
 #include "libmodbus_server.h"
-#include "master/pdu.h"
+#include "modbus/bytes.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "serve/rtu_framing.h"
 
 namespace {
@@ -21,7 +24,6 @@ using fuzz::LibmodbusServer;
 constexpr const char* kHarness = "differential_fuzzer";
 constexpr uint8_t kSlave = 1;
 
-uint16_t be16(std::span<const uint8_t> p, size_t at) { return uint16_t(p[at] << 8 | p[at + 1]); }
 
 // A documented difference: its name (a heading in fuzz/README.md) and when it applies.
 struct KnownDifference {
@@ -115,7 +117,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     if (k.applies(pdu, engine, libmodbus)) return 0;
 
   auto ctx = [&](const std::string& what) {
-    return what + "\n  request:   " + to_hex(adu) + "  (" + conf::describe_pdu(pdu, true) + ")\n  engine:    " +
+    return what + "\n  request:   " + to_hex(adu) + "  (" + describe_pdu(pdu, true) + ")\n  engine:    " +
            fuzz::hex_or_silence(engine) + "\n  libmodbus: " + fuzz::hex_or_silence(libmodbus);
   };
   MBC_FUZZ_CHECK(engine == libmodbus, kHarness, ctx("replies differ"));

@@ -5,9 +5,11 @@
 #include <cstdlib>
 #include <memory>
 
-#include "codec/crc16.h"
 #include "loader.h"
-#include "master/pdu.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 
 namespace mbc::fuzz {
 
@@ -132,11 +134,11 @@ void check_exchange(const char* harness, const ref::Device& device, std::span<co
                      ctx("CRC-error reply is not the exception the spec's crc_error policy names"));
     } else {
       std::span<const uint8_t> qpdu(adu.data() + 1, adu.size() - 3);
-      conf::Judged j = conf::judge_reply(qpdu, rpdu);
+      Judged j = judge_reply(qpdu, rpdu);
       std::string problems;
       for (const auto& p : j.problems) problems += "\n  judge: " + p;
       MBC_FUZZ_CHECK(j.ok(), harness, ctx("malformed reply" + problems));
-      if (j.kind == conf::Judged::Kind::exception)
+      if (j.kind == Judged::Kind::exception)
         MBC_FUZZ_CHECK(exception_code_known(s, j.exception_code), harness,
                        ctx("exception code neither MBAP §7 nor the spec knows"));
     }

@@ -13,8 +13,8 @@
 #include <string_view>
 #include <vector>
 
-#include "codec/hex.h"
 #include "engine/device.h"
+#include "modbus/hex.h"
 #include "spec.h"
 
 namespace mbc::fuzz {

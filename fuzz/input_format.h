@@ -19,7 +19,7 @@
 #include <cstdint>
 #include <span>
 
-#include "codec/hex.h"
+#include "modbus/hex.h"
 
 namespace mbc::fuzz {
 

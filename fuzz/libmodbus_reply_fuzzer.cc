@@ -6,10 +6,10 @@
 #include <cstddef>
 #include <cstdint>
 
-#include "codec/crc16.h"
 #include "fuzz_support.h"
 #include "input_format.h"
 #include "libmodbus_server.h"
+#include "modbus/crc16.h"
 #include "serve/rtu_framing.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {

@@ -18,7 +18,7 @@
 #include <optional>
 #include <span>
 
-#include "codec/hex.h"
+#include "modbus/hex.h"
 
 namespace mbc::fuzz {
 

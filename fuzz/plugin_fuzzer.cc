@@ -18,11 +18,13 @@
 #include <string>
 #include <vector>
 
-#include "codec/crc16.h"
 #include "fuzz_support.h"
 #include "input_format.h"
-#include "master/pdu.h"
 #include "mbconform_plugin.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 
 namespace {
 using namespace mbc;
@@ -118,7 +120,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     MBC_FUZZ_CHECK(!adu.empty() && adu[0] == unit && reply[0] == unit, kHarness,
                    ctx("a reply to a frame for another slave id or broadcast, or from another id (MB-SL v1.02 §2.1)"));
     if (valid) {
-      conf::Judged j = conf::judge_reply(std::span<const uint8_t>(adu).subspan(1, adu.size() - 3), reply.subspan(1, reply.size() - 3));
+      Judged j = judge_reply(std::span<const uint8_t>(adu).subspan(1, adu.size() - 3), reply.subspan(1, reply.size() - 3));
       std::string problems;
       for (const auto& p : j.problems) problems += "\n  judge: " + p;
       MBC_FUZZ_CHECK(j.ok(), kHarness, ctx("malformed reply" + problems));

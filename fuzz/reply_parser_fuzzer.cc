@@ -8,13 +8,15 @@
 #include <string>
 
 #include "fuzz_support.h"
-#include "master/pdu.h"
+#include "modbus/bytes.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 
 namespace {
 using namespace mbc;
 constexpr const char* kHarness = "reply_parser_fuzzer";
 
-uint16_t be16(std::span<const uint8_t> p, size_t at) { return uint16_t(p[at] << 8 | p[at + 1]); }
 
 // Well formed per MBAP v1.1b3, for the function codes whose reply shape the
 // standard fixes; nullopt where the shape is device specific (7, 8, 17, 43...).
@@ -54,18 +56,18 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (size < 1) return 0;
   size_t n = std::min<size_t>(data[0], size - 1);
   std::span<const uint8_t> req(data + 1, n), rep(data + 1 + n, size - 1 - n);
-  conf::Judged j = conf::judge_reply(req, rep);
+  Judged j = judge_reply(req, rep);
   auto ctx = [&](const std::string& what) {
     std::string s = what + "\n  request: " + to_hex(req) + "\n  reply:   " + to_hex(rep);
     for (const auto& p : j.problems) s += "\n  judge: " + p;
     return s;
   };
-  MBC_FUZZ_CHECK(j.ok() == (j.problems.empty() && j.kind != conf::Judged::Kind::malformed), kHarness, ctx("ok() inconsistent"));
+  MBC_FUZZ_CHECK(j.ok() == (j.problems.empty() && j.kind != Judged::Kind::malformed), kHarness, ctx("ok() inconsistent"));
   if (auto want = oracle(req, rep)) {
     MBC_FUZZ_CHECK(j.ok() == *want, kHarness,
                    ctx(*want ? "judge rejects a reply MBAP v1.1b3 calls well formed" : "judge accepts a malformed reply"));
   }
-  if (j.ok() && j.kind == conf::Judged::Kind::normal && req.size() >= 5) {
+  if (j.ok() && j.kind == Judged::Kind::normal && req.size() >= 5) {
     uint8_t fc = req[0];
     size_t q = be16(req, 3);
     if (fc == 3 || fc == 4 || fc == 23) {
@@ -79,9 +81,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         MBC_FUZZ_CHECK(j.bits[i] == bool(rep[2 + i / 8] >> (i % 8) & 1), kHarness, ctx("bit " + std::to_string(i) + " decoded wrong"));
     }
   }
-  if (j.kind == conf::Judged::Kind::exception && j.ok())
+  if (j.kind == Judged::Kind::exception && j.ok())
     MBC_FUZZ_CHECK(j.exception_code == rep[1], kHarness, ctx("exception code not the reply's second byte"));
-  MBC_FUZZ_CHECK(!conf::describe_pdu(rep, false).empty() && !conf::describe_pdu(req, true).empty(), kHarness,
+  MBC_FUZZ_CHECK(!describe_pdu(rep, false).empty() && !describe_pdu(req, true).empty(), kHarness,
                  ctx("describe_pdu printed nothing"));
   return 0;
 }

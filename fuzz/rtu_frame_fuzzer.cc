@@ -6,10 +6,12 @@
 #include <cstdint>
 #include <string>
 
-#include "codec/crc16.h"
-#include "codec/hex.h"
 #include "fuzz_support.h"
-#include "master/pdu.h"
+#include "modbus/crc16.h"
+#include "modbus/hex.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "serve/mbap.h"
 #include "serve/rtu_framing.h"
 #include "targets/kinds.h"
@@ -94,15 +96,15 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       // The judge on the decoded PDU, against a request with the same FC.
       Bytes req(r.pdu->begin(), r.pdu->begin() + std::min<size_t>(r.pdu->size(), 5));
       if (!req.empty()) req[0] &= 0x7F;
-      conf::Judged j = conf::judge_reply(req, *r.pdu);
-      check(j.ok() == (j.problems.empty() && j.kind != conf::Judged::Kind::malformed), "Judged::ok inconsistent", in);
-      (void)conf::describe_pdu(*r.pdu, false);
+      Judged j = judge_reply(req, *r.pdu);
+      check(j.ok() == (j.problems.empty() && j.kind != Judged::Kind::malformed), "Judged::ok inconsistent", in);
+      (void)describe_pdu(*r.pdu, false);
     }
   }
   // And the encoder feeding the decoder gives the PDU back (MB-SL §2.5.1).
   if (size >= 2 && size <= 254) {
     conf::Reply r;
-    r.frame = conf::rtu_frame(data[0], in.subspan(1));
+    r.frame = rtu_frame(data[0], in.subspan(1));
     conf::decode_rtu_reply(r, data[0]);
     check(r.pdu && *r.pdu == Bytes(in.begin() + 1, in.end()), "decode_rtu_reply(rtu_frame(s, pdu)) != pdu", in);
   }

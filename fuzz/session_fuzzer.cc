@@ -6,9 +6,9 @@
 #include <cstddef>
 #include <cstdint>
 
-#include "codec/crc16.h"
 #include "fuzz_support.h"
 #include "input_format.h"
+#include "modbus/crc16.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace mbc;

@@ -11,8 +11,10 @@
 #include <utility>
 #include <vector>
 
-#include "codec/hex.h"
-#include "master/pdu.h"
+#include "modbus/hex.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "spec.h"
 
 namespace mbc::fuzz {
@@ -82,13 +84,13 @@ inline uint8_t read_function(spec::Table t) {
 inline std::vector<Bytes> write_pdus(const spec::Spec& s, const spec::Register& r, double value) {
   std::vector<Bytes> out;
   if (r.table == spec::Table::coil) {
-    if (s.profile.function(5)) out.push_back(conf::write_single_coil(r.address, value != 0));
+    if (s.profile.function(5)) out.push_back(write_single_coil(r.address, value != 0));
     return out;
   }
   if (r.table != spec::Table::holding) return out;
   auto w = words_of(r, value);
-  if (w.size() == 1 && s.profile.function(6)) out.push_back(conf::write_single_register(r.address, w[0]));
-  else if (s.profile.function(16)) out.push_back(conf::write_multiple_registers(r.address, w));
+  if (w.size() == 1 && s.profile.function(6)) out.push_back(write_single_register(r.address, w[0]));
+  else if (s.profile.function(16)) out.push_back(write_multiple_registers(r.address, w));
   return out;
 }
 

@@ -12,7 +12,7 @@
 #include <string>
 #include <vector>
 
-#include "codec/hex.h"
+#include "modbus/hex.h"
 #include "report/result.h"
 #include "safety/safety.h"
 #include "spec.h"

@@ -9,9 +9,11 @@
 #include <map>
 
 #include "cases/common.h"
-#include "codec/crc16.h"
 #include "errata.h"
-#include "master/pdu.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 
 namespace mbc::conf {
 namespace {

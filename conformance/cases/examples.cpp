@@ -11,8 +11,10 @@
 #include <map>
 
 #include "cases/common.h"
-#include "codec/crc16.h"
-#include "master/pdu.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 
 namespace mbc::conf {
 namespace {

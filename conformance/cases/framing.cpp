@@ -7,8 +7,10 @@
 #include <fmt/core.h>
 
 #include "cases/common.h"
-#include "codec/crc16.h"
-#include "master/pdu.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 
 namespace mbc::conf {
 namespace {

@@ -8,7 +8,9 @@
 #include <algorithm>
 
 #include "cases/common.h"
-#include "master/pdu.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 
 namespace mbc::conf {
 namespace {

@@ -6,7 +6,9 @@
 #include <bit>
 #include <cmath>
 
-#include "master/pdu.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 
 namespace mbc::conf::props {
 

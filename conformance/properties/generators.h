@@ -10,7 +10,7 @@
 
 #include <rapidcheck.h>
 
-#include "codec/hex.h"
+#include "modbus/hex.h"
 #include "properties/spec_view.h"
 
 namespace mbc::conf::props {

@@ -8,7 +8,9 @@
 #include <map>
 #include <set>
 
-#include "master/pdu.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "properties/generators.h"
 #include "properties/motion.h"
 #include "properties/properties.h"

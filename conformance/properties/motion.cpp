@@ -5,7 +5,9 @@
 
 #include <cmath>
 
-#include "master/pdu.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "properties/generators.h"
 #include "safety/safety.h"
 

@@ -10,7 +10,9 @@
 #include <sstream>
 
 #include "loader.h"
-#include "master/pdu.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "properties/stateful.h"
 
 namespace mbc::conf::props {

@@ -7,7 +7,9 @@
 #include <cmath>
 #include <limits>
 
-#include "master/pdu.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 
 namespace mbc::conf::props {
 

@@ -7,8 +7,11 @@
 #include <fstream>
 #include <sstream>
 
-#include "codec/crc16.h"
-#include "master/pdu.h"
+#include "modbus/bytes.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "properties/generators.h"
 
 namespace mbc::conf::props {
@@ -22,7 +25,6 @@ namespace {
 
 using Words = std::map<uint16_t, std::optional<uint16_t>>;  // address -> word; nullopt = not known
 
-uint16_t be16(std::span<const uint8_t> p, size_t at) { return uint16_t(p[at] << 8 | p[at + 1]); }
 
 // The model: what the spec lets a master know about the device's state.
 // Tracked are the words of the writable registers (SpecView::writable) and

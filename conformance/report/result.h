@@ -10,7 +10,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "codec/hex.h"
+#include "modbus/hex.h"
 
 namespace mbc::conf {
 

@@ -5,8 +5,10 @@
 #include <chrono>
 
 #include "cases/common.h"
-#include "codec/crc16.h"
-#include "master/pdu.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "serve/rtu_framing.h"
 
 namespace mbc::conf {

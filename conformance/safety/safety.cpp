@@ -6,7 +6,9 @@
 #include <algorithm>
 #include <tuple>
 
-#include "master/pdu.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 
 namespace mbc::conf {
 namespace {

@@ -25,8 +25,10 @@
 
 #include "host_protocol.h"
 #include "loader.h"
-#include "master/pdu.h"
 #include "mbconform_plugin.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "targets/kinds.h"
 #include "targets/live_link.h"
 

@@ -13,7 +13,9 @@
 #include "engine/device.h"
 #include "faults/faults.h"
 #include "loader.h"
-#include "master/pdu.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "targets/kinds.h"
 
 namespace mbc::conf {

@@ -23,8 +23,10 @@
 #include <stdexcept>
 #include <thread>
 
-#include "codec/crc16.h"
-#include "master/pdu.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "serve/rtu_framing.h"
 #include "targets/kinds.h"
 #include "targets/live_link.h"

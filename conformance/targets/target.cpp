@@ -5,7 +5,7 @@
 #include <charconv>
 #include <stdexcept>
 
-#include "codec/crc16.h"
+#include "modbus/crc16.h"
 #include "targets/kinds.h"
 
 namespace mbc::conf {

@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "codec/hex.h"
+#include "modbus/hex.h"
 
 namespace mbc::conf {
 

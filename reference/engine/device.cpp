@@ -6,7 +6,9 @@
 #include <cstring>
 #include <stdexcept>
 
-#include "codec/crc16.h"
+#include "modbus/bytes.h"
+#include "modbus/crc16.h"
+#include "modbus/limits.h"
 
 namespace mbc::ref {
 
@@ -36,15 +38,6 @@ uint8_t standard_code(Violation v) {
     case Violation::crc_error: return 0;  // silence
   }
   return 4;
-}
-
-constexpr size_t kMaxAdu = 256;  // MB over Serial Line v1.02 §2.5.1.1
-constexpr size_t kMaxPdu = 253;
-
-uint16_t be16(std::span<const uint8_t> p, size_t at) { return uint16_t(p[at] << 8 | p[at + 1]); }
-void put16(Bytes& b, uint16_t v) {
-  b.push_back(uint8_t(v >> 8));
-  b.push_back(uint8_t(v & 0xFF));
 }
 
 }  // namespace
@@ -172,7 +165,7 @@ struct Engine {
     d.behaviour_->before_read(d, start, qty);
     Bytes out{fc, uint8_t(qty * 2)};
     const auto& words = table == Table::input ? d.input_ : d.holding_;
-    for (uint32_t a = start; a < uint32_t(start) + qty; ++a) put16(out, words[a]);
+    for (uint32_t a = start; a < uint32_t(start) + qty; ++a) put_be16(out, words[a]);
     return out;
   }
 
@@ -212,8 +205,8 @@ struct Engine {
     if (auto v = check_addresses(Table::coil, start, qty, false)) return violate(*v, fc);
     for (uint16_t i = 0; i < qty; ++i) d.coils_[uint16_t(start + i)] = (pdu[6 + i / 8] >> (i % 8)) & 1;
     Bytes out{fc};
-    put16(out, start);
-    put16(out, qty);
+    put_be16(out, start);
+    put_be16(out, qty);
     return out;
   }
 
@@ -239,8 +232,8 @@ struct Engine {
     auto r = write_holding(fc, start, values);
     if (!r || !r->empty()) return r;
     Bytes out{fc};
-    put16(out, start);
-    put16(out, qty);
+    put_be16(out, start);
+    put_be16(out, qty);
     return out;
   }
 
@@ -292,8 +285,8 @@ struct Engine {
     Bytes echo(pdu.begin(), pdu.end());
     auto counter = [&](uint16_t v) {
       Bytes out{fc};
-      put16(out, sub);
-      put16(out, v);
+      put_be16(out, sub);
+      put_be16(out, v);
       return out;
     };
     if (sub != 0 && pdu.size() != 5) return violate(Violation::wrong_byte_count, fc);
@@ -413,7 +406,7 @@ Device::Device(Device&&) noexcept = default;
 Device& Device::operator=(Device&&) noexcept = default;
 
 std::optional<Bytes> Device::handle_rtu(std::span<const uint8_t> adu) {
-  if (adu.size() < 4 || adu.size() > kMaxAdu) return std::nullopt;  // not a frame: nobody answers
+  if (adu.size() < 4 || adu.size() > kMaxRtuAdu) return std::nullopt;  // not a frame: nobody answers
   uint8_t address = adu[0];
   bool broadcast = spec_.serial.broadcast_address && address == *spec_.serial.broadcast_address;
   if (!crc_ok(adu)) {
@@ -621,7 +614,7 @@ Device* Bus::find(uint8_t id) {
 }
 
 std::optional<Bytes> Bus::handle_rtu(std::span<const uint8_t> adu) {
-  if (adu.size() < 4 || adu.size() > kMaxAdu) return std::nullopt;
+  if (adu.size() < 4 || adu.size() > kMaxRtuAdu) return std::nullopt;
   if (adu[0] == 0) {
     for (auto& d : devices_) d->handle_rtu(adu);  // broadcast: every device acts, none answers
     return std::nullopt;

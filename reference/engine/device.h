@@ -16,9 +16,9 @@
 #include <string>
 #include <vector>
 
-#include "codec/hex.h"
-#include "spec.h"
 #include "engine/virtual_axis.h"
+#include "modbus/hex.h"
+#include "spec.h"
 
 namespace mbc::ref {
 

@@ -6,7 +6,8 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "codec/crc16.h"
+#include "modbus/bytes.h"
+#include "modbus/crc16.h"
 
 namespace mbc::faults {
 
@@ -107,11 +108,6 @@ bool pdu_level(const FaultSet& f) {
   return false;
 }
 
-uint16_t be16(std::span<const uint8_t> p, size_t at) { return uint16_t(p[at] << 8 | p[at + 1]); }
-void put16(Bytes& b, size_t at, uint16_t v) {
-  b[at] = uint8_t(v >> 8);
-  b[at + 1] = uint8_t(v);
-}
 
 Bytes with_crc(Bytes frame) {
   uint16_t c = crc16(frame);
@@ -258,7 +254,7 @@ std::optional<Bytes> FaultyBus::device_pdu(ref::Device& d, std::span<const uint8
   // refuse-limit: the limit itself is treated as over it.
   if (faults_.has(Fault::refuse_limit) && (read_words || write_words) && fc != 6 && qty == limit) {
     Bytes over = pdu;
-    put16(over, 3, uint16_t(limit + 1));
+    set_be16(over, 3, uint16_t(limit + 1));
     if (fc == 16) {
       over.push_back(0), over.push_back(0);
       over[5] = uint8_t(over[5] + 2);
@@ -269,7 +265,7 @@ std::optional<Bytes> FaultyBus::device_pdu(ref::Device& d, std::span<const uint8
   // off-by-one-limit: limit+1 is served as limit, plus one more word.
   if (faults_.has(Fault::off_by_one_limit) && (read_words || (write_words && fc == 16)) && qty == limit + 1) {
     Bytes part = pdu;
-    put16(part, 3, uint16_t(limit));
+    set_be16(part, 3, uint16_t(limit));
     if (fc == 16) {
       part.resize(part.size() - 2);
       part[5] = uint8_t(limit * 2);
@@ -279,7 +275,7 @@ std::optional<Bytes> FaultyBus::device_pdu(ref::Device& d, std::span<const uint8
     uint16_t extra = uint16_t(start + limit);
     if (fc == 16) {
       d.set_word(extra, be16(pdu, pdu.size() - 2));
-      put16(*reply, 3, qty);
+      set_be16(*reply, 3, qty);
     } else {
       uint16_t w = table == Table::input ? d.input_word(extra) : d.word(extra);
       reply->push_back(uint8_t(w >> 8)), reply->push_back(uint8_t(w));

@@ -7,7 +7,7 @@
 #include <optional>
 #include <span>
 
-#include "codec/hex.h"
+#include "modbus/hex.h"
 
 namespace mbc::serve {
 

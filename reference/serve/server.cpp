@@ -27,7 +27,7 @@
 
 #include <fmt/core.h>
 
-#include "codec/crc16.h"
+#include "modbus/crc16.h"
 #include "serve/eeprom_store.h"
 #include "serve/mbap.h"
 #include "serve/rtu_framing.h"

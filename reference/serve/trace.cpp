@@ -2,12 +2,12 @@
 
 #include <fmt/core.h>
 
-#include "codec/crc16.h"
+#include "modbus/bytes.h"
+#include "modbus/crc16.h"
 
 namespace mbc::serve {
 namespace {
 
-uint16_t be16(std::span<const uint8_t> p, size_t at) { return uint16_t(p[at] << 8 | p[at + 1]); }
 
 // MBAP v1.1b3 §6 names.
 const char* function_name(uint8_t fc) {

@@ -5,10 +5,10 @@
 
 #include <random>
 
-#include "codec/crc16.h"
-#include "codec/hex.h"
 #include "engine/device.h"
 #include "loader.h"
+#include "modbus/crc16.h"
+#include "modbus/hex.h"
 
 using namespace mbc;
 using spec::Violation;

@@ -5,7 +5,7 @@
 #include <map>
 #include <set>
 
-#include "codec/hex.h"
+#include "modbus/hex.h"
 
 namespace mbc::spec {
 namespace {

@@ -4,8 +4,8 @@
 #include <set>
 #include <sstream>
 
-#include "codec/crc16.h"
-#include "codec/hex.h"
+#include "modbus/crc16.h"
+#include "modbus/hex.h"
 
 namespace mbc::spec {
 namespace {

@@ -14,7 +14,7 @@
 #include <valijson/validator.hpp>
 
 #include "checks.h"
-#include "codec/hex.h"
+#include "modbus/hex.h"
 #include "yaml_json.h"
 
 #ifndef MBCONFORM_SOURCE_SPEC_DIR

@@ -8,10 +8,10 @@
 #include <map>
 #include <regex>
 
-#include "codec/crc16.h"
-#include "codec/hex.h"
 #include "loader.h"
 #include "manuals_dir.h"
+#include "modbus/crc16.h"
+#include "modbus/hex.h"
 
 using namespace mbc;
 namespace fs = std::filesystem;
@@ -65,22 +65,6 @@ TEST(Crc16, RejectsTheManualsWrongFrames) {
     EXPECT_FALSE(crc_ok(b)) << c.printed;
     EXPECT_EQ(crc16(std::span(b).first(b.size() - 2)), c.correct) << c.printed;
   }
-}
-
-// MB over Serial Line v1.02 Appendix B worked example: 02 07 -> CRC 0x1241, sent 41 12.
-TEST(Crc16, StandardAppendixExample) {
-  Bytes b = hex("02 07");
-  EXPECT_EQ(crc16(b), 0x1241);
-}
-
-TEST(Hex, StrictFormatIsUppercasePairsWithSingleSpaces) {
-  EXPECT_TRUE(parse_hex_strict("01 03 00 23"));
-  EXPECT_FALSE(parse_hex_strict("01 03 0023"));
-  EXPECT_FALSE(parse_hex_strict("01  03"));
-  EXPECT_FALSE(parse_hex_strict("01 03 "));
-  EXPECT_FALSE(parse_hex_strict("0a 03"));
-  EXPECT_FALSE(parse_hex_strict(""));
-  EXPECT_EQ(to_hex(*parse_hex("01 06 FF 00 0B 580B")), "01 06 FF 00 0B 58 0B");  // 57HS-R §6.2.4, run together
 }
 
 // Completeness: every frame printed in a manual is an example in its spec.

@@ -11,7 +11,7 @@
 // byte count, value, length); with raw access (TargetInfo::raw) also
 // malformed framing (bad CRC, truncated, over-long, another slave id,
 // broadcast, an inter-character gap). Every reply is judged from the standard
-// (conf::judge_reply, the RTU framing) and after each batch a liveness probe
+// (judge_reply, the RTU framing) and after each batch a liveness probe
 // (a read of a register the spec maps) must be answered normally.
 //
 // A finding (no answer, a malformed answer, an answer to another slave id or
@@ -42,11 +42,14 @@
 #include <set>
 #include <sstream>
 
-#include "codec/crc16.h"
 #include "commands.h"
 #include "report/report.h"
 #include "loader.h"
-#include "master/pdu.h"
+#include "modbus/bytes.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "safety/safety.h"
 #include "spec_values.h"
 #include "targets/target.h"
@@ -58,8 +61,6 @@ namespace fs = std::filesystem;
 using spec::Access;
 using spec::Register;
 using spec::Table;
-
-uint16_t be16(std::span<const uint8_t> p, size_t at) { return uint16_t(p[at] << 8 | p[at + 1]); }
 
 // ---- steps: what the fuzzer does, one line each in a reproducer ----
 
@@ -210,7 +211,7 @@ Plan make_plan(const spec::Spec& s, const conf::TargetInfo& info, bool allow_mot
   for (const Register* r : p.readable)
     if (!probe || (r->table == Table::holding && probe->table != Table::holding)) probe = r;
   if (!probe) throw std::runtime_error("spec " + s.device.id + " maps no register the profile can read: no liveness probe");
-  p.probe = conf::read_request(fuzz::read_function(probe->table), probe->address, uint16_t(probe->words));
+  p.probe = read_request(fuzz::read_function(probe->table), probe->address, uint16_t(probe->words));
   return p;
 }
 
@@ -229,7 +230,7 @@ std::optional<Finding> judge(const Plan& p, const Step& st, const conf::Reply& r
   auto f = [&](std::string kind, std::string why) {
     std::string m = fmt::format("{}\n  sent:  {}\n  reply: {}", why, to_hex(r.request),
                                 r.silent() ? std::string("(silence)") : to_hex(r.frame));
-    if (r.pdu) m += "  (" + conf::describe_pdu(*r.pdu, false) + ")";
+    if (r.pdu) m += "  (" + describe_pdu(*r.pdu, false) + ")";
     return Finding{std::move(kind), m};
   };
   const spec::Spec& s = *p.spec;
@@ -269,16 +270,16 @@ std::optional<Finding> judge(const Plan& p, const Step& st, const conf::Reply& r
       return std::nullopt;
     }
     if (r.pdu) {
-      conf::Judged j = conf::judge_reply(req, *r.pdu);
+      Judged j = judge_reply(req, *r.pdu);
       if (!j.ok()) {
         std::string why = "reply malformed for the request:";
         for (const auto& pr : j.problems) why += " " + pr + ";";
         return f("malformed-reply", why);
       }
-      if (j.kind == conf::Judged::Kind::exception && !exception_code_known(s, j.exception_code))
+      if (j.kind == Judged::Kind::exception && !exception_code_known(s, j.exception_code))
         return f("unknown-exception-code",
                  fmt::format("exception code {:02X} is neither in MBAP v1.1b3 §7 nor in the spec", j.exception_code));
-      if (st.kind == Step::Kind::probe && j.kind != conf::Judged::Kind::normal)
+      if (st.kind == Step::Kind::probe && j.kind != Judged::Kind::normal)
         return f("probe-refused", "the liveness probe (a read of a register the spec maps) was refused");
     }
   } else if (st.kind == Step::Kind::probe) {
@@ -346,7 +347,7 @@ class Generator {
     const auto* f = p_.spec->profile.function(fc);
     int max = f && f->max_quantity ? *f->max_quantity : 8;
     uint16_t q = uint16_t(pick(4) ? r.words : 1 + pick(uint64_t(std::min(max, 16))));
-    return conf::read_request(fc, r.address, q);
+    return read_request(fc, r.address, q);
   }
 
   Bytes boundary_write() {
@@ -435,7 +436,7 @@ class Generator {
     if (p_.info.framing != conf::Framing::rtu) return std::nullopt;
     const bool stream = p_.info.kind == "tcp" || p_.info.kind == "rtu-tcp";
     uint8_t unit = p_.info.unit;
-    Step s{Step::Kind::raw, unit, conf::rtu_frame(unit, pdu), {}, 0};
+    Step s{Step::Kind::raw, unit, rtu_frame(unit, pdu), {}, 0};
     Bytes& a = s.bytes;
     static const int kStreamCases[] = {0, 3, 4};
     switch (stream ? kStreamCases[pick(3)] : int(pick(6))) {
@@ -449,12 +450,12 @@ class Generator {
         uint8_t other = uint8_t(1 + pick(247));
         if (other == unit) other = uint8_t(unit % 247 + 1);
         if (!p_.safe(pdu, true)) return std::nullopt;
-        a = conf::rtu_frame(other, pdu);
+        a = rtu_frame(other, pdu);
         break;
       }
       case 4: {  // broadcast, CRC right: executed (writes) but never answered
         if (!p_.safe(pdu, true) || !p_.spec->serial.broadcast_address) return std::nullopt;
-        a = conf::rtu_frame(uint8_t(*p_.spec->serial.broadcast_address), pdu);
+        a = rtu_frame(uint8_t(*p_.spec->serial.broadcast_address), pdu);
         break;
       }
       default:  // a pause of more than t1.5 inside the frame (§2.5.1.1): two broken frames

@@ -8,8 +8,8 @@
 #include <set>
 
 #include "cases/case.h"
-#include "codec/crc16.h"
 #include "loader.h"
+#include "modbus/crc16.h"
 #include "runner/runner.h"
 
 namespace mbc::conf {

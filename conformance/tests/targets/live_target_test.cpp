@@ -10,9 +10,11 @@
 #include <csignal>
 #include <cstdio>
 
-#include "codec/crc16.h"
 #include "loader.h"
-#include "master/pdu.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "serve_process.h"
 #include "spec_registers.h"
 #include "targets/target.h"

@@ -9,9 +9,11 @@
 #include <map>
 #include <random>
 
-#include "codec/crc16.h"
 #include "loader.h"
-#include "master/pdu.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "targets/target.h"
 
 #ifdef EXAMPLE_PLUGIN

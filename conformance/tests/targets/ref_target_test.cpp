@@ -4,9 +4,11 @@
 #include <fmt/core.h>
 #include <gtest/gtest.h>
 
-#include "codec/crc16.h"
 #include "loader.h"
-#include "master/pdu.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "spec_registers.h"
 #include "targets/target.h"
 

@@ -10,7 +10,9 @@
 #include <csignal>
 
 #include "loader.h"
-#include "master/pdu.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
 #include "safety/safety.h"
 #include "serve_process.h"
 

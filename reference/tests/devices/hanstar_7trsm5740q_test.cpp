@@ -8,10 +8,10 @@
 
 #include <bit>
 
-#include "codec/crc16.h"
-#include "codec/hex.h"
 #include "engine/device.h"
 #include "loader.h"
+#include "modbus/crc16.h"
+#include "modbus/hex.h"
 
 namespace mbc::ref {
 namespace {

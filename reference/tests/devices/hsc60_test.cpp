@@ -5,10 +5,10 @@
 // examples; expected values from the manual's register table.
 #include <gtest/gtest.h>
 
-#include "codec/crc16.h"
-#include "codec/hex.h"
 #include "engine/device.h"
 #include "loader.h"
+#include "modbus/crc16.h"
+#include "modbus/hex.h"
 
 namespace mbc::ref {
 namespace {

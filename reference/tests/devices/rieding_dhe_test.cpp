@@ -5,10 +5,10 @@
 // from the spec's examples; expected values from the manual's rules.
 #include <gtest/gtest.h>
 
-#include "codec/crc16.h"
-#include "codec/hex.h"
 #include "engine/device.h"
 #include "loader.h"
+#include "modbus/crc16.h"
+#include "modbus/hex.h"
 
 namespace mbc::ref {
 namespace {

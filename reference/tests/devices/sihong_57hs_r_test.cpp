@@ -6,10 +6,10 @@
 
 #include <algorithm>
 
-#include "codec/crc16.h"
-#include "codec/hex.h"
 #include "engine/device.h"
 #include "loader.h"
+#include "modbus/crc16.h"
+#include "modbus/hex.h"
 
 namespace mbc::ref {
 namespace {

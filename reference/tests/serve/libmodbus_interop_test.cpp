@@ -20,9 +20,9 @@
 
 #include <gtest/gtest.h>
 
-#include "codec/crc16.h"
-#include "codec/hex.h"
 #include "loader.h"
+#include "modbus/crc16.h"
+#include "modbus/hex.h"
 #include "serve_process.h"
 #include "spec_registers.h"
 

@@ -1,4 +1,4 @@
-#include "hex.h"
+#include "modbus/hex.h"
 
 namespace mbc {
 namespace {

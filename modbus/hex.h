@@ -6,11 +6,10 @@
 #include <span>
 #include <string>
 #include <string_view>
-#include <vector>
+
+#include "modbus/bytes.h"
 
 namespace mbc {
-
-using Bytes = std::vector<uint8_t>;
 
 // Strict: uppercase pairs separated by single spaces (the spec's format).
 std::optional<Bytes> parse_hex_strict(std::string_view s);

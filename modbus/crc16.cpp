@@ -1,4 +1,4 @@
-#include "crc16.h"
+#include "modbus/crc16.h"
 
 #include <array>
 
@@ -28,6 +28,12 @@ bool crc_ok(std::span<const uint8_t> frame) {
   if (frame.size() < 3) return false;
   uint16_t c = crc16(frame.first(frame.size() - 2));
   return frame[frame.size() - 2] == (c & 0xFF) && frame[frame.size() - 1] == (c >> 8);
+}
+
+void append_crc(std::vector<uint8_t>& frame) {
+  uint16_t c = crc16(frame);
+  frame.push_back(uint8_t(c & 0xFF));
+  frame.push_back(uint8_t(c >> 8));
 }
 
 }  // namespace mbc

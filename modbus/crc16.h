@@ -5,6 +5,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <span>
+#include <vector>
 
 namespace mbc {
 
@@ -12,5 +13,8 @@ uint16_t crc16(std::span<const uint8_t> bytes);
 
 // True when the last two bytes are the CRC of the rest (low byte first).
 bool crc_ok(std::span<const uint8_t> frame);
+
+// Appends the CRC of everything in `frame` so far, low byte first.
+void append_crc(std::vector<uint8_t>& frame);
 
 }  // namespace mbc

@@ -1,0 +1,108 @@
+# The floors (modbus/README.md): a file includes only its own floor and the
+# floors below it.
+#   modbus/ < spec/ < reference/ < conformance/ < tools/ < fuzz/, bench/
+# modbus/ further includes nothing but modbus/ and the C++ standard library
+# (its tests may add gtest).
+#
+#   cmake -DSOURCE_DIR=<repo> -P cmake/CheckFloors.cmake
+# Exit status 1 and one line per offending include:
+#   spec/loader/x.cpp:7: includes "engine/device.h" (reference/engine/device.h): spec/ may not include reference/
+cmake_minimum_required(VERSION 3.25)
+if(NOT SOURCE_DIR)
+  message(FATAL_ERROR "usage: cmake -DSOURCE_DIR=<repo> -P CheckFloors.cmake")
+endif()
+
+set(floors modbus spec reference conformance tools fuzz bench)
+set(rank_modbus 0)
+set(rank_spec 1)
+set(rank_reference 2)
+set(rank_conformance 3)
+set(rank_tools 4)
+set(rank_fuzz 5)
+set(rank_bench 5)
+# Where each floor's quoted includes resolve (its CMake include directories).
+set(roots_modbus "${SOURCE_DIR}")
+set(roots_spec "${SOURCE_DIR}/spec/loader;${SOURCE_DIR}/spec")
+set(roots_reference "${SOURCE_DIR}/reference")
+set(roots_conformance "${SOURCE_DIR}/conformance")
+set(roots_tools "${SOURCE_DIR}/tools")
+set(roots_fuzz "${SOURCE_DIR}/fuzz")
+set(roots_bench "${SOURCE_DIR}/bench")
+
+# The floor a file under SOURCE_DIR belongs to, or "" outside the floors.
+function(floor_of path out)
+  file(RELATIVE_PATH rel "${SOURCE_DIR}" "${path}")
+  string(REGEX MATCH "^[^/]+" top "${rel}")
+  if(top IN_LIST floors)
+    set(${out} ${top} PARENT_SCOPE)
+  else()
+    set(${out} "" PARENT_SCOPE)
+  endif()
+endfunction()
+
+set(violations "")
+foreach(floor IN LISTS floors)
+  file(GLOB_RECURSE sources "${SOURCE_DIR}/${floor}/*.h" "${SOURCE_DIR}/${floor}/*.hpp" "${SOURCE_DIR}/${floor}/*.c"
+       "${SOURCE_DIR}/${floor}/*.cc" "${SOURCE_DIR}/${floor}/*.cpp")
+  # The directory search order: the including file's own floor first, then
+  # the others from the ground up.
+  set(search ${roots_${floor}})
+  foreach(other IN LISTS floors)
+    if(NOT other STREQUAL floor)
+      list(APPEND search ${roots_${other}})
+    endif()
+  endforeach()
+  foreach(src IN LISTS sources)
+    file(RELATIVE_PATH rel_src "${SOURCE_DIR}" "${src}")
+    if(rel_src MATCHES "/node_modules/")
+      continue()
+    endif()
+    get_filename_component(src_dir "${src}" DIRECTORY)
+    file(STRINGS "${src}" lines)
+    set(n 0)
+    foreach(line IN LISTS lines)
+      math(EXPR n "${n} + 1")
+      if(NOT line MATCHES "^[ \t]*#[ \t]*include[ \t]*([<\"])([^>\"]+)[>\"]")
+        continue()
+      endif()
+      set(kind "${CMAKE_MATCH_1}")
+      set(inc "${CMAKE_MATCH_2}")
+      if(kind STREQUAL "<")
+        # modbus/: the standard library only (<cstdint>, <vector>: no ".h", no "/").
+        if(floor STREQUAL "modbus" AND NOT inc MATCHES "^[a-z_0-9]+$"
+           AND NOT (rel_src MATCHES "^modbus/tests/" AND inc MATCHES "^gtest/"))
+          list(APPEND violations "${rel_src}:${n}: includes <${inc}>: modbus/ includes only modbus/ and the C++ standard library")
+        endif()
+        continue()
+      endif()
+      set(found "")
+      foreach(dir IN ITEMS "${src_dir}" ${search})
+        if(EXISTS "${dir}/${inc}" AND NOT IS_DIRECTORY "${dir}/${inc}")
+          set(found "${dir}/${inc}")
+          break()
+        endif()
+      endforeach()
+      if(found STREQUAL "")
+        if(floor STREQUAL "modbus")
+          list(APPEND violations "${rel_src}:${n}: includes \"${inc}\", not a file of modbus/")
+        endif()
+        continue()  # generated in the build tree
+      endif()
+      get_filename_component(found "${found}" REALPATH)
+      floor_of("${found}" target)
+      file(RELATIVE_PATH rel_found "${SOURCE_DIR}" "${found}")
+      if(floor STREQUAL "modbus" AND NOT target STREQUAL "modbus")
+        list(APPEND violations "${rel_src}:${n}: includes \"${inc}\" (${rel_found}): modbus/ includes only modbus/ and the C++ standard library")
+      elseif(NOT target STREQUAL "" AND rank_${target} GREATER rank_${floor})
+        list(APPEND violations "${rel_src}:${n}: includes \"${inc}\" (${rel_found}): ${floor}/ may not include ${target}/")
+      endif()
+    endforeach()
+  endforeach()
+endforeach()
+
+if(violations)
+  list(LENGTH violations count)
+  list(JOIN violations "\n" text)
+  message("${text}")
+  message(FATAL_ERROR "${count} include(s) reach a higher floor (modbus/README.md)")
+endif()

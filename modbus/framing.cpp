@@ -1,0 +1,17 @@
+#include "modbus/framing.h"
+
+#include "modbus/mbap.h"
+#include "modbus/rtu.h"
+
+namespace mbc {
+
+const Framing kRtu{"rtu", kRtuAddress, kRtuCrc, kMaxRtuAdu,
+                   [](uint8_t unit, std::span<const uint8_t> pdu, uint16_t) { return rtu_frame(unit, pdu); },
+                   rtu_unframe};
+const Framing kTcp{"tcp", kMbapHeader, 0, kMaxTcpAdu,
+                   [](uint8_t unit, std::span<const uint8_t> pdu, uint16_t transaction) {
+                     return mbap_frame(transaction, unit, pdu);
+                   },
+                   mbap_unframe};
+
+}  // namespace mbc

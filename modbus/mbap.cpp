@@ -1,0 +1,46 @@
+#include "modbus/mbap.h"
+
+#include "modbus/text.h"
+
+namespace mbc {
+
+std::optional<Mbap> parse_mbap(std::span<const uint8_t> b) {
+  if (b.size() < kMbapHeader) return std::nullopt;
+  return Mbap{be16(b, 0), be16(b, 2), be16(b, 4), b[6]};
+}
+
+Bytes mbap_reply(const Mbap& req, std::span<const uint8_t> pdu) {
+  Bytes out;
+  out.reserve(kMbapHeader + pdu.size());
+  put_be16(out, req.transaction);
+  put_be16(out, req.protocol);
+  put_be16(out, uint16_t(1 + pdu.size()));
+  out.push_back(req.unit);
+  out.insert(out.end(), pdu.begin(), pdu.end());
+  return out;
+}
+
+Bytes mbap_frame(uint16_t transaction, uint8_t unit, std::span<const uint8_t> pdu) {
+  return mbap_reply(Mbap{transaction, 0, 0, unit}, pdu);
+}
+
+Unframed mbap_unframe(std::span<const uint8_t> adu) {
+  Unframed u;
+  auto h = parse_mbap(adu);
+  if (!h) {
+    u.error = strf("%zu bytes: shorter than the 7-byte MBAP header", adu.size());
+    return u;
+  }
+  u.unit = h->unit;
+  u.transaction = h->transaction;
+  u.pdu.assign(adu.begin() + kMbapHeader, adu.end());
+  if (h->protocol != 0) u.error = strf("MBAP protocol id %u, not 0 (Modbus)", h->protocol);
+  else if (h->adu_size() != adu.size())
+    u.error = strf("MBAP length %u (unit id + %u PDU bytes) but %zu bytes follow the length field", h->length,
+                   h->length ? h->length - 1u : 0u, adu.size() - 6);
+  else if (!h->length_ok())
+    u.error = strf("MBAP length %u: a PDU of 1..%zu bytes needs 2..%zu (MBAP v1.1b3 §4.1)", h->length, kMaxPdu, kMaxPdu + 1);
+  return u;
+}
+
+}  // namespace mbc
