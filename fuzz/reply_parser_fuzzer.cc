@@ -1,5 +1,5 @@
 // The master-side reply parser the runner judges targets with
-// (conformance/master/pdu.h: judge_reply, describe_pdu), against a small
+// (modbus/judge.h: judge_reply, describe_pdu), against a small
 // independent oracle written here from MBAP v1.1b3 §6/§7: the two must agree
 // on whether a reply is well formed, and a well-formed read must decode to
 // exactly the requested number of registers or bits, with the values sent.

@@ -15,7 +15,8 @@
 #include <nlohmann/json.hpp>
 
 #include "loader.h"
-#include "master/pdu.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
 #include "serve_process.h"
 #include "targets/target.h"
 
@@ -304,9 +305,9 @@ std::vector<std::vector<uint16_t>> holding_image(const std::string& uri, const m
   std::vector<std::vector<uint16_t>> out;
   for (const auto& r : s.registers) {
     if (r.table != mbc::spec::Table::holding || r.access != mbc::spec::Access::rw) continue;
-    mbc::Bytes req = mbc::conf::read_request(3, r.address, uint16_t(r.words));
+    mbc::Bytes req = mbc::read_request(3, r.address, uint16_t(r.words));
     mbc::conf::Reply rep = t->transact(req);
-    out.push_back(rep.pdu ? mbc::conf::judge_reply(req, *rep.pdu).registers : std::vector<uint16_t>{});
+    out.push_back(rep.pdu ? mbc::judge_reply(req, *rep.pdu).registers : std::vector<uint16_t>{});
   }
   return out;
 }
@@ -384,7 +385,7 @@ TEST(RunCli, PartialWriteDoesNotAssumeTheOtherWords) {
   const std::string uri = "tcp://127.0.0.1:" + std::to_string(serve.endpoint("tcp")->port()) + "?unit=1&silence=150";
   {
     auto t = mbc::conf::open_target(uri);
-    mbc::Bytes high = mbc::conf::write_single_register(0x0041, 0x0001);
+    mbc::Bytes high = mbc::write_single_register(0x0041, 0x0001);
     mbc::conf::Reply r = t->transact(high);
     ASSERT_TRUE(r.pdu && *r.pdu == high) << "the high word of 0x0040 could not be set";
   }

@@ -12,7 +12,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "master/pdu.h"
+#include "modbus/pdu.h"
 #include "serve_process.h"
 #include "targets/target.h"
 
