@@ -10,7 +10,12 @@ packages=(
   libmodbus-dev libgtest-dev libgmock-dev librapidcheck-dev libbenchmark-dev
   clang libfuzzer-14-dev libclang-rt-14-dev
   socat mbpoll python3 python3-pymodbus python3-serial python3-serial-asyncio python3-yaml
+  libjson-c-dev
 )
+# Node for the npm peers (conformance/peers: npm ci into the build tree).
+# Debian's nodejs and npm only where no node is installed: a node from
+# elsewhere ships its own npm, and Debian's npm conflicts with it.
+if ! command -v node >/dev/null 2>&1; then packages+=(nodejs npm); fi
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

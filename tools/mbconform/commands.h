@@ -21,5 +21,7 @@ void add_run_command(CLI::App& app, int& exit_code);
 void add_props_command(CLI::App& app, int& exit_code);
 // `fuzz`: black-box structure-aware fuzzing of any target (cmd_fuzz.cpp).
 void add_fuzz_command(CLI::App& app, int& exit_code);
+// `client`: a master library, through its adapter, against scenario servers (cmd_client.cpp).
+void add_client_command(CLI::App& app, int& exit_code);
 
 }  // namespace mbc::cli

@@ -1,0 +1,456 @@
+#include "client/client_run.h"
+
+#include <fmt/core.h>
+#include <fnmatch.h>
+#include <unistd.h>
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <filesystem>
+#include <memory>
+#include <stdexcept>
+
+#include "client/adapter.h"
+#include "client/model.h"
+#include "modbus/framing.h"
+#include "modbus/hex.h"
+#include "modbus/judge.h"
+#include "modbus/rtu.h"
+
+namespace mbc::client {
+namespace {
+
+using nlohmann::json;
+using std::chrono::milliseconds;
+using conf::Outcome;
+
+constexpr milliseconds kHelloWait{10000};   // an interpreter's start-up (node, python) on a loaded machine
+constexpr milliseconds kConnectWait{5000};
+constexpr milliseconds kHangMargin{3000};   // beyond the step's own delays: the adapter hangs
+constexpr milliseconds kSettle{30};         // quiet after the server's last send, before the next step
+
+const Framing& framing_of(Transport t) { return t == Transport::tcp ? kTcp : kRtu; }
+
+json connect_message(const ClientOptions& o, const ScenarioServer& s) {
+  json c{{"timeout_ms", o.timeout.count()}, {"retries", 0}};
+  if (o.transport == Transport::pty) {
+    c.update({{"transport", "rtu"}, {"device", s.pty_path()}, {"baud", o.baud}, {"parity", "N"}, {"data", 8}, {"stop", 1}});
+  } else {
+    c.update({{"transport", to_string(o.transport)}, {"host", "127.0.0.1"}, {"port", s.port()}});
+  }
+  return json{{"connect", c}};
+}
+
+Answer answer_of(const json& j) {
+  Answer a;
+  if (j.value("ok", false)) {
+    a.kind = "ok";
+    a.values = j.contains("values") ? j["values"] : json::array();
+    return a;
+  }
+  a.kind = j.value("error", std::string("other"));
+  a.code = j.value("code", 0);
+  a.detail = j.value("detail", std::string());
+  static const std::set<std::string> known{"exception", "timeout", "invalid_reply", "refused", "unsupported", "other"};
+  if (!known.count(a.kind)) {
+    a.detail = "unknown error kind '" + a.kind + "'" + (a.detail.empty() ? "" : ": " + a.detail);
+    a.kind = "other";
+  }
+  return a;
+}
+
+std::string answer_text(const Answer& a) {
+  if (a.kind == "ok") return "ok " + a.values.dump();
+  if (a.kind == "exception") return fmt::format("exception {:02X}", a.code);
+  return a.kind + (a.detail.empty() ? "" : " (" + a.detail + ")");
+}
+
+// What the master put on the wire for one step, judged: the frame (MBAP
+// fields or CRC), the unit, and the PDU against what the request asks for.
+std::vector<std::string> judge_requests(const ScenarioStep& st, const std::vector<const SeenRequest*>& seen, Transport t) {
+  std::vector<std::string> problems;
+  if (st.must_not_send) {
+    for (const auto* r : seen) {
+      Unframed u = framing_of(t).unframe(r->adu);
+      problems.push_back(fmt::format("sent anyway ({} bytes): {}", r->adu.size(), describe_pdu(u.pdu, true)));
+    }
+    return problems;
+  }
+  if (!st.judge_request || seen.empty()) return problems;
+  const SeenRequest& r = *seen.front();
+  Unframed u = framing_of(t).unframe(r.adu);
+  if (!u.ok()) problems.push_back("frame: " + u.error);
+  uint8_t unit = st.request.value("unit", model::kUnit);
+  if (u.unit != unit) problems.push_back(fmt::format("unit {} on the wire, {} asked", u.unit, unit));
+  Bytes want = model::expected_request(st.request);
+  if (u.pdu != want)
+    problems.push_back(fmt::format("PDU {} ({}), expected {} ({})", to_hex(u.pdu), describe_pdu(u.pdu, true), to_hex(want),
+                                   describe_pdu(want, true)));
+  ParsedRequest pr = parse_request(u.pdu);
+  for (const auto& p : pr.problems) problems.push_back(p);
+  if (!pr.request && !pr.error.empty()) problems.push_back(pr.error);
+  return problems;
+}
+
+conf::CaseResult header(const Scenario& s) {
+  conf::CaseResult r;
+  r.id = s.id;
+  r.family = s.family;
+  r.clause = s.clause;
+  r.level = s.level;
+  r.title = s.title;
+  r.requirement = s.requirement;
+  return r;
+}
+
+void conclude(conf::CaseResult& r, const std::vector<std::string>& failures) {
+  if (failures.empty()) {
+    r.outcome = Outcome::pass;
+    return;
+  }
+  std::string msg;
+  for (const auto& f : failures) msg += (msg.empty() ? "" : "; ") + f;
+  r.message = msg;
+  r.outcome = r.level == conf::Level::observed ? Outcome::observed : Outcome::fail;
+}
+
+// The lower bound a perfect master on a real line needs for a step: its frames
+// at the baud rate, plus every wait each passing outcome implies.
+double step_bound(const ScenarioStep& st, const std::vector<const SeenRequest*>& seen, const std::vector<SentFrame>& sent,
+                  const ClientOptions& o) {
+  double s = 0;
+  if (o.transport == Transport::pty) {
+    for (const auto* r : seen) s += double(wire_time(r->adu.size(), o.baud).count()) / 1e6;
+    for (const auto& f : sent) s += double(wire_time(f.bytes.size(), o.baud).count()) / 1e6;
+  }
+  if (st.pass.kinds == std::set<std::string>{"timeout"}) s += double(o.timeout.count()) / 1e3;
+  if (st.fault == Fault::late) s += 0.2;
+  return s;
+}
+
+class Session {
+ public:
+  Session(const ClientOptions& o, ScenarioServer& server, ClientRun& out) : o_(o), server_(server), out_(out) {}
+
+  // Starts the adapter and says hello; false (out_.error set) when it cannot.
+  bool start() {
+    adapter_ = std::make_unique<Adapter>(o_.adapter);
+    try {
+      adapter_->start();
+    } catch (const std::exception& e) {
+      out_.error = fmt::format("adapter '{}' does not start: {}", o_.adapter, e.what());
+      return false;
+    }
+    adapter_->send(json{{"hello", {{"protocol", 1}}}});
+    auto h = adapter_->next(Clock::now() + kHelloWait, nullptr);
+    if (!h) {
+      keep_log();
+      out_.error = fmt::format("adapter '{}' did not answer hello within {} s", o_.adapter, kHelloWait.count() / 1000);
+      return false;
+    }
+    if (h->value("protocol", 0) != 1) {
+      out_.error = fmt::format("adapter speaks protocol {}, mbconform speaks 1", h->value("protocol", json()).dump());
+      return false;
+    }
+    out_.hello = *h;
+    for (const auto& op : h->value("ops", json::array())) ops_.insert(op.get<std::string>());
+    return true;
+  }
+
+  bool supports(const std::string& op) const { return ops_.count(op) > 0; }
+
+  // Connects the adapter to the server; false (out_.error) on ready: false.
+  bool connect() {
+    server_.drop_connection();
+    adapter_->send(connect_message(o_, server_));
+    auto r = adapter_->next(Clock::now() + kConnectWait, &server_);
+    if (r && r->value("ready", false)) return true;
+    out_.error = r ? fmt::format("adapter not ready: {}", r->value("detail", std::string("(no detail)")))
+                   : "adapter did not answer connect";
+    return false;
+  }
+
+  void disconnect() {
+    adapter_->send(json{{"disconnect", true}});
+    adapter_->next(Clock::now() + kConnectWait, &server_);
+    server_.drop_connection();
+  }
+
+  // Asks for one request; a hang kills and restarts the adapter.
+  Answer ask(const json& request, milliseconds extra) {
+    json msg = request;
+    msg["id"] = ++id_;
+    adapter_->send(msg);
+    auto deadline = Clock::now() + 2 * o_.timeout + extra + kHangMargin;
+    for (;;) {
+      auto line = adapter_->next(deadline, &server_);
+      if (!line) break;
+      if (line->value("id", -1) == id_) return answer_of(*line);
+      adapter_->log_note(fmt::format("answer to id {} while waiting for {}: {}", line->value("id", -1), id_, line->dump()));
+    }
+    Answer hang;
+    hang.kind = "hang";
+    hang.detail = "no answer within the time-out; the adapter was killed and restarted";
+    keep_log();
+    ++out_.restarts;
+    restarted_ = start() && connect();
+    return hang;
+  }
+
+  // Serves until the server has sent everything it scheduled, then a little quiet.
+  void settle() {
+    auto limit = Clock::now() + o_.timeout + milliseconds(1000);
+    while (!server_.idle() && Clock::now() < limit) adapter_->next(std::min(limit, Clock::now() + kSettle), &server_);
+    adapter_->next(Clock::now() + kSettle, &server_);
+  }
+
+  void close() {
+    adapter_->send(json{{"op", "close"}});
+    adapter_->finish(milliseconds(2000));
+    keep_log();
+  }
+
+  void keep_log() {
+    if (adapter_) out_.adapter_log += adapter_->take_log();
+  }
+
+  bool restarted() {
+    bool r = restarted_;
+    restarted_ = false;
+    return r;
+  }
+
+ private:
+  const ClientOptions& o_;
+  ScenarioServer& server_;
+  ClientRun& out_;
+  std::unique_ptr<Adapter> adapter_;
+  std::set<std::string> ops_;
+  int id_ = 0;
+  bool restarted_ = false;
+};
+
+conf::FrameRecord record(const std::string& step, const SeenRequest* req, const std::vector<SentFrame>& sent,
+                         const Passing& pass, Transport t) {
+  conf::FrameRecord f;
+  f.step = step;
+  if (req) {
+    f.request = req->adu;
+    f.request_decoded = describe_pdu(framing_of(t).unframe(req->adu).pdu, true);
+  }
+  f.expected_text = "the adapter reports: " + pass.text();
+  if (!sent.empty()) {
+    Bytes all;
+    std::string what;
+    for (const auto& s : sent) {
+      all.insert(all.end(), s.bytes.begin(), s.bytes.end());
+      what += (what.empty() ? "" : ", ") + s.what;
+    }
+    f.actual = all;
+    f.actual_decoded = what;
+  }
+  return f;
+}
+
+void run_wide(const Scenario& s, conf::CaseResult& r, const std::vector<std::vector<SeenRequest>>& per_scenario,
+              const ClientOptions& o) {
+  std::vector<std::string> failures;
+  size_t n = 0;
+  for (const auto& reqs : per_scenario) {
+    for (size_t i = 0; i < reqs.size(); ++i) {
+      ++n;
+      if (s.id == "client/request/transaction-ids") {
+        if (i == 0) continue;
+        auto a = kTcp.unframe(reqs[i - 1].adu), b = kTcp.unframe(reqs[i].adu);
+        if (a.transaction == b.transaction)
+          failures.push_back(fmt::format("transaction id {} twice in a row", b.transaction));
+      } else if (s.id == "client/timing/t1.5") {
+        if (reqs[i].max_gap > char_gap(o.baud))
+          failures.push_back(fmt::format("{} us silence inside a frame (t1.5 = {} us)", reqs[i].max_gap.count(),
+                                         char_gap(o.baud).count()));
+      } else if (reqs[i].gap_before && *reqs[i].gap_before < frame_gap(o.baud)) {
+        failures.push_back(fmt::format("{} us before a frame (t3.5 = {} us)", reqs[i].gap_before->count(),
+                                       frame_gap(o.baud).count()));
+      }
+    }
+  }
+  r.extra["requests_checked"] = n;
+  if (failures.size() > 5) {
+    size_t more = failures.size() - 5;
+    failures.resize(5);
+    failures.push_back(fmt::format("{} more", more));
+  }
+  conclude(r, failures);
+}
+
+}  // namespace
+
+std::vector<Scenario> selected(const ClientOptions& o, const std::function<bool(const std::string&)>& keep) {
+  std::vector<Scenario> out;
+  auto add = [&](std::vector<Scenario> v) {
+    for (auto& s : v)
+      if (keep(s.id)) out.push_back(std::move(s));
+  };
+  add(scenarios(wire_of(o.transport), o.transport == Transport::pty, standard_limits()));
+  // A pty is the only serial line here: its timing checks are OBSERVED.
+  add(run_wide_checks(wire_of(o.transport), o.transport == Transport::pty, o.transport == Transport::pty));
+  return out;
+}
+
+ClientRun run_client(const ClientOptions& o, const std::vector<Scenario>& list) {
+  ClientRun out;
+  auto t0 = Clock::now();
+  std::unique_ptr<ScenarioServer> server;
+  std::string tmpdir;
+  try {
+    std::string path = o.pty_path;
+    if (o.transport == Transport::pty && path.empty()) {
+      char tmpl[] = "/tmp/mbconform-client-XXXXXX";
+      if (!mkdtemp(tmpl)) throw std::runtime_error("mkdtemp failed");
+      tmpdir = tmpl;
+      path = tmpdir + "/tty";
+    }
+    server = std::make_unique<ScenarioServer>(o.transport, o.transport == Transport::pty ? path : "", o.baud);
+  } catch (const std::exception& e) {
+    out.error = std::string("scenario server: ") + e.what();
+    return out;
+  }
+  auto cleanup = [&] {
+    server.reset();
+    if (!tmpdir.empty()) std::filesystem::remove_all(tmpdir);
+  };
+  Session session(o, *server, out);
+  if (!session.start()) {
+    cleanup();
+    return out;
+  }
+  out.run.device_id = fmt::format("{} {}", out.hello.value("library", std::string("?")), out.hello.value("version", std::string("?")));
+  out.run.target_uri = fmt::format("client {} <- {}", to_string(o.transport), o.adapter);
+  if (o.transport == Transport::pty) out.run.baud = o.baud;
+
+  std::vector<std::vector<SeenRequest>> per_scenario;
+  std::vector<const Scenario*> deferred;
+  size_t done = 0;
+  for (const auto& s : list) {
+    if (s.steps.empty()) {  // a run-wide check: judged at the end
+      deferred.push_back(&s);
+      continue;
+    }
+    conf::CaseResult r = header(s);
+    auto c0 = Clock::now();
+    if (!session.supports(s.op)) {
+      r.outcome = Outcome::skip;
+      r.message = "unsupported: the adapter does not list op " + s.op;
+    } else {
+      server->clear();
+      if (!session.connect()) {
+        session.close();
+        cleanup();
+        return out;
+      }
+      std::vector<std::string> failures;
+      json answers = json::array();
+      for (size_t i = 0; i < s.steps.size(); ++i) {
+        const ScenarioStep& st = s.steps[i];
+        server->set_step(int(i), &st, o.timeout);
+        size_t sent_before = server->sent().size();
+        milliseconds extra = st.fault == Fault::late ? milliseconds(200) : milliseconds(0);
+        Answer a = session.ask(st.request, extra);
+        session.settle();
+        std::vector<const SeenRequest*> seen;
+        for (const auto& q : server->requests())
+          if (q.step == int(i)) seen.push_back(&q);
+        std::vector<SentFrame> sent(server->sent().begin() + ptrdiff_t(sent_before), server->sent().end());
+        std::string label = fmt::format("step {}: {} ({})", i + 1, st.request.value("op", ""), to_string(st.fault));
+        if (!st.pass.accepts(a))
+          failures.push_back(fmt::format("{}: the adapter reported {}, passing: {}", label, answer_text(a), st.pass.text()));
+        for (const auto& p : judge_requests(st, seen, o.transport)) failures.push_back(label + ": " + p);
+        r.frames.push_back(record(label, seen.empty() ? nullptr : seen.front(), sent, st.pass, o.transport));
+        answers.push_back({{"step", i + 1}, {"answer", answer_text(a)}});
+        out.run.wire_time_bound_seconds += step_bound(st, seen, sent, o);
+        for (const auto* q : seen) {
+          out.run.frames_sent++;
+          out.run.bytes_received += q->adu.size();
+        }
+        for (const auto& f : sent) out.run.bytes_sent += f.bytes.size();
+        if (a.kind == "hang") break;
+      }
+      r.extra["answers"] = answers;
+      if (!session.restarted()) session.disconnect();
+      per_scenario.push_back(server->requests());
+      conclude(r, failures);
+    }
+    r.duration_ms = std::chrono::duration<double, std::milli>(Clock::now() - c0).count();
+    out.run.cases.push_back(std::move(r));
+    if (o.on_case) o.on_case(out.run.cases.back(), ++done, list.size());
+  }
+  for (const auto* s : deferred) {
+    conf::CaseResult r = header(*s);
+    run_wide(*s, r, per_scenario, o);
+    out.run.cases.push_back(std::move(r));
+    if (o.on_case) o.on_case(out.run.cases.back(), ++done, list.size());
+  }
+  session.close();
+  out.run.wall_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  cleanup();
+  return out;
+}
+
+std::vector<std::string> plan_lines(const Scenario& s, Transport t) {
+  std::vector<std::string> lines;
+  for (size_t i = 0; i < s.steps.size(); ++i) {
+    const auto& st = s.steps[i];
+    uint8_t unit = st.request.value("unit", model::kUnit);
+    Bytes adu = framing_of(t).frame(unit, model::expected_request(st.request), 0);
+    std::string wire = to_hex(adu);
+    if (t == Transport::tcp) wire = "* * " + wire.substr(6);  // the transaction id is the master's to choose
+    lines.push_back(fmt::format("  {}. ask {}", i + 1, st.request.dump()));
+    lines.push_back(fmt::format("     {} {}", st.must_not_send ? "must not send:" : "expect on the wire:", wire));
+    lines.push_back(fmt::format("     server: {}; passing: {}", to_string(st.fault), st.pass.text()));
+  }
+  return lines;
+}
+
+std::vector<Quirk> load_quirks(const std::string& path) {
+  YAML::Node doc;
+  try {
+    doc = YAML::LoadFile(path);
+  } catch (const YAML::Exception& e) {
+    throw std::runtime_error(fmt::format("{}:{}:{}: error: yaml: {}", path, e.mark.line + 1, e.mark.column + 1, e.msg));
+  }
+  auto bad = [&](const YAML::Node& n, const std::string& what) {
+    return std::runtime_error(fmt::format("{}:{}:{}: error: quirks: {}", path, n.Mark().line + 1, n.Mark().column + 1, what));
+  };
+  std::vector<Quirk> out;
+  if (!doc || doc.IsNull()) return out;
+  if (!doc.IsSequence()) throw bad(doc, "expected a list of {case, reason}");
+  for (const auto& q : doc) {
+    if (!q.IsMap()) throw bad(q, "expected a map with 'case' and 'reason'");
+    for (const auto& kv : q) {
+      auto k = kv.first.as<std::string>();
+      if (k != "case" && k != "reason") throw bad(kv.first, "unknown key '" + k + "' (known: case, reason)");
+    }
+    if (!q["case"] || !q["case"].IsScalar()) throw bad(q, "missing 'case' (a case id or glob)");
+    if (!q["reason"] || !q["reason"].IsScalar() || q["reason"].as<std::string>().empty())
+      throw bad(q, "missing 'reason' (why the library deviates, with the clause)");
+    out.push_back({q["case"].as<std::string>(), q["reason"].as<std::string>()});
+  }
+  return out;
+}
+
+void apply_quirks(conf::DeviceRun& run, std::vector<Quirk>& quirks) {
+  for (auto& c : run.cases) {
+    if (c.outcome != Outcome::fail) continue;
+    for (auto& q : quirks) {
+      if (fnmatch(q.pattern.c_str(), c.id.c_str(), 0) != 0) continue;
+      q.used = true;
+      c.outcome = Outcome::observed;
+      c.extra["quirk"] = q.reason;
+      c.message = "known quirk (" + q.reason + "): " + c.message;
+      break;
+    }
+  }
+}
+
+}  // namespace mbc::client

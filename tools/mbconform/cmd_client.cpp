@@ -1,0 +1,162 @@
+// mbconform client: master-side conformance. A Modbus client library, driven
+// by an adapter (conformance/client/README.md), against scenario servers that
+// answer correctly or with one named fault each; the same reports as `run`.
+//
+//   mbconform client --adapter build/bin/libmodbus_adapter
+//   mbconform client --adapter '/usr/bin/python3 conformance/client/adapters/pymodbus/pymodbus_adapter.py' --transport pty
+//   mbconform client --list --transport rtu-tcp
+//
+// Exit codes: 0 every MUST scenario passed; 1 one failed (or a quirk named
+// in --quirks matched nothing); 2 the run could not be done.
+#include <fmt/core.h>
+#include <fnmatch.h>
+#include <unistd.h>
+
+#include <ctime>
+#include <filesystem>
+#include <fstream>
+
+#include "client/client_run.h"
+#include "client/model.h"
+#include "commands.h"
+#include "report/report.h"
+
+namespace mbc::cli {
+namespace {
+
+struct ClientArgs {
+  std::string adapter, transport = "tcp", filter, out, quirks, pty;
+  int baud = 19200, timeout_ms = 500;
+  bool list = false, plan = false, junit_only = false, quiet = false;
+};
+
+// A glob ('client/reply/*') or a substring of the case id.
+bool keep(const std::string& filter, const std::string& id) {
+  if (filter.find_first_of("*?[") != std::string::npos) return fnmatch(filter.c_str(), id.c_str(), 0) == 0;
+  return id.find(filter) != std::string::npos;
+}
+
+std::string stamp(const char* format) {
+  std::time_t t = std::time(nullptr);
+  char buf[64];
+  std::strftime(buf, sizeof buf, format, std::gmtime(&t));
+  return buf;
+}
+
+int run(const ClientArgs& a) {
+  client::ClientOptions o;
+  if (a.transport == "tcp") o.transport = client::Transport::tcp;
+  else if (a.transport == "rtu-tcp") o.transport = client::Transport::rtu_tcp;
+  else if (a.transport == "pty") o.transport = client::Transport::pty;
+  else {
+    fmt::print(stderr, "mbconform client: error: --transport {}: expected tcp, rtu-tcp or pty\n", a.transport);
+    return kExitUsage;
+  }
+  o.adapter = a.adapter;
+  o.baud = a.baud;
+  o.timeout = std::chrono::milliseconds(a.timeout_ms);
+  o.pty_path = a.pty;
+  std::vector<client::Scenario> list;
+  try {
+    list = client::selected(o, [&](const std::string& id) { return a.filter.empty() || keep(a.filter, id); });
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "mbconform client: error: {}\n", e.what());
+    return kExitUsage;
+  }
+  if (a.list) {
+    for (const auto& s : list) fmt::print("{}  {}  {}  {}\n", s.id, conf::to_string(s.level), s.clause, s.title);
+    return kExitOk;
+  }
+  if (a.plan) {
+    fmt::print("# mbconform client over {} ({} scenarios, unit {}, master time-out {} ms)\n", a.transport, list.size(),
+               int(client::model::kUnit), a.timeout_ms);
+    for (const auto& s : list) {
+      fmt::print("{}  [{}] {}\n", s.id, conf::to_string(s.level), s.clause);
+      if (s.steps.empty()) fmt::print("  (judged over every request of the run)\n");
+      for (const auto& l : client::plan_lines(s, o.transport)) fmt::print("{}\n", l);
+    }
+    return kExitOk;
+  }
+  if (a.adapter.empty()) {
+    fmt::print(stderr, "mbconform client: error: --adapter 'COMMAND ARGS' is required (or --list / --plan)\n");
+    return kExitUsage;
+  }
+  std::vector<client::Quirk> quirks;
+  if (!a.quirks.empty()) {
+    try {
+      quirks = client::load_quirks(a.quirks);
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "{}\n", e.what());
+      return kExitUsage;
+    }
+  }
+  bool tty = isatty(STDOUT_FILENO) && !a.quiet;
+  o.on_case = [&](const conf::CaseResult& r, size_t done, size_t total) {
+    if (r.outcome == conf::Outcome::fail) fmt::print("{}{}\n", tty ? "\r\033[K" : "", conf::progress_line(r, done, total));
+    else if (tty) fmt::print("\r\033[K{}", conf::progress_line(r, done, total));
+    std::fflush(stdout);
+  };
+  conf::RunReport report;
+  report.command = "client";
+  report.started_at = stamp("%Y-%m-%dT%H:%M:%SZ");
+  report.version = "mbconform 0.1";
+  client::ClientRun cr = client::run_client(o, list);
+  if (tty) fmt::print("\r\033[K");
+  if (!cr.error.empty()) {
+    fmt::print(stderr, "mbconform client: error: {}\n", cr.error);
+    if (!cr.adapter_log.empty()) fmt::print(stderr, "adapter log:\n{}", cr.adapter_log);
+    return kExitUsage;
+  }
+  client::apply_quirks(cr.run, quirks);
+  report.devices.push_back(cr.run);
+  std::string out = a.out.empty() ? "reports/client/" + stamp("%Y%m%dT%H%M%SZ") : a.out;
+  try {
+    conf::write_reports(report, out, a.junit_only);
+    if (!a.junit_only) {
+      // The adapter's side of the run: what it said it is, what it logged, the quirks.
+      nlohmann::json j;
+      std::ifstream(out + "/report.json") >> j;
+      nlohmann::json q = nlohmann::json::array();
+      for (const auto& k : quirks) q.push_back({{"case", k.pattern}, {"reason", k.reason}, {"matched", k.used}});
+      j["adapter"] = {{"command", a.adapter}, {"hello", cr.hello}, {"restarts", cr.restarts}, {"log", cr.adapter_log}};
+      j["quirks"] = q;
+      std::ofstream(out + "/report.json") << j.dump(1) << "\n";
+    }
+    std::ofstream(out + "/adapter.log") << cr.adapter_log;
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "mbconform client: error: {}\n", e.what());
+    return kExitUsage;
+  }
+  fmt::print("{}", conf::summary_table(report));
+  int rc = conf::count(cr.run).must_failed > 0 ? kExitFailed : kExitOk;
+  for (const auto& k : quirks) {
+    if (k.used) continue;
+    fmt::print("quirk '{}' matched no failing case: the library changed; update {}\n", k.pattern, a.quirks);
+    rc = kExitFailed;
+  }
+  if (cr.restarts) fmt::print("the adapter hung and was restarted {} time(s)\n", cr.restarts);
+  fmt::print("reports: {}\n", out);
+  return rc;
+}
+
+}  // namespace
+
+void add_client_command(CLI::App& app, int& exit_code) {
+  auto a = std::make_shared<ClientArgs>();
+  auto* cmd = app.add_subcommand("client", "Test a Modbus master library, through its adapter, against scenario servers");
+  cmd->add_option("--adapter", a->adapter, "the adapter's command line (conformance/client/README.md), run with /bin/sh -c");
+  cmd->add_option("--transport", a->transport, "tcp (default) | rtu-tcp | pty");
+  cmd->add_option("--baud", a->baud, "pty: the nominal baud rate (t1.5, t3.5, wire-time bound); default 19200");
+  cmd->add_option("--timeout-ms", a->timeout_ms, "the master's response time-out sent to the adapter; default 500");
+  cmd->add_option("--pty", a->pty, "pty: where to link the pty the adapter opens (default: a temporary directory)");
+  cmd->add_option("--filter", a->filter, "select scenarios by id: a glob ('client/reply/*') or a substring");
+  cmd->add_flag("--list", a->list, "print the scenarios (id, level, clause, title) and exit");
+  cmd->add_flag("--plan", a->plan, "print every request expected and every answer the server gives, without running");
+  cmd->add_option("--out", a->out, "report directory (default reports/client/<UTC date-time>/)");
+  cmd->add_option("--quirks", a->quirks, "a YAML list of {case: ID-or-glob, reason}: known deviations, reported apart");
+  cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
+  cmd->add_flag("--quiet", a->quiet, "no progress line");
+  cmd->callback([a, &exit_code] { exit_code = run(*a); });
+}
+
+}  // namespace mbc::cli
