@@ -273,28 +273,24 @@ void reply_scenarios(std::vector<Scenario>& out, Wire wire) {
     s.steps.push_back(step(r, Fault::bad_crc, error));
     out.push_back(s);
   }
-  {
-    auto s = reply_scenario("truncated", tcp ? "TCP IG v1.0b §4.2" : "MB-SL v1.02 §2.5.1.1", Level::must,
-                            "the first half of the reply, then nothing: an error, not values", tcp ? kConfirmation : kIncomplete);
-    s.steps.push_back(step(r, Fault::truncated, error));
-    out.push_back(s);
-  }
-  {
-    auto s = reply_scenario("trailing-bytes", format_clause, Level::must,
-                            "two bytes more than the byte count says (inside the frame): an error, not values", format_text);
-    s.steps.push_back(step(r, Fault::trailing_bytes, error));
-    out.push_back(s);
-  }
-  {
-    auto s = reply_scenario("byte-count-short", format_clause, Level::must,
-                            "four registers for the five asked (byte count 8): an error, not values", format_text);
-    s.steps.push_back(step(r, Fault::byte_count, error));
-    out.push_back(s);
-  }
-  {
-    auto s = reply_scenario("too-many-registers", format_clause, Level::must,
-                            "six registers for the five asked (byte count 12): an error, not values", format_text);
-    s.steps.push_back(step(r, Fault::too_many, error));
+  // Malformed replies: each passes only as an error reported to the caller.
+  struct Malformed {
+    const char* id;
+    Fault fault;
+    const char* title;
+  };
+  const Malformed malformed[] = {
+      {"truncated", Fault::truncated, "the first half of the reply, then nothing: an error, not values"},
+      {"trailing-bytes", Fault::trailing_bytes, "two bytes more than the byte count says (inside the frame): an error, not values"},
+      {"byte-count-short", Fault::byte_count, "four registers for the five asked (byte count 8): an error, not values"},
+      {"too-many-registers", Fault::too_many, "six registers for the five asked (byte count 12): an error, not values"},
+  };
+  for (const auto& m : malformed) {
+    // A truncated RTU frame is an incomplete frame (MB-SL §2.5.1.1); the rest are wrong formats.
+    bool incomplete = !tcp && m.fault == Fault::truncated;
+    auto s = reply_scenario(m.id, incomplete ? "MB-SL v1.02 §2.5.1.1" : format_clause, Level::must, m.title,
+                            incomplete ? kIncomplete : format_text);
+    s.steps.push_back(step(r, m.fault, error));
     out.push_back(s);
   }
   if (tcp) {
