@@ -231,8 +231,10 @@ class Session {
   bool restarted_ = false;
 };
 
+// One step for the report: the master's request, the outcomes that pass, what
+// the server sent back ("silence" when nothing) and what the adapter reported.
 conf::FrameRecord record(const std::string& step, const SeenRequest* req, const std::vector<SentFrame>& sent,
-                         const Passing& pass, Transport t) {
+                         const Passing& pass, const Answer& answer, Transport t) {
   conf::FrameRecord f;
   f.step = step;
   if (req) {
@@ -248,8 +250,9 @@ conf::FrameRecord record(const std::string& step, const SeenRequest* req, const 
       what += (what.empty() ? "" : ", ") + s.what;
     }
     f.actual = all;
-    f.actual_decoded = what;
+    f.actual_decoded = what + "; ";
   }
+  f.actual_decoded += "the adapter reported: " + answer_text(answer);
   return f;
 }
 
@@ -366,14 +369,14 @@ ClientRun run_client(const ClientOptions& o, const std::vector<Scenario>& list) 
         if (!st.pass.accepts(a))
           failures.push_back(fmt::format("{}: the adapter reported {}, passing: {}", label, answer_text(a), st.pass.text()));
         for (const auto& p : judge_requests(st, seen, o.transport)) failures.push_back(label + ": " + p);
-        r.frames.push_back(record(label, seen.empty() ? nullptr : seen.front(), sent, st.pass, o.transport));
+        r.frames.push_back(record(label, seen.empty() ? nullptr : seen.front(), sent, st.pass, a, o.transport));
         answers.push_back({{"step", i + 1}, {"answer", answer_text(a)}});
         out.run.wire_time_bound_seconds += step_bound(st, seen, sent, o);
-        for (const auto* q : seen) {
+        for (const auto* q : seen) out.run.bytes_received += q->adu.size();
+        for (const auto& f : sent) {
           out.run.frames_sent++;
-          out.run.bytes_received += q->adu.size();
+          out.run.bytes_sent += f.bytes.size();
         }
-        for (const auto& f : sent) out.run.bytes_sent += f.bytes.size();
         if (a.kind == "hang") break;
       }
       r.extra["answers"] = answers;
