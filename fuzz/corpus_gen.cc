@@ -31,7 +31,7 @@
 #include "modbus/judge.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
-#include "spec_values.h"
+#include "blackbox/spec_values.h"
 
 namespace fs = std::filesystem;
 using namespace mbc;
@@ -146,17 +146,17 @@ void device_and_session(Output& out) {
     // Each register: a read, then its valid and boundary values written and read
     // back, 24 registers per session seed. The first register of each table
     // also seeds the single-frame harness (read, every boundary write).
-    auto regs = fuzz::representative_registers(s);
+    auto regs = conf::blackbox::representative_registers(s);
     Bytes session{uint8_t(di), 0};
     int in_session = 0, part = 1;
     std::set<Table> first_seen;
     for (const Register* r : regs) {
-      Bytes read = read_request(fuzz::read_function(r->table), r->address, uint16_t(r->words));
+      Bytes read = read_request(conf::blackbox::read_function(r->table), r->address, uint16_t(r->words));
       bool read_ok = s.profile.function(read[0]) && r->access != Access::wo;
       std::vector<Bytes> writes;
       if (r->access != Access::ro)
-        for (double v : fuzz::boundary_values(s, *r))
-          for (auto& w : fuzz::write_pdus(s, *r, v)) writes.push_back(w);
+        for (double v : conf::blackbox::boundary_values(s, *r))
+          for (auto& w : conf::blackbox::write_pdus(s, *r, v)) writes.push_back(w);
       if (!read_ok && writes.empty()) continue;
       if (read_ok) fuzz::session_frame(session, prefixed(slave, read), true);
       for (const auto& w : writes) {
@@ -286,11 +286,11 @@ void dictionaries(Output& out, const fs::path& source) {
         for (int mei : f.mei_types) out.word(h, {uint8_t(f.code), uint8_t(mei)});
         if (f.max_quantity) out.word(h, be(uint16_t(*f.max_quantity)));
       }
-      for (const Register* r : fuzz::representative_registers(s)) {
+      for (const Register* r : conf::blackbox::representative_registers(s)) {
         out.word(h, be(r->address));
         if (r->access == Access::ro) continue;
-        for (double v : fuzz::boundary_values(s, *r)) {
-          auto w = fuzz::words_of(*r, v);
+        for (double v : conf::blackbox::boundary_values(s, *r)) {
+          auto w = conf::blackbox::words_of(*r, v);
           Bytes b;
           for (uint16_t x : w) b.insert(b.end(), {uint8_t(x >> 8), uint8_t(x)});
           out.word(h, b);

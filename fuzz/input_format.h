@@ -13,6 +13,10 @@
 //   reply_parser_fuzzer: [n][request pdu: n bytes][reply pdu...]
 //   plugin_fuzzer:       records [flags][n][n bytes], flags bit 0: append the correct CRC
 //   rtu_frame_fuzzer, spec_loader_fuzzer: the bytes as they are.
+//
+// These inputs stay binary (they are what libFuzzer mutates). Frame sequences
+// for people (plans, counterexamples, the black-box fuzzer's reproducers) are
+// frame scripts: conformance/script/README.md.
 #pragma once
 
 #include <cstddef>

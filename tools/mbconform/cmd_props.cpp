@@ -25,6 +25,7 @@
 
 #include "commands.h"
 #include "loader.h"
+#include "options.h"
 #include "properties/properties.h"
 #include "properties/stateful.h"
 #include "report/report.h"
@@ -33,32 +34,13 @@
 namespace mbc::cli {
 namespace {
 
-spec::Spec load_file(const std::string& path) {
-  auto lr = spec::load_spec_file(path);
-  if (!lr.ok()) throw std::runtime_error(path + ": not a valid spec (mbconform spec check " + path + ")");
-  return *lr.spec;
-}
-
-const char* const kDefaultTargets[] = {"ref:sihong-57hs-r", "ref:hsc60", "ref:hanstar-7trsm5740q", "ref:rieding-dhe",
-                                       "ref:modbus-standard"};
-
 struct PropsArgs {
-  std::vector<std::string> targets, only, replay;
-  std::string device, spec_file, out;
+  TargetOptions t;
+  std::vector<std::string> only, replay;
   int cases = 100, max_size = 60;
   uint64_t seed = 0;
   bool list = false, quiet = false;
-  conf::WritePolicy policy;
 };
-
-std::string utc_now(const char* f) {
-  std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[64];
-  std::strftime(buf, sizeof buf, f, &tm);
-  return buf;
-}
 
 int replay_files(const PropsArgs& a) {
   int rc = kExitOk;
@@ -70,11 +52,12 @@ int replay_files(const PropsArgs& a) {
       fmt::print(stderr, "mbconform props: error: {}\n", e.what());
       return kExitUsage;
     }
-    std::string uri = a.targets.empty() ? "ref:" + r.device_id : a.targets.front();
+    std::string uri = a.t.targets.empty() ? "ref:" + r.device_id : a.t.targets.front();
     try {
       auto target = conf::open_target(uri);
-      spec::Spec s = a.spec_file.empty() ? spec::load_spec_by_id(r.device_id) : load_file(a.spec_file);
-      conf::props::SpecView view(s, target->info(), a.policy);
+      auto named = named_spec(a.t);
+      spec::Spec s = named ? *named : spec::load_spec_by_id(r.device_id);
+      conf::props::SpecView view(s, target->info(), a.t.policy);
       conf::props::Session session(*target, view, conf::props::facts_for(s));
       std::string why = conf::props::replay(session, r.steps);
       fmt::print("{} on {}: {}\n", path, uri, why.empty() ? "agrees with the model" : why);
@@ -117,27 +100,25 @@ int run(PropsArgs& a) {
     }
   std::optional<spec::Spec> named;
   try {
-    if (!a.spec_file.empty()) named = load_file(a.spec_file);
-    else if (!a.device.empty()) named = spec::load_spec_by_id(a.device);
+    named = named_spec(a.t);
   } catch (const std::exception& e) {
     fmt::print(stderr, "mbconform props: error: {}\n", e.what());
     return kExitUsage;
   }
-  std::vector<std::string> targets = a.targets;
-  if (targets.empty()) targets.assign(std::begin(kDefaultTargets), std::end(kDefaultTargets));
+  const std::vector<std::string> targets = targets_or_default(a.t);
 
   conf::props::Options opt;
   opt.cases = a.cases;
   opt.seed = a.seed ? a.seed : uint64_t(std::chrono::system_clock::now().time_since_epoch().count());
   opt.max_size = a.max_size;
-  opt.policy = a.policy;
+  opt.policy = a.t.policy;
   opt.only = a.only;
 
   conf::RunReport report;
   report.command = "props";
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
   report.version = "mbconform 0.1";
-  std::string out = a.out.empty() ? "reports/runs/props-" + utc_now("%Y%m%dT%H%M%SZ") : a.out;
+  std::string out = a.t.out.empty() ? "reports/runs/props-" + utc_now("%Y%m%dT%H%M%SZ") : a.t.out;
   if (!conf::out_dir_ok(out, "mbconform props")) return kExitUsage;
   bool failed = false;
   std::vector<std::pair<std::string, std::string>> regressions;  // file name, text
@@ -156,7 +137,7 @@ int run(PropsArgs& a) {
     conf::DeviceRun dr;
     if (info.live) {
       try {
-        snap = conf::Snapshot::take(*probe, *src.spec, a.policy);
+        snap = conf::Snapshot::take(*probe, *src.spec, a.t.policy);
         for (const auto& f : snap->failures()) dr.safety_notes.push_back(f);
       } catch (const std::exception& e) {
         fmt::print(stderr, "mbconform props: error: target {}: cannot read the registers to keep: {}\n", uri, e.what());
@@ -211,18 +192,12 @@ int run(PropsArgs& a) {
 void add_props_command(CLI::App& app, int& exit_code) {
   static PropsArgs a;
   auto* cmd = app.add_subcommand("props", "Property tests (RapidCheck) of the profile invariants against any target");
-  cmd->add_option("--target", a.targets, "URI (ref:ID[?fault=NAME], tcp://, rtu-tcp://, rtu://, plugin:); repeatable; default every reference device");
-  cmd->add_option("--device", a.device, "ID: the spec (spec/devices/ID.yaml) of a live target");
-  cmd->add_option("--spec", a.spec_file, "FILE: the spec of a live target");
+  add_target_options(*cmd, a.t, true, "DIR: reports (junit.xml, report.json, report.html) and counterexamples");
   cmd->add_option("--cases", a.cases, "generated cases per invariant (default 100)")->check(CLI::Range(1, 1000000));
   cmd->add_option("--seed", a.seed, "RapidCheck seed (default: from the clock; printed)");
   cmd->add_option("--max-size", a.max_size, "RapidCheck size bound: longest stateful sequence (default 60)")->check(CLI::Range(1, 10000));
   cmd->add_option("--only", a.only, "NAME: run only this invariant; repeatable (see --list)");
-  cmd->add_option("--out", a.out, "DIR: reports (junit.xml, report.json, report.html) and counterexamples");
   cmd->add_option("--replay", a.replay, "FILE: replay a regression file through the model (on ref:ID, or --target)");
-  cmd->add_flag("--allow-motion", a.policy.allow_motion, "live targets: let properties write command and motion registers");
-  cmd->add_flag("--allow-eeprom-writes", a.policy.allow_eeprom_writes, "live targets: let properties write persistent registers");
-  cmd->add_flag("--allow-broadcast", a.policy.allow_broadcast, "live targets: let properties write to unit 0 (every drive on the line)");
   cmd->add_flag("--list", a.list, "print the invariants and exit");
   cmd->add_flag("--quiet", a.quiet, "do not print counterexamples (they are in the reports)");
   cmd->callback([&exit_code] { exit_code = run(a); });

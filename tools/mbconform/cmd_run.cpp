@@ -23,6 +23,7 @@
 #include "cases/common.h"
 #include "commands.h"
 #include "loader.h"
+#include "options.h"
 #include "report/report.h"
 #include "runner/runner.h"
 #include "safety/safety.h"
@@ -34,25 +35,11 @@ namespace {
 std::atomic<bool> g_stop{false};
 extern "C" void on_signal(int) { g_stop.store(true); }
 
-// The reference drives `run` tests when no target is named (README: the main job).
-const char* const kDefaultTargets[] = {"ref:sihong-57hs-r", "ref:hsc60", "ref:hanstar-7trsm5740q", "ref:rieding-dhe",
-                                       "ref:modbus-standard"};
-
 struct RunArgs {
-  std::vector<std::string> targets;
-  std::string device, spec_file, filter, out, summary_dir;
+  TargetOptions t;
+  std::string filter, summary_dir;
   bool list = false, plan = false, junit_only = false, quiet = false;
-  conf::WritePolicy policy;
 };
-
-std::string utc_now(const char* fmt_) {
-  std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[64];
-  std::strftime(buf, sizeof buf, fmt_, &tm);
-  return buf;
-}
 
 // GLOB (fnmatch, '*' crosses '/') or, when it has regex syntax, an ECMAScript
 // regex searched in the id; a plain word matches as a substring.
@@ -83,9 +70,8 @@ conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   return i;
 }
 
-int run(const RunArgs& a) {
-  std::vector<std::string> targets = a.targets;
-  if (targets.empty()) targets.assign(std::begin(kDefaultTargets), std::end(kDefaultTargets));
+int run(RunArgs& a) {
+  const std::vector<std::string> targets = targets_or_default(a.t);
 
   std::optional<spec::Spec> standard;
   try {
@@ -95,17 +81,7 @@ int run(const RunArgs& a) {
   }
   std::optional<spec::Spec> named;
   try {
-    if (!a.spec_file.empty()) {
-      auto lr = spec::load_spec_file(a.spec_file);
-      if (!lr.ok()) {
-        for (const auto& d : lr.diagnostics) fmt::print(stderr, "{}\n", d.str());
-        fmt::print(stderr, "mbconform run: error: {}: not a valid spec\n", a.spec_file);
-        return kExitUsage;
-      }
-      named = std::move(*lr.spec);
-    } else if (!a.device.empty()) {
-      named = spec::load_spec_by_id(a.device);
-    }
+    named = named_spec(a.t);
   } catch (const std::exception& e) {
     fmt::print(stderr, "mbconform run: error: {}\n", e.what());
     return kExitUsage;
@@ -117,22 +93,16 @@ int run(const RunArgs& a) {
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
   report.version = "mbconform 0.1";
 
-  bool dry = a.list || a.plan;
-  const std::string out = a.out.empty() ? "reports/runs/" + utc_now("%Y%m%dT%H%M%SZ") : a.out;
-  if (!dry && !conf::out_dir_ok(out, "mbconform run")) return kExitUsage;
   std::signal(SIGINT, on_signal);
   std::signal(SIGTERM, on_signal);
+  bool dry = a.list || a.plan;
   bool tty = isatty(STDOUT_FILENO) && !a.quiet;
+  const std::string out = a.t.out.empty() ? "reports/runs/" + utc_now("%Y%m%dT%H%M%SZ") : a.t.out;
+  if (!dry && !conf::out_dir_ok(out, "mbconform run")) return kExitUsage;
   for (const auto& uri : targets) {
     spec::Spec s;
     try {
-      conf::Uri u = conf::parse_uri(uri);
-      if (named) s = *named;
-      else if (u.scheme == "ref") s = spec::load_spec_by_id(u.path);
-      else {
-        fmt::print(stderr, "mbconform run: error: target {}: name its spec with --device ID or --spec FILE\n", uri);
-        return kExitUsage;
-      }
+      s = spec_for(named, uri);
     } catch (const std::exception& e) {
       fmt::print(stderr, "mbconform run: error: target {}: {}\n", uri, e.what());
       return kExitUsage;
@@ -151,7 +121,7 @@ int run(const RunArgs& a) {
       return kExitUsage;
     }
 
-    conf::GenContext g{s, info, a.policy, standard ? &*standard : nullptr};
+    conf::GenContext g{s, info, a.t.policy, standard ? &*standard : nullptr};
     std::vector<conf::Case> cases;
     for (auto& c : conf::all_cases(g))
       if (keep(c.id)) cases.push_back(std::move(c));
@@ -192,7 +162,7 @@ int run(const RunArgs& a) {
     std::vector<std::string> snap_notes;
     if (info.live) {
       try {
-        snap = conf::Snapshot::take(*target, s, a.policy);
+        snap = conf::Snapshot::take(*target, s, a.t.policy);
         for (const auto& f : snap->failures()) snap_notes.push_back(f);
       } catch (const std::exception& e) {
         fmt::print(stderr, "mbconform run: error: target {}: cannot read the registers to keep: {}\n", uri, e.what());
@@ -249,19 +219,11 @@ int run(const RunArgs& a) {
 void add_run_command(CLI::App& app, int& exit_code) {
   auto a = std::make_shared<RunArgs>();
   auto* cmd = app.add_subcommand("run", "Run the conformance cases generated from a spec against targets; write reports");
-  cmd->add_option("--target", a->targets,
-                  "ref:ID | tcp://HOST:PORT?unit=N | rtu-tcp://HOST:PORT?unit=N | rtu:///dev/tty?baud=B&unit=N | plugin:PATH.so "
-                  "(repeatable; default: every reference device)");
-  cmd->add_option("--device", a->device, "the spec (spec/devices/ID.yaml) a live target is tested against");
-  cmd->add_option("--spec", a->spec_file, "a spec file a live target is tested against");
+  add_target_options(*cmd, a->t, true, "DIR: report directory (default reports/runs/<UTC date-time>/)");
   cmd->add_flag("--list", a->list, "print the cases (id, level, clause, title) and exit");
   cmd->add_option("--filter", a->filter, "select cases by id: a glob ('*/registers/*'), a regex, or a substring");
   cmd->add_flag("--plan", a->plan, "print every frame the cases would send, without sending anything");
-  cmd->add_option("--out", a->out, "report directory (default reports/runs/<UTC date-time>/)");
   cmd->add_option("--summary", a->summary_dir, "also write the stable summary.md and summary.json into this directory");
-  cmd->add_flag("--allow-motion", a->policy.allow_motion, "live targets: allow writes to command and motion registers");
-  cmd->add_flag("--allow-eeprom-writes", a->policy.allow_eeprom_writes, "live targets: allow writes that wear EEPROM/flash");
-  cmd->add_flag("--allow-broadcast", a->policy.allow_broadcast, "live targets: allow writes to unit 0 (every drive on the line takes them)");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
   cmd->add_flag("--quiet", a->quiet, "no progress line");
   cmd->callback([a, &exit_code] { exit_code = run(*a); });

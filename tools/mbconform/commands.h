@@ -23,5 +23,13 @@ void add_props_command(CLI::App& app, int& exit_code);
 void add_fuzz_command(CLI::App& app, int& exit_code);
 // `client`: a master library, through its adapter, against scenario servers (cmd_client.cpp).
 void add_client_command(CLI::App& app, int& exit_code);
+// `replay`: a frame script (conformance/script/README.md) against any target (cmd_replay.cpp).
+void add_replay_command(CLI::App& app, int& exit_code);
+
+struct TargetOptions;
+// Replays the frame script `file` on `uri` (default: ref: of the script's
+// device); the spec is --device/--spec, else the script's `device`. Prints
+// what came of it; returns the exit code (0 met, 1 not met, 2 could not run).
+int replay_file(const std::string& file, const std::string& uri, const TargetOptions& o, const char* command);
 
 }  // namespace mbc::cli

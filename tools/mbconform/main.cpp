@@ -13,6 +13,7 @@ int main(int argc, char** argv) {
   mbc::cli::add_props_command(app, exit_code);
   mbc::cli::add_fuzz_command(app, exit_code);
   mbc::cli::add_client_command(app, exit_code);
+  mbc::cli::add_replay_command(app, exit_code);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

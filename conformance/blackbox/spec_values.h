@@ -1,5 +1,5 @@
-// Values and request frames derived from a spec, shared by the corpus
-// generator (corpus_gen.cc) and the black-box fuzzer (mbconform fuzz):
+// Values and request frames derived from a spec, shared by the black-box
+// fuzzer (engine.h) and the corpus generator (fuzz/corpus_gen.cc):
 // each register's valid and boundary values, encoded through its type and
 // word order, and the request PDUs that write them.
 #pragma once
@@ -17,7 +17,7 @@
 #include "modbus/rtu.h"
 #include "spec.h"
 
-namespace mbc::fuzz {
+namespace mbc::conf::blackbox {
 
 // Raw register words of `value` through the register's type and word order.
 inline std::vector<uint16_t> words_of(const spec::Register& r, double value) {
@@ -107,4 +107,4 @@ inline std::vector<const spec::Register*> representative_registers(const spec::S
   return v;
 }
 
-}  // namespace mbc::fuzz
+}  // namespace mbc::conf::blackbox

@@ -1,0 +1,555 @@
+#include "blackbox/engine.h"
+
+#include <fmt/core.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+#include "blackbox/spec_values.h"
+#include "modbus/bytes.h"
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
+
+namespace mbc::conf::blackbox {
+
+namespace {
+
+constexpr const char* kProbeNote = "liveness probe: a read of a register the spec maps";
+
+// After these the target may be gone: nothing more is learnt from it.
+bool target_may_be_gone(const Finding& f) { return f.kind == "no-answer" || f.kind == "target-error" || f.kind == "crash"; }
+
+}  // namespace
+
+// ---- what the spec and the safety rules allow ----
+
+bool Plan::writable_register(const spec::Register& r) const {
+  if (r.access == spec::Access::ro || r.table == spec::Table::input || r.table == spec::Table::discrete_input) return false;
+  for (const auto& st : spec->serial.settings)
+    if (st.register_address >= r.address && st.register_address <= r.last_address()) return false;
+  if (forbidden.count(r.address)) return false;
+  return may_write(*spec, r, info, policy).allowed;  // a simulation (not live) allows everything
+}
+
+// Whether a request PDU may be sent to unit `unit` (0 = broadcast).
+bool Plan::safe(std::span<const uint8_t> pdu, bool foreign_or_broadcast) const {
+  if (pdu.empty()) return true;
+  uint8_t fc = pdu[0];
+  // MB-SL v1.02 §6.1.2 (FC 08/04): Listen Only Mode is a legal way to stop
+  // answering; the liveness probe would call it a finding.
+  if (fc == 8 && pdu.size() >= 3 && be16(pdu, 1) == 4) return false;
+  bool write = fc == 5 || fc == 6 || fc == 15 || fc == 16 || fc == 22 || fc == 23;
+  if (info.live) {
+    // Only function codes the spec lists or the standard defines as reads:
+    // a vendor may put anything behind an undocumented code.
+    static const std::set<uint8_t> standard_reads{1, 2, 3, 4, 7, 11, 12, 17, 20, 24, 43};
+    if (!standard_reads.count(fc) && !spec->profile.function(fc) && !(fc & 0x80)) return false;
+    if (fc == 8 && (pdu.size() < 3 || be16(pdu, 1) != 0)) return false;  // only Return Query Data
+    if (write && foreign_or_broadcast) return false;  // other drives on the bus have other maps
+  }
+  if (!write || pdu.size() < 5) return true;
+  uint32_t start = be16(pdu, 1), count = 1;
+  if (fc == 15 || fc == 16) count = be16(pdu, 3);
+  if (fc == 23) {
+    if (pdu.size() < 9) return true;
+    start = be16(pdu, 5);
+    count = be16(pdu, 7);
+  }
+  spec::Table t = fc == 5 || fc == 15 ? spec::Table::coil : spec::Table::holding;
+  if (count == 0) return true;
+  if (!info.live) {
+    if (t != spec::Table::holding) return true;
+    for (uint32_t a = start; a < start + count && a <= 0xFFFF; ++a)
+      if (forbidden.count(uint16_t(a))) return false;
+    return true;
+  }
+  // Live: every word written must belong to a register the rules allow.
+  if (count > 125) return false;  // beyond the standard's limits: only a malformed request is safe to leave out
+  for (uint32_t a = start; a < start + count; ++a) {
+    if (a > 0xFFFF) return false;
+    const spec::Register* r = spec->register_covering(uint16_t(a), t);
+    if (!r || !writable_register(*r)) return false;
+  }
+  return true;
+}
+
+Plan make_plan(const spec::Spec& s, const TargetInfo& info, const WritePolicy& policy) {
+  Plan p;
+  p.spec = &s;
+  p.info = info;
+  p.policy = policy;
+  for (const auto& st : s.serial.settings) p.forbidden.insert(st.register_address);
+  // The "do not persist" switch (57HS-R 0x0016) stays as Snapshot::take set it.
+  for (const auto& r : s.registers)
+    if (r.persistence.unless_register) p.forbidden.insert(*r.persistence.unless_register);
+  for (const spec::Register* r : representative_registers(s)) {
+    if (r->access != spec::Access::wo && s.profile.function(read_function(r->table))) p.readable.push_back(r);
+    if (p.writable_register(*r)) p.writable.push_back(r);
+  }
+  for (const auto& f : s.profile.function_codes) p.functions.push_back(uint8_t(f.code));
+  for (const auto& ex : s.examples) {
+    auto adu = parse_hex(ex.resolved_request ? *ex.resolved_request : ex.request);
+    if (!adu || adu->size() < 4) continue;
+    Bytes pdu(adu->begin() + 1, adu->end() - 2);
+    if (p.safe(pdu, false)) p.examples.push_back(pdu);
+  }
+  // The probe: a read of the first holding register (else any register) the
+  // spec maps and the profile can read: a known-good request.
+  const spec::Register* probe = nullptr;
+  for (const spec::Register* r : p.readable)
+    if (!probe || (r->table == spec::Table::holding && probe->table != spec::Table::holding)) probe = r;
+  if (!probe) throw std::runtime_error("spec " + s.device.id + " maps no register the profile can read: no liveness probe");
+  p.probe = read_request(read_function(probe->table), probe->address, uint16_t(probe->words));
+  return p;
+}
+
+
+// ---- steps and their expectations (from the standard, never from an implementation) ----
+
+Step probe_step(const Plan& p) {
+  return script::frame(p.info.framing, p.info.unit, p.probe, script::Expect{script::Expect::Kind::normal}, kProbeNote);
+}
+
+bool is_probe(const Step& s) { return s.kind == Step::Kind::frame && s.note == kProbeNote; }
+
+script::Expect expect_for(const Plan& p, const Step& s) {
+  using K = script::Expect::Kind;
+  // A fuzzed request may be one the device drops (its spec's policy, or a
+  // request too broken to parse): silence is no finding, a bad reply is.
+  if (s.kind == Step::Kind::frame) return {s.unit == 0 ? K::silence : K::any_or_silence};
+  if (s.kind != Step::Kind::raw) return {};
+  // MB-SL v1.02 §2.1: no reply to another slave id or to broadcast; §2.4.2:
+  // none to a frame with a bad CRC, length or gap, unless the device's manual
+  // says it answers corrupted frames (its crc_error policy).
+  if (script::request_pdu(s, p.info.unit)) return {K::any_or_silence};
+  bool addressed = !s.bytes.empty() && s.bytes[0] == p.info.unit;
+  auto pe = p.spec->profile.policy(spec::Violation::crc_error);
+  if (addressed && pe.kind == spec::PolicyEntry::Kind::exception) return {K::any_or_silence};
+  return {K::silence};
+}
+
+std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r) {
+  auto m = script::check(s, p.info.unit, r, p.spec);
+  if (!m) return std::nullopt;
+  std::string why = m->why;
+  std::string kind;
+  using M = script::Mismatch::Kind;
+  bool addressed = s.kind != Step::Kind::raw || (!s.bytes.empty() && s.bytes[0] == p.info.unit);
+  switch (m->kind) {
+    case M::answered:
+      if (!addressed) {
+        bool broadcast = s.kind == Step::Kind::frame ? s.unit == 0 : s.bytes[0] == 0;
+        kind = broadcast ? "answered-broadcast" : "answered-other-slave";
+        why = "a reply to a frame for another slave id or to broadcast (MB-SL v1.02 §2.1: no response)";
+      } else if (!r.framing_error.empty()) {
+        kind = "malformed-framing";
+        why = r.framing_error;
+      } else {
+        kind = "answered-corrupted-frame";
+        why = "a reply to a frame with a bad CRC, length or gap (MB-SL v1.02 §2.4.2: no response)";
+      }
+      break;
+    case M::malformed_framing: kind = "malformed-framing"; break;
+    case M::malformed_reply: kind = "malformed-reply"; break;
+    case M::unknown_exception: kind = "unknown-exception-code"; break;
+    case M::silent:
+      kind = "no-answer";
+      why = "the target stopped answering: no reply to the liveness probe (a read of a register the spec maps)";
+      break;
+    case M::refused:
+    case M::different:
+      kind = "probe-refused";
+      why = "the liveness probe (a read of a register the spec maps) was refused";
+      break;
+  }
+  std::string msg = fmt::format("{}\n  sent:  {}\n  reply: {}", why, to_hex(r.request),
+                                r.silent() ? std::string("(silence)") : to_hex(r.frame));
+  if (r.pdu) msg += "  (" + describe_pdu(*r.pdu, false) + ")";
+  return Finding{kind, msg};
+}
+
+std::optional<Finding> execute(Target& t, const Plan& p, const Step& s) {
+  try {
+    Reply r;
+    switch (s.kind) {
+      case Step::Kind::advance: t.advance(std::chrono::microseconds(s.us)); return std::nullopt;
+      case Step::Kind::power_cycle: t.power_cycle(); return std::nullopt;
+      case Step::Kind::wait: return std::nullopt;
+      case Step::Kind::raw: r = t.send_raw(s.bytes, s.gap); break;
+      case Step::Kind::frame: r = t.transact(s.unit, s.pdu); break;
+    }
+    return judge(p, s, r);
+  } catch (const std::exception& e) {
+    return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), script::line(s))};
+  }
+}
+
+// ---- generating steps ----
+
+Step Generator::next() {
+  Step s = [&] {
+    const auto& info = p_.info;
+    if (info.virtual_clock && pick(20) == 0) return script::advance(uint64_t(pick(500'000)));
+    for (int attempt = 0; attempt < 20; ++attempt) {
+      int strategy = int(pick(info.raw ? 5 : 4));
+      Bytes pdu;
+      switch (strategy) {
+        case 0: pdu = valid_read(); break;
+        case 1: pdu = boundary_write(); break;
+        case 2: pdu = mutate(base()); break;
+        case 3: pdu = p_.examples.empty() ? valid_read() : p_.examples[pick(p_.examples.size())]; break;
+        case 4: {
+          Bytes b = base();
+          if (pick(2)) b = mutate(b);
+          if (auto m = malformed(b)) return *m;
+          continue;
+        }
+      }
+      if (pdu.empty() || pdu.size() > 253 || !p_.safe(pdu, false)) continue;
+      return script::frame(info.framing, info.unit, pdu);
+    }
+    return script::frame(info.framing, info.unit, valid_read());
+  }();
+  s.expect = expect_for(p_, s);
+  return s;
+}
+
+Bytes Generator::valid_read() {
+  if (p_.readable.empty()) return p_.probe;
+  const spec::Register& r = any(p_.readable);
+  uint8_t fc = read_function(r.table);
+  const auto* f = p_.spec->profile.function(fc);
+  int max = f && f->max_quantity ? *f->max_quantity : 8;
+  uint16_t q = uint16_t(pick(4) ? r.words : 1 + pick(uint64_t(std::min(max, 16))));
+  return read_request(fc, r.address, q);
+}
+
+Bytes Generator::boundary_write() {
+  if (p_.writable.empty()) return valid_read();
+  const spec::Register& r = any(p_.writable);
+  auto values = boundary_values(*p_.spec, r);
+  if (values.empty()) return valid_read();
+  auto pdus = write_pdus(*p_.spec, r, values[pick(values.size())]);
+  return pdus.empty() ? valid_read() : pdus[pick(pdus.size())];
+}
+
+Bytes Generator::base() {
+  switch (pick(3)) {
+    case 0: return valid_read();
+    case 1: return boundary_write();
+    default: return p_.examples.empty() ? valid_read() : p_.examples[pick(p_.examples.size())];
+  }
+}
+
+uint16_t Generator::interesting16(uint16_t near) {
+  static const uint16_t values[] = {0, 1, 0x7D, 0x7E, 0x7B, 0x7C, 0x7D0, 0x7D1, 0x7B0, 0x7B1, 0x7F, 0x80, 0xFF, 0x100, 0x7FFF, 0x8000, 0xFF00, 0xFFFE, 0xFFFF};
+  switch (pick(4)) {
+    case 0: return values[pick(std::size(values))];
+    case 1: return uint16_t(near + pick(3) - 1);
+    case 2: {
+      auto last = p_.spec->last_address(spec::Table::holding);
+      return last ? uint16_t(*last + 1) : 0;
+    }
+    default: return uint16_t(rng_());
+  }
+}
+
+// One field of a well-formed request changed (MBAP v1.1b3 §6 field layout).
+Bytes Generator::mutate(Bytes pdu) {
+  if (pdu.empty()) return pdu;
+  switch (pick(8)) {
+    case 0: {  // function code
+      if (pick(2) && !p_.functions.empty()) pdu[0] = p_.functions[pick(p_.functions.size())];
+      else pdu[0] = uint8_t(pick(p_.info.live ? 0x80 : 0x100));
+      break;
+    }
+    case 1:  // address
+      if (pdu.size() >= 3) {
+        uint16_t a = interesting16(be16(pdu, 1));
+        pdu[1] = uint8_t(a >> 8), pdu[2] = uint8_t(a);
+      }
+      break;
+    case 2:  // quantity or value
+      if (pdu.size() >= 5) {
+        uint16_t q = interesting16(be16(pdu, 3));
+        pdu[3] = uint8_t(q >> 8), pdu[4] = uint8_t(q);
+      }
+      break;
+    case 3:  // byte count of FC 15/16 (offset 5) and FC 23 (offset 9)
+      if ((pdu[0] == 15 || pdu[0] == 16) && pdu.size() >= 6) pdu[5] = uint8_t(rng_());
+      else if (pdu[0] == 23 && pdu.size() >= 10) pdu[9] = uint8_t(rng_());
+      else if (pdu.size() >= 2) pdu[1 + pick(pdu.size() - 1)] = uint8_t(rng_());
+      break;
+    case 4: pdu.resize(1 + pick(pdu.size())); break;  // truncated
+    case 5: {                                         // trailing bytes
+      size_t n = 1 + pick(8);
+      for (size_t i = 0; i < n; ++i) pdu.push_back(uint8_t(rng_()));
+      break;
+    }
+    case 6:  // one bit
+      pdu[pick(pdu.size())] ^= uint8_t(1u << pick(8));
+      break;
+    default:  // a longer write: more registers than the profile allows
+      if (pdu[0] == 16 && pdu.size() >= 6) {
+        uint16_t q = uint16_t(1 + pick(127));
+        Bytes b{16, pdu[1], pdu[2], uint8_t(q >> 8), uint8_t(q), uint8_t(2 * q)};
+        for (int i = 0; i < 2 * q && b.size() < 253; ++i) b.push_back(uint8_t(rng_()));
+        pdu = b;
+      }
+      break;
+  }
+  return pdu;
+}
+
+// Malformed framing (MB-SL v1.02 §2.5.1): the frame a correct device drops.
+std::optional<Step> Generator::malformed(const Bytes& pdu) {
+  // Over Modbus TCP the frame is the MBAP header's business: RTU bytes would
+  // only desynchronise the stream. On a byte stream without timing (TCP,
+  // RTU over TCP) a frame whose length is wrong swallows the next request
+  // (its end is found by counting bytes), so only length-keeping faults.
+  if (p_.info.framing != Framing::rtu) return std::nullopt;
+  const bool stream = p_.info.kind == "tcp" || p_.info.kind == "rtu-tcp";
+  uint8_t unit = p_.info.unit;
+  Step s = script::raw_rtu(rtu_frame(unit, pdu));
+  Bytes& a = s.bytes;
+  static const int kStreamCases[] = {0, 3, 4};
+  switch (stream ? kStreamCases[pick(3)] : int(pick(6))) {
+    case 0: a[a.size() - 1 - pick(2)] ^= uint8_t(1u << pick(8)); break;  // CRC
+    case 1: a.resize(1 + pick(a.size() - 1)); break;                       // truncated
+    case 2: {                                                              // over 256 bytes
+      while (a.size() < 257 + pick(40)) a.push_back(uint8_t(rng_()));
+      break;
+    }
+    case 3: {  // another slave id, CRC right: must be silent
+      uint8_t other = uint8_t(1 + pick(247));
+      if (other == unit) other = uint8_t(unit % 247 + 1);
+      if (!p_.safe(pdu, true)) return std::nullopt;
+      a = rtu_frame(other, pdu);
+      break;
+    }
+    case 4: {  // broadcast, CRC right: executed (writes) but never answered
+      if (!p_.safe(pdu, true) || !p_.spec->serial.broadcast_address) return std::nullopt;
+      a = rtu_frame(uint8_t(*p_.spec->serial.broadcast_address), pdu);
+      break;
+    }
+    default:  // a pause of more than t1.5 inside the frame (§2.5.1.1): two broken frames
+      if (a.size() < 2) return std::nullopt;
+      s.gap = 1 + pick(a.size() - 1);
+      break;
+  }
+  if (!p_.safe(pdu, false)) return std::nullopt;
+  return s;
+}
+
+// ---- running and reducing ----
+
+std::optional<Finding> run_fresh(const Open& open, const Plan& p, const std::vector<Step>& steps, const Wanted& wanted) {
+  std::unique_ptr<Target> t;
+  try {
+    t = open();
+  } catch (const std::exception& e) {
+    return Finding{"cannot-reopen", e.what()};
+  }
+  for (const auto& st : steps)
+    if (auto f = execute(*t, p, st)) {
+      if (!wanted || wanted(*f, st)) return f;
+      if (target_may_be_gone(*f)) return std::nullopt;
+    }
+  return std::nullopt;
+}
+
+std::optional<Finding> isolated(const std::function<std::optional<Finding>()>& fn) {
+  int fds[2];
+  if (pipe(fds) != 0) return fn();
+  std::fflush(nullptr);
+  pid_t pid = fork();
+  if (pid < 0) return fn();
+  if (pid == 0) {
+    close(fds[0]);
+    auto f = fn();
+    std::string out = f ? f->kind + "\n" + f->message : "";
+    (void)!write(fds[1], out.data(), out.size());
+    _exit(0);
+  }
+  close(fds[1]);
+  std::string got;
+  char buf[4096];
+  for (ssize_t n; (n = read(fds[0], buf, sizeof buf)) > 0;) got.append(buf, size_t(n));
+  close(fds[0]);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  if (WIFSIGNALED(status))
+    return Finding{"crash", fmt::format("the target's process died with signal {} ({})", WTERMSIG(status), strsignal(WTERMSIG(status)))};
+  if (got.empty()) return std::nullopt;
+  auto nl = got.find('\n');
+  return Finding{got.substr(0, nl), nl == std::string::npos ? "" : got.substr(nl + 1)};
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// One round: the probe, then batches of generated steps each followed by the
+// probe, until the deadline or a finding. Every step goes to `journal`
+// before it is sent, so a finding can be reproduced from what was sent.
+// A finding already reported ends the round only when the target may be
+// gone (`known` says whether it is one, and counts it).
+using Known = std::function<bool(const Finding&, const Step&)>;
+
+
+std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch, Clock::time_point deadline,
+                             const std::function<void(const Step&)>& journal, const Known& known, Outcome& out) {
+  Generator gen(p, seed);
+  const Step probe = probe_step(p);
+  auto send = [&](const Step& st) -> std::optional<Finding> {
+    journal(st);
+    auto f = execute(t, p, st);
+    if (f && !target_may_be_gone(*f) && known(*f, st)) return std::nullopt;
+    return f;
+  };
+  if (auto f = send(probe)) return f;
+  while (Clock::now() < deadline) {
+    for (int i = 0; i < batch; ++i) {
+      ++out.frames;
+      if (auto f = send(gen.next())) return f;
+    }
+    ++out.batches;
+    if (auto f = send(probe)) return f;
+  }
+  return std::nullopt;
+}
+
+// What makes a finding distinct: its kind, and for a reply whose content is
+// wrong also the function code it answered (a device that answers every
+// broadcast, or garbles every CRC, is one finding; a bad FC 03 reply and a
+// bad FC 16 reply are two).
+std::string signature(const Finding& f, const Plan& p, const Step& last) {
+  if (f.kind != "malformed-reply" && f.kind != "unknown-exception-code") return f.kind;
+  auto pdu = script::request_pdu(last, p.info.unit);
+  if (!pdu || pdu->empty()) return f.kind;
+  return fmt::format("{} fc{:02X}", f.kind, (*pdu)[0]);
+}
+
+// The steps since the last probe before the finding (most findings need no earlier state).
+std::vector<Step> last_batch(const std::vector<Step>& h) {
+  size_t from = 0;
+  for (size_t i = 0; i + 1 < h.size(); ++i)
+    if (is_probe(h[i])) from = i + 1;
+  return {h.begin() + long(from), h.end()};
+}
+
+Reported reduce(const Open& open, const Plan& p, const Options& o, const Finding& f, const std::vector<Step>& history) {
+  Reported rep{f, history.empty() ? f.kind : signature(f, p, history.back()), {}, true, 0, history.size()};
+  // The same finding, past others (already reported) on the way.
+  Wanted same = [&](const Finding& g, const Step& st) { return g.kind == f.kind && signature(g, p, st) == rep.signature; };
+  std::function<bool(const std::vector<Step>&)> fails = [&](const std::vector<Step>& steps) {
+    auto g = o.isolate ? isolated([&] { return run_fresh(open, p, steps, same); }) : run_fresh(open, p, steps, same);
+    return g && g->kind == f.kind;
+  };
+  std::vector<Step> batch = last_batch(history);
+  ++rep.runs;
+  if (fails(batch)) {
+    rep.steps = ddmin<Step>(batch, fails, o.reduce_budget, rep.runs);
+    return rep;
+  }
+  ++rep.runs;
+  if (batch.size() < history.size() && fails(history)) {
+    rep.steps = ddmin<Step>(history, fails, o.reduce_budget, rep.runs);
+    return rep;
+  }
+  // Timing, state outside the frames, or a target that is gone: the last
+  // batch as it was sent, unreduced.
+  rep.steps = batch;
+  rep.reproduced = false;
+  return rep;
+}
+
+}  // namespace
+
+Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, const Options& o,
+             const std::function<void(const Reported&)>& on_finding) {
+  Outcome out;
+  std::set<std::string> seen;
+  Known known = [&](const Finding& f, const Step& st) {
+    if (!seen.count(signature(f, p, st))) return false;
+    ++out.repeats;
+    return true;
+  };
+  const auto deadline = Clock::now() + o.duration;
+  std::unique_ptr<Target> target = std::move(first);
+  for (uint64_t r = 0; r == 0 || Clock::now() < deadline; ++r) {
+    ++out.rounds;
+    // Round 0 runs the given seed's sequence; later rounds other ones.
+    const uint64_t seed = o.seed + r * 0x9E3779B97F4A7C15ull;
+    std::vector<Step> history;
+    std::optional<Finding> f;
+    if (!target) {
+      try {
+        target = open();
+      } catch (const std::exception& e) {
+        out.target_lost = true;
+        break;
+      }
+    }
+    if (o.isolate) {
+      // The round in a child, so a plugin crash cannot lose it: the child
+      // journals each step before sending it; the parent reduces the journal.
+      Outcome child_counts;
+      f = isolated([&]() -> std::optional<Finding> {
+        std::ofstream j(o.journal, std::ios::trunc);
+        j << script::kHeader << "\n";
+        return round(*target, p, seed, o.batch, deadline, [&](const Step& s) { j << script::line(s) << std::endl; },
+                     known, child_counts);
+      });
+      try {
+        history = script::parse_file(o.journal).steps;
+      } catch (const std::exception&) {
+      }
+      std::remove(o.journal.c_str());
+      for (const auto& s : history) out.frames += !is_probe(s);
+    } else {
+      f = round(*target, p, seed, o.batch, deadline, [&](const Step& s) {
+        // A bounded history: findings that need state older than this are
+        // reported with what is kept (and said not to reproduce, if so).
+        if (history.size() > o.history_cap) history.erase(history.begin(), history.end() - long(o.history_cap / 2));
+        history.push_back(s);
+      }, known, out);
+    }
+    target.reset();
+    if (!f) break;
+    if (f->kind == "cannot-reopen") {
+      out.target_lost = true;
+      break;
+    }
+    std::string sig = history.empty() ? f->kind : signature(*f, p, history.back());
+    if (!seen.insert(sig).second) {
+      ++out.repeats;  // one that may have taken the target with it: on a fresh one
+      continue;
+    }
+    out.findings.push_back(reduce(open, p, o, *f, history));
+    if (on_finding) on_finding(out.findings.back());
+  }
+  return out;
+}
+
+script::Script reproducer(const Plan& p, const Reported& r, const std::string& replay_command) {
+  script::Script s;
+  s.device = p.spec->device.id;
+  s.comment = fmt::format("mbconform fuzz reproducer: {}\n", r.signature);
+  std::istringstream msg(r.finding.message);
+  for (std::string l; std::getline(msg, l);) s.comment += "  " + l + "\n";
+  if (!r.reproduced)
+    s.comment += "It did not reproduce on a fresh target (timing, state outside the frames, or the target is gone):\n"
+                 "these are the last steps sent before it, unreduced.\n";
+  s.comment += "replay: " + replay_command;
+  s.steps = r.steps;
+  return s;
+}
+
+}  // namespace mbc::conf::blackbox

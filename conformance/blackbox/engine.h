@@ -1,0 +1,171 @@
+// The black-box fuzzer behind `mbconform fuzz`: structure-aware frames from
+// a device's spec sent to any Target, every reply judged from the standard,
+// each distinct finding reduced by delta debugging to a minimal reproducer
+// in the frame-script format (conformance/script/README.md).
+//
+// Frames come from the spec: reads of its registers, writes of each
+// register's valid and boundary values, the manual's example requests, and
+// those frames with one field mutated (function code, address, quantity,
+// byte count, value, length); with raw access (TargetInfo::raw) also
+// malformed RTU framing (bad CRC, truncated, over-long, another slave id,
+// broadcast, an inter-character gap). Each step carries the expectation the
+// standard gives it (a reply, or silence); after each batch a liveness probe
+// (a read of a register the spec maps) must be answered normally.
+//
+// Safety with live drives (conformance/safety/safety.h): writes only to
+// registers may_write() allows, never to the serial settings or the "do not
+// persist" switch; on live targets writes go only to registers the spec
+// maps, never to mutated addresses, and broadcast / other-slave frames only read.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <random>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "safety/safety.h"
+#include "script/script.h"
+#include "spec.h"
+#include "targets/target.h"
+
+namespace mbc::conf::blackbox {
+
+using Step = script::Step;
+
+struct Finding {
+  std::string kind;     // stable name: no-answer, malformed-reply, answered-broadcast, ...
+  std::string message;  // what was sent, what came, why it is wrong
+};
+
+// What the spec and the safety rules allow on one target.
+struct Plan {
+  const spec::Spec* spec = nullptr;
+  TargetInfo info;
+  WritePolicy policy;
+  std::vector<const spec::Register*> readable, writable;
+  std::set<uint16_t> forbidden;  // holding addresses no write may touch
+  std::vector<Bytes> examples;   // example request PDUs that pass the safety rules
+  std::vector<uint8_t> functions;
+  Bytes probe;                   // the liveness probe's PDU
+
+  bool writable_register(const spec::Register& r) const;
+  // Whether a request PDU may be sent (to another unit or broadcast when `foreign_or_broadcast`).
+  bool safe(std::span<const uint8_t> pdu, bool foreign_or_broadcast) const;
+};
+// Throws std::runtime_error when the spec maps no register to probe.
+Plan make_plan(const spec::Spec& s, const TargetInfo& info, const WritePolicy& policy);
+
+// The liveness probe as a step (expects a normal reply).
+Step probe_step(const Plan& p);
+bool is_probe(const Step& s);
+// The expectation the standard gives a generated step on this plan's target:
+// silence for broadcast, another slave id or a corrupted frame (unless the
+// spec's crc_error policy answers), else any well-formed reply.
+script::Expect expect_for(const Plan& p, const Step& s);
+
+// Judges one exchange from the standard (script::check) and names the finding.
+std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r);
+// Runs one step; a target that throws (connection lost, plugin error) is a finding too.
+std::optional<Finding> execute(Target& t, const Plan& p, const Step& s);
+
+class Generator {
+ public:
+  Generator(const Plan& p, uint64_t seed) : p_(p), rng_(seed) {}
+  Step next();  // with its expectation set
+
+ private:
+  uint64_t pick(uint64_t n) { return n ? rng_() % n : 0; }
+  const spec::Register& any(const std::vector<const spec::Register*>& v) { return *v[pick(v.size())]; }
+  Bytes valid_read();
+  Bytes boundary_write();
+  Bytes base();
+  uint16_t interesting16(uint16_t near);
+  Bytes mutate(Bytes pdu);
+  std::optional<Step> malformed(const Bytes& pdu);
+
+  const Plan& p_;
+  std::mt19937_64 rng_;
+};
+
+// ddmin (Zeller & Hildebrandt 2002): a smaller sequence for which `fails`
+// still holds, within `budget` calls of it (`runs` counts them).
+template <class T>
+std::vector<T> ddmin(std::vector<T> steps, const std::function<bool(const std::vector<T>&)>& fails, int budget, int& runs) {
+  size_t n = 2;
+  while (steps.size() >= 2 && runs < budget) {
+    size_t chunk = (steps.size() + n - 1) / n;
+    bool reduced = false;
+    for (size_t i = 0; i < steps.size() && runs < budget; i += chunk) {
+      std::vector<T> complement(steps.begin(), steps.begin() + long(i));
+      complement.insert(complement.end(), steps.begin() + long(std::min(steps.size(), i + chunk)), steps.end());
+      if (complement.empty()) continue;
+      ++runs;
+      if (fails(complement)) {
+        steps = std::move(complement);
+        n = std::max<size_t>(n - 1, 2);
+        reduced = true;
+        break;
+      }
+    }
+    if (!reduced) {
+      if (n >= steps.size()) break;
+      n = std::min(n * 2, steps.size());
+    }
+  }
+  return steps;
+}
+
+// Runs `fn` in a child process: a target in this process (a plugin) that
+// crashes cannot take the fuzzer down; a child killed by a signal is a "crash".
+std::optional<Finding> isolated(const std::function<std::optional<Finding>()>& fn);
+
+using Open = std::function<std::unique_ptr<Target>()>;
+
+// Whether a finding on a step is the one looked for.
+using Wanted = std::function<bool(const Finding&, const Step&)>;
+// Runs `steps` on a fresh target; the first finding (the first `wanted` one,
+// going on past others while the target answers), if any. A target that
+// cannot be opened again (a server that died) gives "cannot-reopen".
+std::optional<Finding> run_fresh(const Open& open, const Plan& p, const std::vector<Step>& steps, const Wanted& wanted = {});
+
+struct Options {
+  std::chrono::milliseconds duration{10'000};
+  uint64_t seed = 0;
+  int batch = 50;          // frames between two liveness probes
+  bool isolate = false;    // each round in a child process (plugin targets)
+  std::string journal;     // isolate: the file the child writes each step to before sending it
+  int reduce_budget = 400; // fresh-target runs per reduction; each costs a connection on live targets
+  size_t history_cap = 20000;
+};
+
+struct Reported {
+  Finding finding;
+  std::string signature;     // what makes it distinct: kind and the function code it came on
+  std::vector<Step> steps;   // the reduced reproducer
+  bool reproduced = true;    // false: it did not reproduce on a fresh target; steps are the last batch, unreduced
+  int runs = 0;              // fresh-target runs the reduction took
+  size_t history = 0;        // steps sent since the target was opened, when it was found
+};
+
+struct Outcome {
+  long frames = 0, batches = 0, rounds = 0;
+  std::vector<Reported> findings;  // each distinct finding once, in the order found
+  long repeats = 0;                // findings of a signature already reported
+  bool target_lost = false;        // the target could not be opened again: fuzzing stopped early
+};
+
+// Fuzzes until the duration runs out: a finding is reduced (when its
+// signature is new), reported through `on_finding`, and fuzzing goes on on a
+// fresh target. `first` is the target already open (it is used for round 0).
+Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, const Options& o,
+             const std::function<void(const Reported&)>& on_finding);
+
+// The reproducer of a finding as a frame script (comments say what was found).
+script::Script reproducer(const Plan& p, const Reported& r, const std::string& replay_command);
+
+}  // namespace mbc::conf::blackbox

@@ -1,0 +1,245 @@
+// The black-box fuzzer's engine (conformance/blackbox/engine.h): its
+// generator, its judge and its reducer. Expected outcomes come from the
+// Modbus standard and the specs, written out by hand below.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <random>
+#include <set>
+
+#include "blackbox/engine.h"
+#include "modbus/crc16.h"
+#include "loader.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
+#include "targets/target.h"
+
+namespace mbc::conf::blackbox {
+namespace {
+
+using K = script::Expect::Kind;
+
+// A target as an RTU drive on a live line would present itself.
+TargetInfo live_rtu(uint8_t unit) {
+  TargetInfo i;
+  i.uri = "rtu:///dev/null";
+  i.kind = "rtu";
+  i.framing = Framing::rtu;
+  i.unit = unit;
+  i.live = true;
+  i.raw = true;
+  return i;
+}
+
+// ---- generator ----
+
+// On a live drive the generator never writes the serial settings the spec
+// lists (57HS-R §6.1: 0x0014 baud rate, 0x0015 slave id), never sends a
+// write to another slave id or to broadcast, and sends raw frames only on a
+// target that can; each step expects what MB-SL v1.02 §2.1 gives it.
+TEST(Generator, LiveDriveStaysSafeAndExpectsWhatTheStandardSays) {
+  spec::Spec s = spec::load_spec_by_id("sihong-57hs-r");
+  ASSERT_FALSE(s.serial.settings.empty());
+  std::set<uint16_t> settings;
+  for (const auto& st : s.serial.settings) settings.insert(st.register_address);
+  Plan p = make_plan(s, live_rtu(1), WritePolicy{});
+  Generator gen(p, 42);
+  int writes = 0, raws = 0, silences = 0;
+  for (int i = 0; i < 20000; ++i) {
+    Step st = gen.next();
+    ASSERT_NE(st.kind, Step::Kind::advance) << "a live drive has no virtual clock";
+    Bytes pdu;
+    uint8_t unit = 1;
+    if (st.kind == Step::Kind::raw) {
+      ++raws;
+      // A frame not addressed to unit 1 must get no reply (MB-SL v1.02 §2.1).
+      if (st.bytes[0] != 1) {
+        EXPECT_EQ(st.expect.kind, K::silence) << script::line(st);
+      }
+      // A frame with a bad CRC must get none either (§2.4.2: the 57HS-R is silent on CRC errors).
+      if (st.bytes[0] == 1 && !st.gap && !crc_ok(st.bytes)) {
+        EXPECT_EQ(st.expect.kind, K::silence) << script::line(st);
+      }
+      silences += st.expect.kind == K::silence;
+      if (st.bytes.size() < 4 || !crc_ok(st.bytes) || st.gap) continue;
+      unit = st.bytes[0];
+      pdu.assign(st.bytes.begin() + 1, st.bytes.end() - 2);
+    } else {
+      ASSERT_EQ(st.kind, Step::Kind::frame);
+      EXPECT_LE(st.pdu.size(), 253u);  // MBAP v1.1b3 §4.1
+      // A fuzzed request may be dropped; a reply must be well formed.
+      EXPECT_EQ(st.expect.kind, K::any_or_silence);
+      pdu = st.pdu;
+    }
+    if (pdu.size() < 5) continue;
+    if (pdu[0] == 6 || pdu[0] == 16) {
+      ++writes;
+      EXPECT_EQ(unit, 1) << "a write to another drive or to broadcast: " << script::line(st);
+      uint16_t start = be16(pdu, 1), count = pdu[0] == 6 ? 1 : be16(pdu, 3);
+      for (uint32_t a = start; a < uint32_t(start) + count; ++a) {
+        EXPECT_FALSE(settings.count(uint16_t(a))) << "writes serial setting 0x" << std::hex << a << ": " << script::line(st);
+        const spec::Register* r = s.register_covering(uint16_t(a), spec::Table::holding);
+        ASSERT_NE(r, nullptr) << "a live write to an address the spec does not map: " << script::line(st);
+        EXPECT_TRUE(may_write(s, *r, p.info, WritePolicy{}).allowed) << script::line(st);
+      }
+    }
+  }
+  EXPECT_GT(writes, 100);
+  EXPECT_GT(raws, 100);
+  EXPECT_GT(silences, 10);
+}
+
+TEST(Generator, SameSeedSameSteps) {
+  spec::Spec s = spec::load_spec_by_id("hsc60");
+  auto t = open_target("ref:hsc60");
+  Plan p = make_plan(s, t->info(), WritePolicy{});
+  Generator a(p, 7), b(p, 7), c(p, 8);
+  bool differs = false;
+  for (int i = 0; i < 500; ++i) {
+    Step x = a.next(), y = b.next(), z = c.next();
+    EXPECT_EQ(script::line(x), script::line(y));
+    differs |= script::line(x) != script::line(z);
+  }
+  EXPECT_TRUE(differs);
+}
+
+// Over Modbus TCP there is no RTU framing to break: no raw RTU frames, and
+// frames are printed as MBAP with an unknown transaction id.
+TEST(Generator, TcpTargetGetsNoRtuBytes) {
+  spec::Spec s = spec::load_spec_by_id("modbus-standard");
+  TargetInfo i = live_rtu(1);
+  i.kind = "tcp";
+  i.framing = Framing::mbap;
+  Plan p = make_plan(s, i, WritePolicy{});
+  Generator gen(p, 3);
+  for (int n = 0; n < 3000; ++n) {
+    Step st = gen.next();
+    ASSERT_EQ(st.kind, Step::Kind::frame) << script::line(st);
+    ASSERT_EQ(script::line(st).rfind("mbap * 00 00 ", 0), 0u) << script::line(st);
+  }
+}
+
+// ---- judge ----
+
+struct JudgeTest : ::testing::Test {
+  spec::Spec s = spec::load_spec_by_id("modbus-standard");
+  Plan p = make_plan(s, live_rtu(1), WritePolicy{});
+  Reply reply(uint8_t unit, const Bytes& pdu) {
+    Reply r;
+    r.frame = rtu_frame(unit, pdu);
+    r.pdu = pdu;
+    return r;
+  }
+  Step generated(Step st) {
+    st.expect = expect_for(p, st);
+    return st;
+  }
+  std::string kind(const Step& st, const Reply& r) {
+    auto f = judge(p, st, r);
+    return f ? f->kind : "";
+  }
+};
+
+TEST_F(JudgeTest, WellFormedRepliesAreNoFinding) {
+  Step read = generated(script::frame(Framing::rtu, 1, {0x03, 0x00, 0x00, 0x00, 0x01}));
+  EXPECT_EQ(kind(read, reply(1, {0x03, 0x02, 0x12, 0x34})), "");
+  EXPECT_EQ(kind(read, reply(1, {0x83, 0x02})), "");  // MBAP v1.1b3 §7: 02 illegal data address
+}
+
+TEST_F(JudgeTest, MalformedReplyAndUnknownException) {
+  Step read = generated(script::frame(Framing::rtu, 1, {0x03, 0x00, 0x00, 0x00, 0x01}));
+  // One register asked, a byte count of 4 (MBAP v1.1b3 §6.3: 2 x N).
+  EXPECT_EQ(kind(read, reply(1, {0x03, 0x04, 0x12, 0x34, 0x00, 0x00})), "malformed-reply");
+  EXPECT_EQ(kind(read, reply(1, {0x83, 0x55})), "unknown-exception-code");
+  Reply bad_crc = reply(1, {0x03, 0x02, 0x12, 0x34});
+  bad_crc.pdu.reset();
+  bad_crc.framing_error = "CRC wrong";
+  EXPECT_EQ(kind(read, bad_crc), "malformed-framing");
+}
+
+TEST_F(JudgeTest, NoReplyToBroadcastOtherSlaveOrCorruptedFrame) {
+  Bytes write{0x06, 0x00, 0x00, 0x00, 0x01};
+  Step broadcast = generated(script::raw_rtu(rtu_frame(0, write)));
+  Step other = generated(script::raw_rtu(rtu_frame(9, write)));
+  Bytes corrupted = rtu_frame(1, write);
+  corrupted.back() ^= 0x01;
+  Step bad = generated(script::raw_rtu(corrupted));
+  for (const Step* st : {&broadcast, &other, &bad}) {
+    EXPECT_EQ(st->expect.kind, K::silence) << script::line(*st);
+    Reply silent;
+    EXPECT_EQ(kind(*st, silent), "");
+  }
+  EXPECT_EQ(kind(broadcast, reply(0, write)), "answered-broadcast");
+  EXPECT_EQ(kind(other, reply(9, write)), "answered-other-slave");
+  EXPECT_EQ(kind(bad, reply(1, write)), "answered-corrupted-frame");
+}
+
+TEST_F(JudgeTest, ProbeMustBeAnsweredNormally) {
+  Step probe = probe_step(p);
+  EXPECT_EQ(probe.expect.kind, K::normal);
+  EXPECT_EQ(kind(probe, Reply{}), "no-answer");
+  EXPECT_EQ(kind(probe, reply(1, {uint8_t(probe.pdu[0] | 0x80), 0x04})), "probe-refused");
+}
+
+// ---- reducer ----
+
+// k frames that together make the failure, planted among noise: ddmin
+// returns exactly those k, in their order.
+TEST(Reducer, ReturnsExactlyThePlantedFrames) {
+  std::mt19937 rng(1);
+  for (int k = 1; k <= 5; ++k) {
+    for (int trial = 0; trial < 5; ++trial) {
+      std::vector<int> steps(200);
+      for (int i = 0; i < 200; ++i) steps[i] = 1000 + i;  // noise
+      std::vector<int> planted;
+      std::set<size_t> at;
+      while (at.size() < size_t(k)) at.insert(rng() % steps.size());
+      for (size_t i : at) {
+        steps[i] = int(i);  // below 1000: necessary
+        planted.push_back(int(i));
+      }
+      std::function<bool(const std::vector<int>&)> fails = [&](const std::vector<int>& v) {
+        return std::all_of(planted.begin(), planted.end(), [&](int x) { return std::find(v.begin(), v.end(), x) != v.end(); });
+      };
+      int runs = 0;
+      EXPECT_EQ(ddmin<int>(steps, fails, 10000, runs), planted) << "k=" << k;
+    }
+  }
+}
+
+// On a device that answers broadcast writes (MB-SL v1.02 §2.1 says it must
+// not): 40 reads with one broadcast write among them reduce, on fresh
+// targets, to that write alone.
+TEST(Reducer, RealTargetReducesToTheFrameThatFails) {
+  const std::string uri = "ref:hsc60?fault=answer-broadcast";
+  spec::Spec s = spec::load_spec_by_id("hsc60");
+  auto t = open_target(uri);
+  Plan p = make_plan(s, t->info(), WritePolicy{});
+  std::vector<Step> steps;
+  for (int i = 0; i < 40; ++i) {
+    Step st = script::frame(Framing::rtu, 1, read_request(3, uint16_t(i % 4), 1));
+    st.expect = expect_for(p, st);
+    steps.push_back(st);
+  }
+  Step bc = script::raw_rtu(rtu_frame(0, write_single_register(0x0000, 1)));
+  bc.expect = expect_for(p, bc);
+  steps.insert(steps.begin() + 23, bc);
+  Open open = [&] { return open_target(uri); };
+  auto f = run_fresh(open, p, steps);
+  ASSERT_TRUE(f);
+  ASSERT_EQ(f->kind, "answered-broadcast");
+  std::function<bool(const std::vector<Step>&)> fails = [&](const std::vector<Step>& v) {
+    auto g = run_fresh(open, p, v);
+    return g && g->kind == "answered-broadcast";
+  };
+  int runs = 0;
+  auto min = ddmin<Step>(steps, fails, 400, runs);
+  ASSERT_EQ(min.size(), 1u);
+  EXPECT_EQ(script::line(min[0]), script::line(bc));
+  // The correct device does not fail it.
+  Open correct = [] { return open_target("ref:hsc60"); };
+  EXPECT_FALSE(run_fresh(correct, p, min));
+}
+
+}  // namespace
+}  // namespace mbc::conf::blackbox
