@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "loader.h"
+#include "modbus/crc16.h"
 #include "modbus/judge.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
@@ -17,20 +18,35 @@
 
 namespace mbc::conf::props {
 
-std::string Step::line() const {
+script::Step Step::script() const {
   switch (kind) {
-    case Kind::frame: return to_hex(frame);
-    case Kind::advance: return fmt::format("advance {}", advance_us);
-    case Kind::power_cycle: return "power-cycle";
+    case Kind::advance: return script::advance(advance_us);
+    case Kind::power_cycle: return script::power_cycle();
+    case Kind::frame: break;
   }
-  return "";
+  script::Step s = frame.size() >= 4 && crc_ok(frame)
+                       ? script::frame(framing, frame[0], Bytes(frame.begin() + 1, frame.end() - 2))
+                       : script::raw_rtu(frame);
+  s.tid = tid;
+  s.expect = expect;
+  s.note = note;
+  return s;
+}
+
+std::string Step::line() const {
+  script::Step s = script();
+  s.note.clear();
+  return script::line(s);
 }
 
 namespace {
-Step frame_step(const Reply& r, const std::string& note) {
+Step frame_step(const Reply& r, const TargetInfo& info, Bytes rtu, const std::string& note) {
   Step s;
-  s.frame = r.request;
+  s.frame = std::move(rtu);
+  s.framing = info.framing;
+  if (info.framing == Framing::mbap && r.request.size() >= 2) s.tid = uint16_t(r.request[0] << 8 | r.request[1]);
   if (!r.silent()) s.reply = r.frame;
+  s.reply_pdu = r.pdu;
   s.note = note;
   return s;
 }
@@ -40,20 +56,14 @@ Reply Session::send(std::span<const uint8_t> pdu, const std::string& note) { ret
 
 Reply Session::send_to(uint8_t unit, std::span<const uint8_t> pdu, const std::string& note) {
   Reply r = target_.transact(unit, pdu);
-  Step st = frame_step(r, note);
-  // Counterexamples and regressions are RTU frames, whatever carried them
-  // (a Modbus TCP target sent the same PDU behind an MBAP header).
-  if (target_.info().framing != Framing::rtu) {
-    st.frame = rtu_frame(unit, pdu);
-    if (r.pdu) st.reply = rtu_frame(unit, *r.pdu);
-  }
-  steps_.push_back(std::move(st));
+  // The model reads RTU frames; the step prints in the framing that was sent.
+  steps_.push_back(frame_step(r, target_.info(), rtu_frame(unit, pdu), note));
   return r;
 }
 
 Reply Session::send_raw(std::span<const uint8_t> adu, const std::string& note) {
   Reply r = target_.send_raw(adu);
-  steps_.push_back(frame_step(r, note));
+  steps_.push_back(frame_step(r, target_.info(), Bytes(adu.begin(), adu.end()), note));
   return r;
 }
 
@@ -86,11 +96,11 @@ std::vector<FrameRecord> records_of(const std::vector<Step>& steps) {
     FrameRecord f;
     f.step = s.note.empty() ? s.line() : s.note;
     if (s.kind == Step::Kind::frame) {
-      f.request = s.frame;
+      script::Step sc = s.script();
+      f.request = script::wire_bytes(sc, sc.kind == script::Step::Kind::raw ? Framing::rtu : s.framing);
       f.actual = s.reply;
       if (s.frame.size() >= 4) f.request_decoded = describe_pdu(std::span(s.frame).subspan(1, s.frame.size() - 3), true);
-      if (s.reply && s.reply->size() >= 4)
-        f.actual_decoded = describe_pdu(std::span(*s.reply).subspan(1, s.reply->size() - 3), false);
+      if (s.reply_pdu) f.actual_decoded = describe_pdu(*s.reply_pdu, false);
     }
     out.push_back(std::move(f));
   }
@@ -212,7 +222,7 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
     std::string frames;
     for (const auto& s : last_failure) {
       frames += "  " + s.line();
-      if (s.kind == Step::Kind::frame) frames += s.reply ? "   -> " + to_hex(*s.reply) : "   -> (silence)";
+      if (s.kind == Step::Kind::frame) frames += s.reply ? "   got " + to_hex(*s.reply) : "   got silence";
       if (!s.note.empty()) frames += "   # " + s.note;
       frames += "\n";
     }

@@ -225,6 +225,34 @@ Prediction predict(const Model& m, std::span<const uint8_t> adu) {
   return silence;
 }
 
+// What the model predicts for a frame, as a frame-script expectation
+// (written into counterexamples and regressions).
+script::Expect expectation(const Model& m, const Prediction& p, std::span<const uint8_t> adu) {
+  using K = script::Expect::Kind;
+  switch (p.kind) {
+    case Prediction::Kind::silence: return {K::silence, {}, 0};
+    case Prediction::Kind::any: return {K::any_or_silence, {}, 0};
+    case Prediction::Kind::refused:
+      if (p.refusal.kind == Expected::Kind::exception) return {K::exception, {}, uint8_t(p.refusal.code)};
+      if (p.refusal.kind == Expected::Kind::silence) return {K::silence, {}, 0};
+      return {K::any_or_silence, {}, 0};  // an exception or silence: the policy is unspecified
+    case Prediction::Kind::normal: break;
+  }
+  if (p.or_refused) return {K::any, {}, 0};
+  if (p.exact) return {K::reply, *p.exact, 0};
+  if (p.read && adu.size() >= 4) {
+    // Every word read known to the model: the reply is exact (MBAP v1.1b3 §6.3).
+    Bytes r{adu[1], uint8_t(2 * p.read->second)};
+    for (uint16_t i = 0; i < p.read->second; ++i) {
+      auto it = m.words.find(uint16_t(p.read->first + i));
+      if (it == m.words.end() || !it->second) return {K::normal, {}, 0};
+      r.insert(r.end(), {uint8_t(*it->second >> 8), uint8_t(*it->second)});
+    }
+    return {K::reply, r, 0};
+  }
+  return {K::normal, {}, 0};
+}
+
 std::string reply_text(const Reply& r) {
   if (r.silent()) return "silence";
   if (!r.pdu) return fmt::format("{} ({})", to_hex(r.frame), r.framing_error);
@@ -490,6 +518,7 @@ struct StepCmd final : rc::state::Command<Model, Sut> {
     if (step.kind == Step::Kind::power_cycle) return sut.session.power_cycle();
     Prediction p = predict(m, step.frame);
     Reply rep = send_step(sut.session, m.raw, step);
+    sut.session.expect_last(expectation(m, p, step.frame));
     std::string why = judge(m, p, step.frame, rep);
     if (!why.empty()) RC_FAIL(fmt::format("{}{}: {}", to_hex(step.frame), step.note.empty() ? "" : " (" + step.note + ")", why));
   }
@@ -559,54 +588,48 @@ std::string replay(Session& s, const std::vector<Step>& steps) {
     }
     Prediction p = predict(*m, st.frame);
     Reply rep = send_step(s, m->raw, st);
+    s.expect_last(expectation(*m, p, st.frame));
     if (std::string why = judge(*m, p, st.frame, rep); !why.empty())
-      return fmt::format("step {} ({}): {}", i + 1, to_hex(st.frame), why);
+      return fmt::format("step {} ({}): {}", i + 1, st.line(), why);
+    // The expectation written in the file holds too.
+    if (auto miss = script::check(st.script(), m->unit, rep, &s.spec()))
+      return fmt::format("step {} ({}): {}", i + 1, st.line(), miss->why);
     apply_frame(*m, p, &rep);
   }
   return final_image_check(s, *m);
 }
 
 Regression parse_regression(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw std::runtime_error(path + ": cannot read");
+  script::Script sc = script::parse_file(path);  // throws with path:line:col
   Regression r;
   r.path = path;
-  std::string line;
-  for (int n = 1; std::getline(in, line); ++n) {
-    auto hash = line.find('#');
-    std::string comment = hash == std::string::npos ? "" : line.substr(hash + 1);
-    std::string body = line.substr(0, hash);
-    while (!body.empty() && isspace(uint8_t(body.back()))) body.pop_back();
-    while (!body.empty() && isspace(uint8_t(body.front()))) body.erase(body.begin());
-    if (body.empty()) {
-      if (!comment.empty()) r.note += comment + "\n";
-      continue;
+  r.device_id = sc.device;
+  r.fault = sc.fault;
+  r.note = sc.comment;
+  for (const auto& st : sc.steps) {
+    Step s;
+    s.note = st.note;
+    s.expect = st.expect;
+    switch (st.kind) {
+      case script::Step::Kind::frame:
+        s.frame = rtu_frame(st.unit, st.pdu);
+        s.framing = st.framing;
+        s.tid = st.tid;
+        break;
+      case script::Step::Kind::raw:
+        if (st.framing != Framing::rtu || st.gap)
+          throw script::ParseError(fmt::format("{}:{}:1: error: step: the model replays RTU frames without pauses", path, st.line));
+        s.frame = st.bytes;
+        break;
+      case script::Step::Kind::advance:
+        s.kind = Step::Kind::advance;
+        s.advance_us = st.us;
+        break;
+      case script::Step::Kind::power_cycle: s.kind = Step::Kind::power_cycle; break;
+      case script::Step::Kind::wait:
+        throw script::ParseError(fmt::format("{}:{}:1: error: step: the model has no real time (use advance)", path, st.line));
     }
-    Step st;
-    st.note = comment;
-    if (body.rfind("device ", 0) == 0) {
-      r.device_id = body.substr(7);
-      continue;
-    }
-    if (body.rfind("fault ", 0) == 0) {
-      r.fault = body.substr(6);
-      continue;
-    }
-    if (body == "power-cycle") {
-      st.kind = Step::Kind::power_cycle;
-    } else if (body.rfind("advance ", 0) == 0) {
-      st.kind = Step::Kind::advance;
-      try {
-        st.advance_us = std::stoull(body.substr(8));
-      } catch (const std::exception&) {
-        throw std::runtime_error(fmt::format("{}:{}: advance takes microseconds: '{}'", path, n, body));
-      }
-    } else if (auto bytes = parse_hex(body)) {
-      st.frame = *bytes;
-    } else {
-      throw std::runtime_error(fmt::format("{}:{}: not a hex frame, 'advance US' or 'power-cycle': '{}'", path, n, body));
-    }
-    r.steps.push_back(std::move(st));
+    r.steps.push_back(std::move(s));
   }
   if (r.device_id.empty()) throw std::runtime_error(path + ": no 'device ID' line");
   return r;
@@ -614,17 +637,12 @@ Regression parse_regression(const std::string& path) {
 
 std::string format_regression(const std::string& device_id, const std::string& fault, const std::string& comment,
                               const std::vector<Step>& steps) {
-  std::ostringstream out;
-  std::istringstream c(comment);
-  for (std::string line; std::getline(c, line);) out << "# " << line << "\n";
-  out << "device " << device_id << "\n";
-  if (!fault.empty()) out << "fault " << fault << "\n";
-  for (const auto& s : steps) {
-    out << s.line();
-    if (!s.note.empty()) out << "   # " << s.note;
-    out << "\n";
-  }
-  return out.str();
+  script::Script sc;
+  sc.device = device_id;
+  sc.fault = fault;
+  sc.comment = comment;
+  for (const auto& s : steps) sc.steps.push_back(s.script());
+  return script::format(sc);
 }
 
 }  // namespace mbc::conf::props

@@ -9,6 +9,7 @@
 #include "modbus/judge.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
+#include "script/script.h"
 #include "serve/rtu_framing.h"
 
 namespace mbc::conf {
@@ -330,24 +331,43 @@ DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Ca
   return run;
 }
 
+script::Step to_script(const Step& st, const TargetInfo& info) {
+  script::Step s;
+  switch (st.kind) {
+    case Step::Kind::pdu: s = script::frame(info.framing, st.unit, st.pdu); break;
+    case Step::Kind::raw: s = script::raw_rtu(st.adu, st.gap_after); break;  // the framing cases' bytes are RTU
+    case Step::Kind::advance: s = script::advance(uint64_t(st.dt.count())); break;
+    case Step::Kind::power_cycle: s = script::power_cycle(); break;
+  }
+  using K = script::Expect::Kind;
+  const Expect& e = st.expect;
+  switch (e.kind) {
+    case Expect::Kind::none: break;
+    case Expect::Kind::exact: s.expect = {K::reply, e.pdu, 0}; break;
+    case Expect::Kind::exception: s.expect = {K::exception, {}, e.code}; break;
+    case Expect::Kind::silence: s.expect = {K::silence, {}, 0}; break;
+    case Expect::Kind::normal: s.expect = {K::normal, {}, 0}; break;
+    case Expect::Kind::registers:
+      // A read reply holding exactly these words (MBAP v1.1b3 §6.3): the function code, the byte count, the words.
+      if (st.kind == Step::Kind::pdu && !st.pdu.empty()) {
+        Bytes r{st.pdu[0], uint8_t(2 * e.words.size())};
+        for (uint16_t w : e.words) r.insert(r.end(), {uint8_t(w >> 8), uint8_t(w)});
+        s.expect = {K::reply, r, 0};
+      } else {
+        s.expect = {K::normal, {}, 0};
+      }
+      break;
+    case Expect::Kind::unchanged: s.expect = {K::normal, {}, 0}; break;  // equal to an earlier reply: checked by the runner only
+  }
+  s.note = st.what;
+  if (e.kind != Expect::Kind::none) s.note += " | " + cases::describe(e);
+  if (st.setup) s.note += " (setup)";
+  return s;
+}
+
 std::vector<std::string> plan_lines(const Case& c, const TargetInfo& info) {
   std::vector<std::string> out;
-  for (const auto& st : c.steps) {
-    std::string frame;
-    switch (st.kind) {
-      case Step::Kind::pdu:
-        frame = info.framing == Framing::rtu ? to_hex(rtu_frame(st.unit, st.pdu))
-                                             : fmt::format("unit {} PDU {}", st.unit, to_hex(st.pdu));
-        break;
-      case Step::Kind::raw:
-        frame = to_hex(st.adu);
-        if (st.gap_after) frame += fmt::format(" (gap after byte {})", *st.gap_after);
-        break;
-      case Step::Kind::advance: frame = fmt::format("(advance {} us)", st.dt.count()); break;
-      case Step::Kind::power_cycle: frame = "(power cycle)"; break;
-    }
-    out.push_back(fmt::format("  -> {}   {}   expect: {}", frame, st.what, cases::describe(st.expect)));
-  }
+  for (const auto& st : c.steps) out.push_back((c.skip_reason.empty() ? "" : "# ") + script::line(to_script(st, info)));
   return out;
 }
 

@@ -13,6 +13,7 @@
 
 #include "cases/case.h"
 #include "report/result.h"
+#include "script/script.h"
 #include "targets/target.h"
 
 namespace mbc::conf {
@@ -34,8 +35,12 @@ CaseResult result_header(const Case& c);
 // plus the t3.5 silence that must precede it (MB-SL v1.02 §2.5.1.1).
 double frame_wire_seconds(size_t bytes, int baud);
 
-// Every frame a case would send, framed for `info` (RTU ADU or PDU), one line
-// each: "  -> 01 03 00 20 00 01 85 C0   read 0x0020 x1 (FC 03)   expect: ...".
+// A case's step as a frame-script step (conformance/script/README.md), framed
+// as it goes to a target of `info`, with its expectation.
+script::Step to_script(const Step& st, const TargetInfo& info);
+// Every step a case would send, as frame-script lines ("rtu 01 03 00 20 00 01
+// 85 C0  -> normal   # read 0x0020 x1 (FC 03) | expect ..."); commented out
+// when the case is skipped on this target.
 std::vector<std::string> plan_lines(const Case& c, const TargetInfo& info);
 
 }  // namespace mbc::conf

@@ -42,6 +42,8 @@ struct PropsArgs {
   bool list = false, quiet = false;
 };
 
+// Replays regression files through the model; with --out, writes each back
+// to DIR/regressions/ with the expectations the model gives its steps now.
 int replay_files(const PropsArgs& a) {
   int rc = kExitOk;
   for (const auto& path : a.replay) {
@@ -62,6 +64,12 @@ int replay_files(const PropsArgs& a) {
       std::string why = conf::props::replay(session, r.steps);
       fmt::print("{} on {}: {}\n", path, uri, why.empty() ? "agrees with the model" : why);
       if (!why.empty()) rc = kExitFailed;
+      if (!a.t.out.empty() && session.steps().size() >= r.steps.size()) {
+        std::vector<conf::props::Step> steps(session.steps().begin(), session.steps().begin() + long(r.steps.size()));
+        auto dir = std::filesystem::path(a.t.out) / "regressions";
+        std::filesystem::create_directories(dir);
+        std::ofstream(dir / std::filesystem::path(path).filename()) << conf::props::format_regression(r.device_id, r.fault, r.note, steps);
+      }
     } catch (const std::exception& e) {
       fmt::print(stderr, "mbconform props: error: {}: {}\n", uri, e.what());
       return kExitUsage;
@@ -197,7 +205,9 @@ void add_props_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--seed", a.seed, "RapidCheck seed (default: from the clock; printed)");
   cmd->add_option("--max-size", a.max_size, "RapidCheck size bound: longest stateful sequence (default 60)")->check(CLI::Range(1, 10000));
   cmd->add_option("--only", a.only, "NAME: run only this invariant; repeatable (see --list)");
-  cmd->add_option("--replay", a.replay, "FILE: replay a regression file through the model (on ref:ID, or --target)");
+  cmd->add_option("--replay", a.replay,
+                  "FILE: replay a regression file through the model (on ref:ID, or --target); with --out, write it back "
+                  "to DIR/regressions/ with the model's expectations");
   cmd->add_flag("--list", a.list, "print the invariants and exit");
   cmd->add_flag("--quiet", a.quiet, "do not print counterexamples (they are in the reports)");
   cmd->callback([&exit_code] { exit_code = run(a); });

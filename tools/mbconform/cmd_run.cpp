@@ -26,6 +26,7 @@
 #include "options.h"
 #include "report/report.h"
 #include "runner/runner.h"
+#include "script/script.h"
 #include "safety/safety.h"
 #include "targets/target.h"
 
@@ -133,17 +134,19 @@ int run(RunArgs& a) {
       continue;
     }
     if (a.plan) {
-      fmt::print("# {} ({} cases, unit {}, {})\n", info.uri, cases.size(), info.unit,
-                 info.framing == conf::Framing::rtu ? "RTU frames" : "MBAP PDUs");
+      // A frame script (conformance/script/README.md): `mbconform replay` runs it.
+      if (&uri == &targets.front()) fmt::print("{}\n", conf::script::kHeader);
+      fmt::print("#\n# {}: {} cases, unit {}, {}\ndevice {}\n", info.uri, cases.size(), info.unit,
+                 info.framing == conf::Framing::rtu ? "RTU frames" : "MBAP frames (transaction id * : the target numbers its own)",
+                 s.device.id);
       for (const auto& c : cases) {
-        fmt::print("{}  [{}] {}\n", c.id, conf::to_string(c.level), c.clause);
-        if (!c.skip_reason.empty()) fmt::print("  (skip: {})\n", c.skip_reason);
+        fmt::print("#\n# {}  [{}] {}\n", c.id, conf::to_string(c.level), c.clause);
+        if (!c.skip_reason.empty()) fmt::print("# (skip: {})\n", c.skip_reason);
         for (const auto& l : conf::plan_lines(c, info)) fmt::print("{}\n", l);
       }
       for (const auto& b : conf::cases::planned_broadcast_writes(cases)) fmt::print("# every drive on the line receives: {}\n", b);
       continue;
     }
-
     fmt::print("{}: {} cases against {}\n", s.device.id, cases.size(), info.uri);
     std::fflush(stdout);
     conf::RunOptions opt;

@@ -154,9 +154,11 @@ TEST(RunCli, PlanSendsNothing) {
   std::string uri = "tcp://127.0.0.1:" + std::to_string(serve.endpoint("tcp")->port()) + "?unit=1";
   Out o = run({"run", "--target", uri, "--device", "hsc60", "--plan", "--filter", "*/registers/0x0000/read"});
   ASSERT_EQ(o.rc, 0) << o.text;
-  EXPECT_NE(o.text.find("unit 1 PDU 03 00 00 00 01"), std::string::npos) << o.text;
+  // A frame script, MBAP as sent, the transaction id unknown (the target numbers its own).
+  EXPECT_EQ(o.text.rfind("mbconform-script 1\n", 0), 0u) << o.text;
+  EXPECT_NE(o.text.find("\nmbap * 00 00 00 06 01 03 00 00 00 01  -> "), std::string::npos) << o.text;
   Out rtu = run({"run", "--target", "ref:hsc60", "--plan", "--filter", "*/framing/rtu/crc-error"});
-  EXPECT_NE(rtu.text.find("-> 01 03 00 00 00 01 84 F5"), std::string::npos) << rtu.text;  // the CRC's high byte inverted
+  EXPECT_NE(rtu.text.find("\nraw-rtu 01 03 00 00 00 01 84 F5  -> silence"), std::string::npos) << rtu.text;  // the CRC's high byte inverted
   EXPECT_EQ(serve.stop(SIGTERM).value_or(-1), 0);
   std::string log = serve.log();
   EXPECT_EQ(log.find("connected"), std::string::npos) << log;
