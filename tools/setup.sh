@@ -11,6 +11,7 @@ packages=(
   clang libfuzzer-14-dev libclang-rt-14-dev
   socat mbpoll python3 python3-pymodbus python3-serial python3-serial-asyncio python3-yaml
   libjson-c-dev
+  zip unzip
 )
 # Node for the npm peers (conformance/peers: npm ci into the build tree).
 # Debian's nodejs and npm only where no node is installed: a node from
@@ -20,8 +21,24 @@ missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
+# One line per step; a step's own output (apt's progress) only when it fails.
+log=$(mktemp /tmp/mbconform-setup.XXXXXX)
+trap 'rm -f "$log"' EXIT
+step() {  # step WHAT COMMAND...
+  local what=$1 rc=0
+  shift
+  "$@" >"$log" 2>&1 || rc=$?
+  if [ "$rc" = 0 ]; then
+    echo "setup: $what: ok"
+  else
+    echo "setup: $what: FAILED (exit $rc); its output:" >&2
+    cat "$log" >&2
+    exit "$rc"
+  fi
+}
 if [ "${#missing[@]}" -gt 0 ]; then
-  echo "setup: installing ${missing[*]}"
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+  step "apt-get update" $SUDO apt-get update
+  step "install ${missing[*]}" $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends "${missing[@]}"
+else
+  echo "setup: all ${#packages[@]} Debian packages are installed"
 fi

@@ -17,10 +17,6 @@
 #include "modbus/hex.h"
 #include "yaml_json.h"
 
-#ifndef MBCONFORM_SOURCE_SPEC_DIR
-#define MBCONFORM_SOURCE_SPEC_DIR "spec"
-#endif
-
 namespace mbc::spec {
 namespace {
 
@@ -523,25 +519,6 @@ LoadResult load_spec_file(const std::string& path) {
   text.resize(size_t(in.gcount()));
   return load_spec_text(text, path);
 }
-
-std::string spec_dir() {
-  if (const char* env = std::getenv("MBCONFORM_SPEC_DIR"); env && *env) return env;
-  std::error_code ec;
-  if (std::filesystem::is_directory(std::string(MBCONFORM_SOURCE_SPEC_DIR) + "/devices", ec))
-    return MBCONFORM_SOURCE_SPEC_DIR;
-  return "spec";
-}
-
-std::vector<std::string> spec_ids() {
-  std::vector<std::string> ids;
-  std::error_code ec;
-  for (const auto& e : std::filesystem::directory_iterator(spec_dir() + "/devices", ec))
-    if (e.path().extension() == ".yaml") ids.push_back(e.path().stem().string());
-  std::sort(ids.begin(), ids.end());
-  return ids;
-}
-
-std::string spec_path(const std::string& id) { return spec_dir() + "/devices/" + id + ".yaml"; }
 
 Spec load_spec_by_id(const std::string& id) {
   auto r = load_spec_file(spec_path(id));

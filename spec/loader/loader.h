@@ -8,6 +8,7 @@
 
 #include "diagnostic.h"
 #include "spec.h"
+#include "spec_path.h"
 
 namespace mbc::spec {
 
@@ -23,13 +24,9 @@ struct LoadResult {
 LoadResult load_spec_text(std::string_view text, const std::string& file);
 LoadResult load_spec_file(const std::string& path);
 
-// The directory holding devices/*.yaml: $MBCONFORM_SPEC_DIR, else the source
-// tree's spec/ (compiled in), else ./spec.
-std::string spec_dir();
-std::vector<std::string> spec_ids();  // every spec in spec_dir()/devices, sorted
-std::string spec_path(const std::string& id);
+// spec_ids(), spec_path(id): where specs are found (spec_path.h).
 
-// Loads spec `id` from spec_dir(); throws std::runtime_error with every
+// Loads spec `id` (spec_path()); throws std::runtime_error with every
 // diagnostic when it does not load cleanly.
 Spec load_spec_by_id(const std::string& id);
 

@@ -1,4 +1,5 @@
-// mbconform spec check | dump | errata | list
+// mbconform spec check | dump | errata | list | import | export, and --spec-dir
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -8,6 +9,7 @@
 #include "commands.h"
 #include "dump.h"
 #include "errata.h"
+#include "exchange.h"
 #include "loader.h"
 
 namespace mbc::cli {
@@ -73,6 +75,47 @@ int run_errata(std::vector<std::string> ids, const std::string& out_dir) {
   return kExitOk;
 }
 
+bool valid_id(const std::string& id) {
+  if (id.empty() || !std::isalnum(static_cast<unsigned char>(id[0]))) return false;
+  for (char c : id)
+    if (!(std::islower(static_cast<unsigned char>(c)) || std::isdigit(static_cast<unsigned char>(c)) || c == '-')) return false;
+  return true;
+}
+
+int run_import(const std::string& csv, const std::string& id, std::string out) {
+  if (!valid_id(id)) throw std::runtime_error("--id '" + id + "': a spec id is [a-z0-9][a-z0-9-]*");
+  std::ifstream in(csv, std::ios::binary);
+  if (!in) throw std::runtime_error("cannot open " + csv);
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  auto r = exchange::import_csv(text, csv, id);
+  for (const auto& e : r.errors) std::cerr << e << "\n";
+  if (!r.errors.empty()) {
+    std::cerr << fmt::format("{}: {} error{}; nothing written\n", csv, r.errors.size(), r.errors.size() == 1 ? "" : "s");
+    return kExitFailed;
+  }
+  if (out.empty()) out = id + ".yaml";
+  if (out == "-") {
+    std::cout << r.yaml;
+  } else {
+    if (!write_file(out, r.yaml)) throw std::runtime_error("cannot write " + out);
+    std::cerr << fmt::format("{}: spec skeleton of {} ({} registers)\n", out, id, r.registers);
+  }
+  return kExitOk;
+}
+
+int run_export(const std::string& what, const std::string& format, const std::string& out) {
+  spec::Spec s = load_id_or_path(what);
+  std::string text = format == "csv"              ? exchange::export_csv(s)
+                     : format == "home-assistant" ? exchange::export_home_assistant(s)
+                                                  : exchange::export_edgex(s);
+  if (out.empty() || out == "-") {
+    std::cout << text;
+  } else if (!write_file(out, text)) {
+    throw std::runtime_error("cannot write " + out);
+  }
+  return kExitOk;
+}
+
 }  // namespace
 
 void add_spec_commands(CLI::App& app, int& exit_code) {
@@ -87,7 +130,7 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
   check->callback([&] {
     std::vector<std::string> files = check_files;
     if (files.empty())
-      for (const auto& id : spec::spec_ids()) files.push_back(spec::spec_path(id));
+      for (const auto& f : spec::spec_files()) files.push_back(f.path);
     exit_code = run_check(files, quiet);
   });
 
@@ -108,11 +151,52 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
   errata->add_option("--out", errata_out, "output directory")->capture_default_str();
   errata->callback([&] { exit_code = run_errata(errata_ids, errata_out); });
 
-  auto* list = spec_cmd->add_subcommand("list", "List the device specs");
+  auto* import = spec_cmd->add_subcommand("import", "Turn a CSV register map into a spec skeleton (spec/README.md)");
+  static std::string import_csv_file, import_id, import_out;
+  import->add_option("--csv", import_csv_file, "the register map (CSV with a header row)")->required();
+  import->add_option("--id", import_id, "the new spec's id ([a-z0-9-]+)")->required();
+  import->add_option("--out", import_out, "the spec file to write (default ID.yaml; - for stdout)");
+  import->callback([&] { exit_code = run_import(import_csv_file, import_id, import_out); });
+
+  auto* exp = spec_cmd->add_subcommand("export", "Write a spec's register map for another tool");
+  static std::string export_id, export_format, export_out;
+  exp->add_option("id", export_id, "device id or spec file")->required();
+  exp->add_option("--format", export_format, "csv | home-assistant | edgex")
+      ->required()
+      ->check(CLI::IsMember({"csv", "home-assistant", "edgex"}));
+  exp->add_option("--out", export_out, "the file to write (default: stdout)");
+  exp->callback([&] { exit_code = run_export(export_id, export_format, export_out); });
+
+  auto* list = spec_cmd->add_subcommand("list", "List the device specs, each with its file and where it was found");
   list->callback([&] {
-    for (const auto& id : spec::spec_ids()) std::cout << id << "\n";
+    auto files = spec::spec_files();
+    size_t id_w = 0, path_w = 0;
+    for (const auto& f : files) id_w = std::max(id_w, f.id.size()), path_w = std::max(path_w, f.path.size());
+    for (const auto& f : files) std::cout << fmt::format("{:<{}}  {:<{}}  ({})\n", f.id, id_w, f.path, path_w, f.origin);
     exit_code = kExitOk;
   });
+}
+
+namespace {
+void fall_through(CLI::App& app) {
+  for (auto* sub : app.get_subcommands({})) {
+    sub->fallthrough();
+    fall_through(*sub);
+  }
+}
+}  // namespace
+
+void add_global_options(CLI::App& app) {
+  app.add_option_function<std::vector<std::string>>(
+         "--spec-dir",
+         [](const std::vector<std::string>& dirs) {
+           for (const auto& d : dirs) spec::add_spec_dir(d);
+         },
+         "a directory of your own device specs (DIR/devices/*.yaml or DIR/*.yaml); repeatable, searched before "
+         "$MBCONFORM_SPEC_DIR and the specs that come with mbconform")
+      ->type_name("DIR")
+      ->allow_extra_args(false);
+  fall_through(app);
 }
 
 }  // namespace mbc::cli

@@ -13,6 +13,9 @@ inline constexpr int kExitUsage = 2;
 // Registers `spec check|dump|errata|list` on `app`; the result code is
 // written to `exit_code` when one of them runs.
 void add_spec_commands(CLI::App& app, int& exit_code);
+// `--spec-dir DIR` (repeatable; spec/loader/spec_path.h), accepted before or
+// after any subcommand. Call after every subcommand has been added.
+void add_global_options(CLI::App& app);
 // `serve`: reference devices on Modbus TCP, RTU over TCP and a pty (cmd_serve.cpp).
 void add_serve_command(CLI::App& app, int& exit_code);
 // `run`: conformance cases against any target, reports (cmd_run.cpp).

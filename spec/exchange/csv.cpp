@@ -1,0 +1,71 @@
+#include "csv.h"
+
+#include <stdexcept>
+
+namespace mbc::exchange {
+
+std::vector<CsvRecord> parse_csv(std::string_view text) {
+  if (text.substr(0, 3) == "\xEF\xBB\xBF") text.remove_prefix(3);
+  std::string_view first = text.substr(0, text.find('\n'));
+  const char sep = first.find(',') == std::string_view::npos && first.find(';') != std::string_view::npos ? ';' : ',';
+
+  std::vector<CsvRecord> out;
+  CsvRecord rec{1, {}};
+  std::string field;
+  bool quoted = false, was_quoted = false, any = false;
+  int line = 1, quote_line = 0;
+  auto end_record = [&] {
+    if (any || !field.empty() || was_quoted) rec.fields.push_back(field);
+    bool blank = rec.fields.empty() || (rec.fields.size() == 1 && rec.fields[0].empty() && !was_quoted);
+    if (!blank) out.push_back(std::move(rec));
+    rec = CsvRecord{line, {}};
+    field.clear();
+    any = was_quoted = false;
+  };
+  for (size_t i = 0; i < text.size(); ++i) {
+    char c = text[i];
+    if (quoted) {
+      if (c == '"') {
+        if (i + 1 < text.size() && text[i + 1] == '"') {
+          field += '"';
+          ++i;
+        } else {
+          quoted = false;
+        }
+      } else {
+        if (c == '\n') ++line;
+        field += c;
+      }
+      continue;
+    }
+    if (c == '"' && field.empty() && !was_quoted) {
+      quoted = was_quoted = true;
+      quote_line = line;
+    } else if (c == sep) {
+      rec.fields.push_back(field);
+      field.clear();
+      any = true;
+      was_quoted = false;
+    } else if (c == '\n') {
+      ++line;
+      end_record();
+    } else if (c != '\r') {
+      field += c;
+    }
+  }
+  if (quoted) throw std::runtime_error(std::to_string(quote_line) + ": error: a quoted field is not closed");
+  end_record();
+  return out;
+}
+
+std::string csv_field(std::string_view s) {
+  if (s.find_first_of(",;\"\r\n") == std::string_view::npos) return std::string(s);
+  std::string q = "\"";
+  for (char c : s) {
+    if (c == '"') q += '"';
+    q += c;
+  }
+  return q + "\"";
+}
+
+}  // namespace mbc::exchange

@@ -1,0 +1,220 @@
+#!/usr/bin/env python3
+"""ctest exchange_export_*: every device's exports, read back with real
+parsers (Python's csv module and PyYAML), compared register by register
+with the resolved spec (`mbconform spec dump ID --json`); the Home Assistant
+keys checked against the modbus integration's schema; `spec import` of a bad
+CSV writes nothing.
+
+usage: export_test.py MBCONFORM FORMAT WORK_DIR     FORMAT: csv | home-assistant | edgex | import
+"""
+import csv
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import yaml
+
+MBC, FORMAT, WORK = sys.argv[1], sys.argv[2], sys.argv[3]
+failures = []
+
+
+def run(*args, ok=True):
+    p = subprocess.run([MBC, *args], capture_output=True, text=True)
+    if ok and p.returncode != 0:
+        sys.exit(f"mbconform {' '.join(args)}: exit {p.returncode}\n{p.stderr}")
+    return p
+
+
+def check(cond, what):
+    if not cond:
+        failures.append(what)
+
+
+def wire_type(r):
+    if r["type"] in ("enum", "bitfield"):
+        return "u32" if r["words"] == 2 else "u16"
+    return r["type"]
+
+
+def specs():
+    for line in run("spec", "list").stdout.splitlines():
+        sid = line.split()[0]
+        yield sid, json.loads(run("spec", "dump", sid, "--json").stdout)
+
+
+CSV_TABLES = {"coil": "coil", "discrete input": "discrete_input", "input register": "input", "holding register": "holding"}
+
+
+def test_csv(sid, spec):
+    rows = list(csv.DictReader(io.StringIO(run("spec", "export", sid, "--format", "csv").stdout)))
+    regs = spec["registers"]
+    check(len(rows) == len(regs), f"{sid}: {len(rows)} CSV rows for {len(regs)} registers")
+    for row, r in zip(rows, regs):
+        at = f"{sid} {r['table']} {r['address']:#06x}"
+        check(CSV_TABLES[row["table"]] == r["table"], f"{at}: table {row['table']}")
+        check(int(row["address"], 16) == r["address"], f"{at}: address {row['address']}")
+        check(row["name"] == r["name"], f"{at}: name {row['name']!r}")
+        check(row["access"] == r["access"], f"{at}: access {row['access']}")
+        check(row["type"] == wire_type(r), f"{at}: type {row['type']}")
+        check(int(row["words"]) == r["words"], f"{at}: words {row['words']}")
+        check((row["word_order"] or None) == r["word_order"], f"{at}: word_order {row['word_order']!r}")
+        rng = r["range"]
+        check((float(row["min"]) if row["min"] else None) == (rng["min"] if rng else None), f"{at}: min {row['min']}")
+        check((float(row["max"]) if row["max"] else None) == (rng["max"] if rng else None), f"{at}: max {row['max']}")
+        check((float(row["default"]) if row["default"] else None) == r["default"], f"{at}: default {row['default']}")
+        check(row["unit"] == r["unit"], f"{at}: unit {row['unit']!r}")
+        check(float(row["scale"] or 1) == r["scale"], f"{at}: scale {row['scale']}")
+
+
+# The modbus integration's YAML schema, Home Assistant 2024 releases
+# (homeassistant/components/modbus/__init__.py: MODBUS_SCHEMA,
+# BASE_COMPONENT_SCHEMA, BASE_STRUCT_SCHEMA, SENSOR_SCHEMA,
+# BINARY_SENSOR_SCHEMA, SWITCH_SCHEMA; `device_address` since 2023.10).
+HA_HUB = {"name", "type", "port", "host", "baudrate", "bytesize", "method", "parity", "stopbits", "timeout", "delay",
+          "message_wait_milliseconds"}
+HA_PLATFORMS = {"binary_sensors", "climates", "covers", "fans", "lights", "sensors", "switches"}  # no `numbers`
+HA_BASE = {"name", "address", "device_address", "slave", "scan_interval", "unique_id"}
+HA_STRUCT = HA_BASE | {"input_type", "count", "data_type", "structure", "scale", "offset", "precision", "swap"}
+HA_KEYS = {
+    "sensors": HA_STRUCT | {"device_class", "state_class", "unit_of_measurement", "virtual_count", "slave_count",
+                            "min_value", "max_value", "nan_value", "zero_suppress"},
+    "binary_sensors": HA_BASE | {"device_class", "input_type", "virtual_count", "slave_count"},
+    "switches": HA_BASE | {"write_type", "command_on", "command_off", "verify", "device_class"},
+}
+HA_VALUES = {
+    ("sensors", "input_type"): {"holding", "input"},
+    ("sensors", "data_type"): {"int16", "int32", "int64", "uint16", "uint32", "uint64", "float16", "float32", "float64",
+                               "string", "custom"},
+    ("sensors", "swap"): {"byte", "word", "word_byte"},
+    ("binary_sensors", "input_type"): {"coil", "discrete_input", "holding", "input"},
+    ("switches", "write_type"): {"holding", "coil", "x_coil", "x_holding"},
+}
+HA_VERIFY = {"address", "input_type", "state_on", "state_off", "delay"}
+HA_DATA = {"u16": "uint16", "s16": "int16", "u32": "uint32", "s32": "int32", "f32": "float32"}
+
+
+def test_home_assistant(sid, spec):
+    text = run("spec", "export", sid, "--format", "home-assistant").stdout
+    doc = yaml.safe_load(text)
+    hubs = doc["modbus"]
+    check(isinstance(hubs, list) and len(hubs) == 1, f"{sid}: modbus: is not a list of one hub")
+    hub = hubs[0]
+    check(set(hub) <= HA_HUB | HA_PLATFORMS, f"{sid}: hub keys outside the schema: {set(hub) - HA_HUB - HA_PLATFORMS}")
+    check(hub["type"] == "serial" and hub["method"] == "rtu", f"{sid}: hub type/method")
+    check(hub["parity"] in ("E", "O", "N") and hub["bytesize"] in (5, 6, 7, 8) and hub["stopbits"] in (1, 2),
+          f"{sid}: serial settings {hub['parity']} {hub['bytesize']} {hub['stopbits']}")
+    check(hub["baudrate"] == (spec["serial"]["baud_rates"]["default"] or spec["serial"]["baud_rates"]["values"][0]),
+          f"{sid}: baudrate {hub['baudrate']}")
+    entities = {}
+    names = set()
+    for platform in HA_PLATFORMS & set(hub):
+        for e in hub[platform]:
+            check(set(e) <= HA_KEYS[platform], f"{sid} {platform}: keys outside the schema: {set(e) - HA_KEYS[platform]}")
+            for (p, key), allowed in HA_VALUES.items():
+                if p == platform and key in e:
+                    check(e[key] in allowed, f"{sid} {platform} {e['name']}: {key}: {e[key]} not in the schema")
+            if "verify" in e:
+                check(set(e["verify"]) <= HA_VERIFY, f"{sid}: verify keys {set(e['verify'])}")
+            check(e["name"] not in names, f"{sid}: duplicate entity name {e['name']}")
+            names.add(e["name"])
+            table = {"sensors": e.get("input_type", "holding"), "switches": "coil"}.get(platform) or \
+                {"coil": "coil", "discrete_input": "discrete_input"}.get(e.get("input_type", "coil"))
+            entities[(table, e["address"])] = (platform, e)
+    for r in spec["registers"]:
+        at = f"{sid} {r['table']} {r['address']:#06x}"
+        key = (r["table"], r["address"])
+        readable = r["access"] in ("ro", "rw")
+        if r["table"] in ("coil", "discrete_input"):
+            want = "switches" if r["table"] == "coil" and r["access"] != "ro" else "binary_sensors"
+        elif readable:
+            want = "sensors"
+        else:
+            want = None  # write-only: no entity; listed with the write_register action
+            check(f"#   0x{r['address']:04X} " in text, f"{at}: write-only register not listed with the write action")
+        if want is None:
+            check(key not in entities, f"{at}: a write-only register became an entity")
+            continue
+        if key not in entities:
+            check(False, f"{at}: no entity")
+            continue
+        platform, e = entities[key]
+        check(platform == want, f"{at}: {platform}, expected {want}")
+        check(e["device_address"] == (spec["serial"]["slave_id"]["default"] or 1), f"{at}: device_address")
+        if platform == "sensors":
+            check(e["data_type"] == HA_DATA[wire_type(r)], f"{at}: data_type {e['data_type']}")
+            check(e.get("swap") == ("word" if r["word_order"] == "low_first" else None), f"{at}: swap {e.get('swap')}")
+            check(float(e.get("scale", 1)) == r["scale"], f"{at}: scale {e.get('scale')}")
+            check(e.get("unit_of_measurement", "") == r["unit"], f"{at}: unit {e.get('unit_of_measurement')}")
+        if platform == "switches":
+            check(e["write_type"] == "coil", f"{at}: write_type {e['write_type']}")
+    check("modbus.write_register" in text, f"{sid}: the write_register action is not documented")
+
+
+EDGEX_TABLES = {"COILS": "coil", "DISCRETES_INPUT": "discrete_input", "INPUT_REGISTERS": "input",
+                "HOLDING_REGISTERS": "holding"}
+EDGEX_RAW = {"u16": "UINT16", "s16": "INT16", "u32": "UINT32", "s32": "INT32", "f32": "FLOAT32"}
+EDGEX_RW = {"ro": "R", "rw": "RW", "wo": "W", "command": "W"}
+
+
+def test_edgex(sid, spec):
+    doc = yaml.safe_load(run("spec", "export", sid, "--format", "edgex").stdout)
+    check(doc["apiVersion"] == "v3" and doc["name"] == sid, f"{sid}: apiVersion/name")
+    res = doc["deviceResources"]
+    check(len(res) == len(spec["registers"]), f"{sid}: {len(res)} resources")
+    check(len({x["name"] for x in res}) == len(res), f"{sid}: resource names are not unique")
+    for x, r in zip(res, spec["registers"]):
+        at = f"{sid} {r['table']} {r['address']:#06x}"
+        a, p = x["attributes"], x["properties"]
+        check(EDGEX_TABLES[a["primaryTable"]] == r["table"], f"{at}: primaryTable {a['primaryTable']}")
+        check(a["startingAddress"] == r["address"], f"{at}: startingAddress {a['startingAddress']}")
+        check(p["readWrite"] == EDGEX_RW[r["access"]], f"{at}: readWrite {p['readWrite']}")
+        check(p.get("units", "") == r["unit"], f"{at}: units")
+        check(float(p.get("scale", 1)) == r["scale"], f"{at}: scale")
+        if r["type"] == "bit":
+            check(p["valueType"] == "Bool" and "rawType" not in a, f"{at}: a bit is Bool")
+            continue
+        check(a["rawType"] == EDGEX_RAW[wire_type(r)], f"{at}: rawType {a['rawType']}")
+        if r["words"] == 2:
+            check(a["isWordSwap"] == (r["word_order"] == "low_first"), f"{at}: isWordSwap {a['isWordSwap']}")
+        else:
+            check("isWordSwap" not in a, f"{at}: isWordSwap on a 1-word register")
+        if r["range"]:
+            check(abs(p["minimum"] - r["range"]["min"] * r["scale"]) < 1e-9, f"{at}: minimum {p['minimum']}")
+            check(abs(p["maximum"] - r["range"]["max"] * r["scale"]) < 1e-9, f"{at}: maximum {p['maximum']}")
+
+
+def test_import():
+    shutil.rmtree(WORK, ignore_errors=True)
+    os.makedirs(WORK)
+    example = os.path.join(os.path.dirname(os.path.abspath(__file__)), "example.csv")
+    out = os.path.join(WORK, "acme-x1.yaml")
+    run("spec", "import", "--csv", example, "--id", "acme-x1", "--out", out)
+    p = run("spec", "check", out, ok=False)
+    check(p.returncode == 0, f"the imported skeleton fails spec check: {p.stderr}")
+    listed = run("spec", "list", "--spec-dir", WORK).stdout
+    check("acme-x1" in listed and "(--spec-dir)" in listed, "the imported spec is not listed from --spec-dir")
+    bad = os.path.join(WORK, "bad.csv")
+    with open(bad, "w") as f:
+        f.write("address,name,access\n0x10,Speed,rw\n0x10,Again,rw\n")
+    out = os.path.join(WORK, "bad.yaml")
+    p = run("spec", "import", "--csv", bad, "--id", "bad", "--out", out, ok=False)
+    check(p.returncode == 1, f"bad CSV: exit {p.returncode}")
+    check(f"{bad}:3: error: holding register 0x0010 is also on line 2" in p.stderr, f"bad CSV: stderr {p.stderr!r}")
+    check(not os.path.exists(out), "bad CSV: a spec was written")
+
+
+if FORMAT == "import":
+    test_import()
+else:
+    tests = {"csv": test_csv, "home-assistant": test_home_assistant, "edgex": test_edgex}
+    n = 0
+    for sid, spec in specs():
+        tests[FORMAT](sid, spec)
+        n += 1
+    print(f"{FORMAT}: {n} specs compared register by register")
+for f in failures[:50]:
+    print("FAIL:", f)
+sys.exit(1 if failures else 0)
