@@ -28,7 +28,6 @@
 #include "fuzz_support.h"
 #include "input_format.h"
 #include "modbus/crc16.h"
-#include "modbus/judge.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "blackbox/spec_values.h"

@@ -22,7 +22,7 @@ for h in "${harnesses[@]}"; do
   LLVM_PROFILE_FILE="$out/run.profraw" "build-cov/bin/${h}_fuzzer" "${dirs[@]}" 2>/dev/null
   llvm-profdata-14 merge -sparse "$out/run.profraw" -o "$out/run.profdata"
   llvm-cov-14 show "build-cov/bin/${h}_fuzzer" -instr-profile="$out/run.profdata" -format=html -output-dir="$out" \
-    reference spec/loader conformance/master conformance/targets fuzz >/dev/null
+    modbus reference spec/loader conformance/targets fuzz >/dev/null
   echo "== $h ($out/index.html)"
-  llvm-cov-14 report "build-cov/bin/${h}_fuzzer" -instr-profile="$out/run.profdata" reference spec/loader conformance/master | tail -1
+  llvm-cov-14 report "build-cov/bin/${h}_fuzzer" -instr-profile="$out/run.profdata" modbus reference spec/loader | tail -1
 done

@@ -16,9 +16,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   uint8_t slave = data[1] ? data[1] : fuzz::default_slave(all[index]);
   Bytes adu(data + 3, data + size);
   if (data[2] & fuzz::kFixCrc) {
-    uint16_t c = crc16(adu);
-    adu.push_back(uint8_t(c & 0xFF));
-    adu.push_back(uint8_t(c >> 8));
+    append_crc(adu);
   }
   ref::Device& d = fuzz::fresh_device(index, slave);
   auto before = fuzz::holding_image(d);

@@ -14,9 +14,9 @@
 #include "modbus/bytes.h"
 #include "modbus/crc16.h"
 #include "modbus/judge.h"
+#include "modbus/limits.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
-#include "serve/rtu_framing.h"
 
 namespace {
 using namespace mbc;
@@ -92,14 +92,12 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   // A truncated head is padded with zeros until its length is decided.
   Bytes probe = adu;
   if (probe.size() < 12) probe.resize(12, 0);
-  if (auto n = serve::rtu_request_length(probe)) {
-    if (*n > 256) return 0;  // not an RTU frame (MB-SL §2.5.1.1)
+  if (auto n = rtu_adu_length(probe, Direction::request)) {
+    if (*n > kMaxRtuAdu) return 0;  // not an RTU frame (MB-SL §2.5.1.1)
     adu.resize(*n - 2, 0);
   }
-  if (adu.size() > 254) return 0;
-  uint16_t c = crc16(adu);
-  adu.push_back(uint8_t(c & 0xFF));
-  adu.push_back(uint8_t(c >> 8));
+  if (adu.size() > kMaxRtuAdu - kRtuCrc) return 0;
+  append_crc(adu);
   std::span<const uint8_t> pdu(adu.data() + 1, adu.size() - 3);
 
   ref::Device& d = fuzz::fresh_device(pair.engine_index, kSlave);

@@ -8,8 +8,7 @@
 #include "loader.h"
 #include "modbus/crc16.h"
 #include "modbus/judge.h"
-#include "modbus/pdu.h"
-#include "modbus/rtu.h"
+#include "modbus/limits.h"
 
 namespace mbc::fuzz {
 
@@ -113,14 +112,14 @@ void check_exchange(const char* harness, const ref::Device& device, std::span<co
     return s.device.id + " (slave " + std::to_string(device.slave_id()) + "): " + what + "\n  sent:  " +
            to_hex(adu) + "\n  reply: " + hex_or_silence(reply);
   };
-  const bool framed = adu.size() >= 4 && adu.size() <= 256;  // MB-SL v1.02 §2.5.1.1
+  const bool framed = adu.size() >= 4 && adu.size() <= kMaxRtuAdu;  // MB-SL v1.02 §2.5.1.1
   const bool crc = framed && crc_ok(adu);
   const bool addressed = framed && adu[0] == device.slave_id();
   const bool broadcast = framed && s.serial.broadcast_address && adu[0] == *s.serial.broadcast_address;
 
   if (reply) {
     const Bytes& r = *reply;
-    MBC_FUZZ_CHECK(r.size() >= 4 && r.size() <= 256, harness, ctx("reply length outside 4..256 (MB-SL v1.02 §2.5.1.1)"));
+    MBC_FUZZ_CHECK(r.size() >= 4 && r.size() <= kMaxRtuAdu, harness, ctx("reply length outside 4..256 (MB-SL v1.02 §2.5.1.1)"));
     MBC_FUZZ_CHECK(crc_ok(r), harness, ctx("reply CRC wrong"));
     MBC_FUZZ_CHECK(r[0] == device.slave_id(), harness, ctx("reply carries another slave id"));
     MBC_FUZZ_CHECK(addressed, harness, ctx("answered a frame not addressed to it (other slave id or broadcast, MB-SL v1.02 §2.1)"));

@@ -10,7 +10,8 @@
 #include "input_format.h"
 #include "libmodbus_server.h"
 #include "modbus/crc16.h"
-#include "serve/rtu_framing.h"
+#include "modbus/limits.h"
+#include "modbus/rtu.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace mbc;
@@ -20,17 +21,15 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   adu.insert(adu.end(), data + 1, data + size);
   Bytes probe = adu;
   if (probe.size() < 12) probe.resize(12, 0);
-  if (auto n = serve::rtu_request_length(probe)) {
-    if (*n > 256) return 0;
+  if (auto n = rtu_adu_length(probe, Direction::request)) {
+    if (*n > kMaxRtuAdu) return 0;
     adu.resize(*n - 2, 0);
   }
-  if (adu.size() > 254) return 0;
-  uint16_t c = crc16(adu);
-  adu.push_back(uint8_t(c & 0xFF));
-  adu.push_back(uint8_t(c >> 8));
+  if (adu.size() > kMaxRtuAdu - kRtuCrc) return 0;
+  append_crc(adu);
   auto reply = server.reply(adu);
   if (reply)
-    MBC_FUZZ_CHECK(reply->size() >= 4 && reply->size() <= 256 && crc_ok(*reply) && (*reply)[0] == 1, "libmodbus_reply_fuzzer",
+    MBC_FUZZ_CHECK(reply->size() >= 4 && reply->size() <= kMaxRtuAdu && crc_ok(*reply) && (*reply)[0] == 1, "libmodbus_reply_fuzzer",
                    "libmodbus reply is not a well-formed RTU frame\n  request: " + to_hex(adu) + "\n  reply:   " + to_hex(*reply));
   return 0;
 }

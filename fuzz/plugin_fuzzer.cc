@@ -23,8 +23,6 @@
 #include "mbconform_plugin.h"
 #include "modbus/crc16.h"
 #include "modbus/judge.h"
-#include "modbus/pdu.h"
-#include "modbus/rtu.h"
 
 namespace {
 using namespace mbc;
@@ -85,9 +83,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     Bytes adu(data + at + 2, data + at + 2 + n);
     at += 2 + n;
     if (flags & fuzz::kFixCrc) {
-      uint16_t c = crc16(adu);
-      adu.push_back(uint8_t(c & 0xFF));
-      adu.push_back(uint8_t(c >> 8));
+      append_crc(adu);
     }
     // Exact-size heap buffers, so ASan sees a read or write past either end.
     std::vector<uint8_t> request(adu), response(MBCONFORM_RESPONSE_CAPACITY);

@@ -10,19 +10,17 @@
 #include "fuzz_support.h"
 #include "modbus/bytes.h"
 #include "modbus/judge.h"
-#include "modbus/pdu.h"
-#include "modbus/rtu.h"
+#include "modbus/limits.h"
 
 namespace {
 using namespace mbc;
 constexpr const char* kHarness = "reply_parser_fuzzer";
 
-
 // Well formed per MBAP v1.1b3, for the function codes whose reply shape the
 // standard fixes; nullopt where the shape is device specific (7, 8, 17, 43...).
 std::optional<bool> oracle(std::span<const uint8_t> req, std::span<const uint8_t> rep) {
   if (rep.empty()) return false;
-  if (rep.size() > 253) return false;  // §4.1
+  if (rep.size() > kMaxPdu) return false;  // §4.1
   uint8_t fc = req.empty() ? 0 : req[0];
   if (rep[0] == uint8_t(fc | 0x80)) return rep.size() == 2;  // §7: function | 0x80, exception code
   if (rep[0] != fc) return false;

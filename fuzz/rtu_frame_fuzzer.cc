@@ -1,19 +1,20 @@
 // The RTU frame decoding shared by the reference side and the master side:
 // CRC-16 (MB-SL v1.02 §2.5.1.2), hex frames, where a request ends on a byte
-// stream (reference/serve/rtu_framing.h), the MBAP header, and the master's
-// reply decoder (decode_rtu_reply) followed by its judge.
+// stream (modbus/rtu.h), the MBAP header, and the master's
+// reply decoder (decode_rtu_reply) followed by its judge; the PDU parsers
+// (modbus/pdu.h) in both directions.
 #include <cstddef>
 #include <cstdint>
 #include <string>
 
 #include "fuzz_support.h"
 #include "modbus/crc16.h"
+#include "modbus/function_codes.h"
 #include "modbus/hex.h"
 #include "modbus/judge.h"
+#include "modbus/mbap.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
-#include "serve/mbap.h"
-#include "serve/rtu_framing.h"
 #include "targets/kinds.h"
 
 namespace {
@@ -30,9 +31,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
 
   // CRC: a frame with its CRC appended checks; flipping any bit breaks it.
   Bytes framed(in.begin(), in.end());
-  uint16_t c = crc16(in);
-  framed.push_back(uint8_t(c & 0xFF));
-  framed.push_back(uint8_t(c >> 8));
+  append_crc(framed);
   // (crc_ok wants at least one byte before the CRC: two bytes are no frame.)
   if (size > 0) {
     check(crc_ok(framed), "crc_ok rejects a frame carrying its own CRC", in);
@@ -58,21 +57,21 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   std::optional<size_t> decided;
   size_t decided_at = 0;
   for (size_t k = 0; k <= size && k <= 300; ++k) {
-    auto n = serve::rtu_request_length(in.first(k));
+    auto n = rtu_adu_length(in.first(k), Direction::request);
     if (decided && k <= *decided) {
-      check(n == decided, "rtu_request_length changes its mind after " + std::to_string(decided_at) + " bytes", in);
+      check(n == decided, "rtu_adu_length changes its mind after " + std::to_string(decided_at) + " bytes", in);
     } else if (n && !decided) {
       decided = n;
       decided_at = k;
-      check(*n >= 4 && *n >= k, "rtu_request_length " + std::to_string(*n) + " from " + std::to_string(k) + " bytes", in);
+      check(*n >= 4 && *n >= k, "rtu_adu_length " + std::to_string(*n) + " from " + std::to_string(k) + " bytes", in);
     }
   }
 
   // MBAP header: parse and re-emit keep transaction, protocol and unit.
-  if (auto h = serve::parse_mbap(in)) {
-    size_t pdu_len = size - serve::kMbapHeader;
-    Bytes out = serve::mbap_reply(*h, in.subspan(serve::kMbapHeader));
-    auto h2 = serve::parse_mbap(out);
+  if (auto h = parse_mbap(in)) {
+    size_t pdu_len = size - kMbapHeader;
+    Bytes out = mbap_reply(*h, in.subspan(kMbapHeader));
+    auto h2 = parse_mbap(out);
     check(h2 && h2->transaction == h->transaction && h2->protocol == h->protocol && h2->unit == h->unit &&
               h2->length == uint16_t(1 + pdu_len) && out.size() == size,
           "mbap_reply(parse_mbap(x)) does not keep the header", in);
@@ -108,5 +107,17 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     conf::decode_rtu_reply(r, data[0]);
     check(r.pdu && *r.pdu == Bytes(in.begin() + 1, in.end()), "decode_rtu_reply(rtu_frame(s, pdu)) != pdu", in);
   }
+
+  // PDU parsers: an input decodes or names why not, never both; what decodes
+  // builds back to the same bytes (requests: when no rule is broken, FC 15's
+  // unused padding bits aside); rtu_unframe agrees with crc_ok.
+  ParsedRequest pq = parse_request(in);
+  check(pq.request.has_value() != !pq.error.empty(), "parse_request: a request and an error, or neither", in);
+  if (pq.ok() && in[0] != fc::write_multiple_coils)
+    check(build_request(*pq.request) == Bytes(in.begin(), in.end()), "build_request(parse_request(x)) != x", in);
+  ParsedReply pr = parse_reply(in);
+  check(pr.reply.has_value() != !pr.error.empty(), "parse_reply: a reply and an error, or neither", in);
+  if (pr.reply) check(build_reply(*pr.reply) == Bytes(in.begin(), in.end()), "build_reply(parse_reply(x)) != x", in);
+  if (size >= 4 && size <= kMaxRtuAdu) check(rtu_unframe(in).ok() == crc_ok(in), "rtu_unframe disagrees with crc_ok", in);
   return 0;
 }

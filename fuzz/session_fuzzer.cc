@@ -31,9 +31,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         Bytes adu(data + at, data + at + n);
         at += n;
         if (op == fuzz::kFrameFixCrc) {
-          uint16_t c = crc16(adu);
-          adu.push_back(uint8_t(c & 0xFF));
-          adu.push_back(uint8_t(c >> 8));
+          append_crc(adu);
         }
         auto before = fuzz::holding_image(d);
         auto reply = d.handle_rtu(adu);

@@ -13,6 +13,7 @@
 #include "modbus/bytes.h"
 #include "modbus/crc16.h"
 #include "modbus/judge.h"
+#include "modbus/limits.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
 
@@ -211,7 +212,7 @@ Step Generator::next() {
           continue;
         }
       }
-      if (pdu.empty() || pdu.size() > 253 || !p_.safe(pdu, false)) continue;
+      if (pdu.empty() || pdu.size() > kMaxPdu || !p_.safe(pdu, false)) continue;
       return script::frame(info.framing, info.unit, pdu);
     }
     return script::frame(info.framing, info.unit, valid_read());
@@ -299,7 +300,7 @@ Bytes Generator::mutate(Bytes pdu) {
       if (pdu[0] == 16 && pdu.size() >= 6) {
         uint16_t q = uint16_t(1 + pick(127));
         Bytes b{16, pdu[1], pdu[2], uint8_t(q >> 8), uint8_t(q), uint8_t(2 * q)};
-        for (int i = 0; i < 2 * q && b.size() < 253; ++i) b.push_back(uint8_t(rng_()));
+        for (int i = 0; i < 2 * q && b.size() < kMaxPdu; ++i) b.push_back(uint8_t(rng_()));
         pdu = b;
       }
       break;

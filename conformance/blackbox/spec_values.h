@@ -12,9 +12,8 @@
 #include <vector>
 
 #include "modbus/hex.h"
-#include "modbus/judge.h"
 #include "modbus/pdu.h"
-#include "modbus/rtu.h"
+#include "modbus/words.h"
 #include "spec.h"
 
 namespace mbc::conf::blackbox {
@@ -25,8 +24,8 @@ inline std::vector<uint16_t> words_of(const spec::Register& r, double value) {
   if (r.type == spec::DataType::f32) raw = std::bit_cast<uint32_t>(float(value));
   else raw = uint32_t(int64_t(value));
   if (r.words == 1) return {uint16_t(raw)};
-  uint16_t hi = uint16_t(raw >> 16), lo = uint16_t(raw);
-  return r.word_order == spec::WordOrder::low_first ? std::vector<uint16_t>{lo, hi} : std::vector<uint16_t>{hi, lo};
+  auto w = split_u32(raw, r.low_word_first());
+  return {w[0], w[1]};
 }
 
 // The raw domain of a register's type, for the values just outside its range.

@@ -6,9 +6,8 @@
 #include <cmath>
 #include <limits>
 
-#include "modbus/judge.h"
 #include "modbus/pdu.h"
-#include "modbus/rtu.h"
+#include "modbus/words.h"
 
 namespace mbc::conf::cases {
 
@@ -48,11 +47,9 @@ int64_t type_max(const Register& r) {
 
 std::vector<uint16_t> encode(const Register& r, int64_t raw) {
   if (r.words == 1) return {uint16_t(uint64_t(raw) & 0xFFFF)};
-  uint32_t v = uint32_t(uint64_t(raw) & 0xFFFFFFFF);
-  uint16_t hi = uint16_t(v >> 16), lo = uint16_t(v & 0xFFFF);
   // word_order names the word at the LOWER address (spec/README.md).
-  if (r.word_order == spec::WordOrder::low_first) return {lo, hi};
-  return {hi, lo};
+  auto w = split_u32(uint32_t(uint64_t(raw) & 0xFFFFFFFF), r.low_word_first());
+  return {w[0], w[1]};
 }
 
 bool has_fc(const spec::Spec& s, int fc) { return s.profile.function(fc) != nullptr; }

@@ -11,7 +11,6 @@
 #include "cases/common.h"
 #include "errata.h"
 #include "modbus/crc16.h"
-#include "modbus/judge.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
 

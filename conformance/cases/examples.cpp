@@ -12,8 +12,6 @@
 
 #include "cases/common.h"
 #include "modbus/crc16.h"
-#include "modbus/judge.h"
-#include "modbus/pdu.h"
 #include "modbus/rtu.h"
 
 namespace mbc::conf {
@@ -33,11 +31,10 @@ std::string slug(const std::string& s) {
 // per-case restore and the safety check.
 std::vector<std::pair<uint16_t, int>> written_by(const Bytes& pdu) {
   if (pdu.size() < 5) return {};
-  auto be = [&](size_t at) { return uint16_t(pdu[at] << 8 | pdu[at + 1]); };
   switch (pdu[0]) {
-    case 6: case 22: return {{be(1), 1}};
-    case 16: return {{be(1), std::min<int>(be(3), 125)}};
-    case 23: return pdu.size() >= 9 ? std::vector<std::pair<uint16_t, int>>{{be(5), std::min<int>(be(7), 125)}}
+    case 6: case 22: return {{be16(pdu, 1), 1}};
+    case 16: return {{be16(pdu, 1), std::min<int>(be16(pdu, 3), 125)}};
+    case 23: return pdu.size() >= 9 ? std::vector<std::pair<uint16_t, int>>{{be16(pdu, 5), std::min<int>(be16(pdu, 7), 125)}}
                                     : std::vector<std::pair<uint16_t, int>>{};
     default: return {};
   }
@@ -272,7 +269,7 @@ std::vector<Case> examples_cases(const GenContext& g) {
     }
     if (auto req = parse_hex(first.request); req && req->size() >= 6 && crc_ok(*req) &&
                                              (req->at(1) == 3 || req->at(1) == 6 || req->at(1) == 4))
-      c.register_address = uint16_t(req->at(2) << 8 | req->at(3));
+      c.register_address = be16(*req, 2);
     out.push_back(std::move(c));
   }
   return out;

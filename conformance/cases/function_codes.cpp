@@ -8,9 +8,8 @@
 #include <algorithm>
 
 #include "cases/common.h"
-#include "modbus/judge.h"
+#include "modbus/limits.h"
 #include "modbus/pdu.h"
-#include "modbus/rtu.h"
 
 namespace mbc::conf {
 namespace {
@@ -25,8 +24,6 @@ using spec::Violation;
 // MBAP v1.1b3 §5.1 Figure 10: the public function codes, plus two from the
 // user-defined ranges 65-72 and 100-110 (§5).
 constexpr int kPublicCodes[] = {1, 2, 3, 4, 5, 6, 7, 8, 11, 12, 15, 16, 17, 20, 21, 22, 23, 24, 43, 65, 100};
-// MBAP v1.1b3 §4.1: a PDU is at most 253 bytes.
-constexpr size_t kMaxPdu = 253;
 
 bool readable(const Register* r) { return r && r->access != Access::wo && r->access != Access::command; }
 

@@ -6,9 +6,8 @@
 #include <bit>
 #include <cmath>
 
-#include "modbus/judge.h"
+#include "modbus/limits.h"
 #include "modbus/pdu.h"
-#include "modbus/rtu.h"
 
 namespace mbc::conf::props {
 
@@ -115,7 +114,7 @@ std::vector<std::function<Bad()>> rejection_kinds(const SpecView& v) {
       return Bad{read_request(3, start, 0), Violation::quantity_zero, fmt::format("read 0x{:04X} x0", start)};
     });
   }
-  if (v.supports(16) && !v.writable().empty() && 6 + 2 * (v.quantity_limit(16) + 1) <= 253)
+  if (v.supports(16) && !v.writable().empty() && 6 + 2 * (v.quantity_limit(16) + 1) <= int(kMaxPdu))
     kinds.push_back([&v] {
       int limit = v.quantity_limit(16);
       const Register& r = pick_writable(v);

@@ -9,7 +9,6 @@
 #include <set>
 
 #include "modbus/judge.h"
-#include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "properties/generators.h"
 #include "properties/motion.h"

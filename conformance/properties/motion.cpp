@@ -6,8 +6,6 @@
 #include <cmath>
 
 #include "modbus/judge.h"
-#include "modbus/pdu.h"
-#include "modbus/rtu.h"
 #include "properties/generators.h"
 #include "safety/safety.h"
 

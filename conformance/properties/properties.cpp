@@ -12,7 +12,6 @@
 #include "loader.h"
 #include "modbus/crc16.h"
 #include "modbus/judge.h"
-#include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "properties/stateful.h"
 

@@ -9,7 +9,7 @@
 
 #include "modbus/judge.h"
 #include "modbus/pdu.h"
-#include "modbus/rtu.h"
+#include "modbus/words.h"
 
 namespace mbc::conf::props {
 
@@ -184,13 +184,13 @@ std::vector<uint32_t> SpecView::out_of_range_values(const Register& r) const {
 
 std::vector<uint16_t> SpecView::words_of(const Register& r, uint32_t raw) const {
   if (r.words == 1) return {uint16_t(raw)};
-  uint16_t hi = uint16_t(raw >> 16), lo = uint16_t(raw);
-  return r.word_order == spec::WordOrder::low_first ? std::vector<uint16_t>{lo, hi} : std::vector<uint16_t>{hi, lo};
+  auto w = split_u32(raw, r.low_word_first());
+  return {w[0], w[1]};
 }
 
 uint32_t SpecView::raw_of(const Register& r, std::span<const uint16_t> w) const {
   if (r.words == 1) return w[0];
-  return r.word_order == spec::WordOrder::low_first ? (uint32_t(w[1]) << 16 | w[0]) : (uint32_t(w[0]) << 16 | w[1]);
+  return join_u32(w[0], w[1], r.low_word_first());
 }
 
 std::optional<uint32_t> SpecView::default_raw(const Register& r) const {

@@ -10,7 +10,7 @@
 #include "modbus/bytes.h"
 #include "modbus/crc16.h"
 #include "modbus/judge.h"
-#include "modbus/pdu.h"
+#include "modbus/limits.h"
 #include "modbus/rtu.h"
 #include "properties/generators.h"
 
@@ -195,7 +195,7 @@ Prediction predict(const Model& m, std::span<const uint8_t> adu) {
   Prediction silence;
   silence.kind = Prediction::Kind::silence;
   // MB-SL v1.02 §2.5.1.1: an RTU frame is 4..256 bytes.
-  if (adu.size() < 4 || adu.size() > 256) {
+  if (adu.size() < 4 || adu.size() > kMaxRtuAdu) {
     silence.why = "not an RTU frame (4..256 bytes)";
     return silence;
   }

@@ -10,7 +10,6 @@
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "script/script.h"
-#include "serve/rtu_framing.h"
 
 namespace mbc::conf {
 namespace {
@@ -263,7 +262,7 @@ class CaseRunner {
     if (!r.silent()) run_.latencies_us.push_back(double(r.latency.count()));
     if (baud_) {
       double b = frame_wire_seconds(r.request.size(), *baud_) +
-                 extra_gaps * std::chrono::duration<double>(serve::frame_gap(*baud_)).count();
+                 extra_gaps * std::chrono::duration<double>(frame_gap(*baud_)).count();
       if (!r.silent()) b += frame_wire_seconds(r.frame.size(), *baud_);
       run_.wire_time_bound_seconds += b;
     }
@@ -278,7 +277,7 @@ class CaseRunner {
 }  // namespace
 
 double frame_wire_seconds(size_t bytes, int baud) {
-  return std::chrono::duration<double>(serve::wire_time(bytes, baud) + serve::frame_gap(baud)).count();
+  return std::chrono::duration<double>(wire_time(bytes, baud) + frame_gap(baud)).count();
 }
 
 CaseResult result_header(const Case& c) {

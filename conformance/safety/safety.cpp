@@ -8,7 +8,6 @@
 
 #include "modbus/judge.h"
 #include "modbus/pdu.h"
-#include "modbus/rtu.h"
 
 namespace mbc::conf {
 namespace {

@@ -6,6 +6,7 @@
 #include <sstream>
 #include <thread>
 
+#include "modbus/bytes.h"
 #include "modbus/crc16.h"
 #include "modbus/judge.h"
 #include "modbus/limits.h"
@@ -232,9 +233,9 @@ Script parse(const std::string& text, const std::string& file) {
       Bytes adu = p.hex(w, star ? 2 : 1, arrow);
       if (star) adu.insert(adu.begin(), 2, 0);
       if (adu.size() < kMbapHeader + 1) p.fail(w[0].col, "mbap", "an MBAP frame is the 7-byte header and a PDU");
-      if (!star) st.tid = uint16_t(adu[0] << 8 | adu[1]);
+      if (!star) st.tid = be16(adu, 0);
       if (adu[2] != 0 || adu[3] != 0) p.fail(w[0].col, "mbap", "protocol id is not 0; such a frame is written raw-mbap");
-      if (size_t(adu[4] << 8 | adu[5]) != adu.size() - 6)
+      if (size_t(be16(adu, 4)) != adu.size() - 6)
         p.fail(w[0].col, "mbap", "the length field does not count unit id and PDU; such a frame is written raw-mbap");
       st.framing = Framing::mbap;
       st.unit = adu[6];
@@ -293,7 +294,7 @@ std::optional<Bytes> request_pdu(const Step& s, uint8_t unit) {
   std::vector<std::span<const uint8_t>> parts{all};
   if (s.gap && *s.gap < all.size()) parts = {all.first(*s.gap), all.subspan(*s.gap)};
   for (auto a : parts)
-    if (a.size() >= 4 && a.size() <= 256 && crc_ok(a) && a[0] == unit) return Bytes(a.begin() + 1, a.end() - 2);
+    if (a.size() >= 4 && a.size() <= kMaxRtuAdu && crc_ok(a) && a[0] == unit) return Bytes(a.begin() + 1, a.end() - 2);
   return std::nullopt;
 }
 

@@ -128,34 +128,4 @@ void write_all(int fd, std::span<const uint8_t> bytes, const std::string& what) 
   }
 }
 
-std::optional<size_t> rtu_reply_length(std::span<const uint8_t> head) {
-  constexpr size_t slave_fc = 2, crc = 2;
-  if (head.size() < 2) return std::nullopt;
-  auto with_count = [&](size_t count_at) -> std::optional<size_t> {
-    if (head.size() <= count_at) return std::nullopt;
-    return count_at + 1 + head[count_at] + crc;
-  };
-  if (head[1] & 0x80) return slave_fc + 1 + crc;  // exception code (MBAP v1.1b3 §7)
-  switch (head[1]) {
-    case 0x01: case 0x02: case 0x03: case 0x04:  // byte count, data (§6.1-6.4)
-    case 0x0C: case 0x11:                        // byte count, ... (§6.10, §6.13)
-    case 0x14: case 0x15: case 0x17:             // byte count, ... (§6.14, §6.15, §6.17)
-      return with_count(2);
-    case 0x05: case 0x06: case 0x0F: case 0x10:  // echo of address and value/quantity (§6.5, 6.6, 6.11, 6.12)
-    case 0x0B:                                   // status, event count (§6.9)
-      return slave_fc + 4 + crc;
-    case 0x08:  // echo of sub-function and data: 2 data bytes for all but "return query data" (§6.8)
-      return slave_fc + 4 + crc;
-    case 0x07:  // one status byte (§6.7)
-      return slave_fc + 1 + crc;
-    case 0x16:  // echo of address, AND and OR masks (§6.16)
-      return slave_fc + 6 + crc;
-    case 0x18:  // two-byte byte count (§6.18)
-      if (head.size() < 4) return std::nullopt;
-      return slave_fc + 2 + size_t(head[2] << 8 | head[3]) + crc;
-    default:  // FC 43 and unknown codes: the line's silence ends the frame
-      return std::nullopt;
-  }
-}
-
 }  // namespace mbc::conf::live

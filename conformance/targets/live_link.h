@@ -78,11 +78,6 @@ size_t drain(int fd);
 // Writes all of `bytes`; throws std::runtime_error naming `what` on failure.
 void write_all(int fd, std::span<const uint8_t> bytes, const std::string& what);
 
-// The length of the RTU reply ADU that starts with `head` (slave, FC, ...),
-// when its function code fixes it or the bytes so far carry its byte count
-// (MBAP v1.1b3 §6 response layouts, exceptions §7); nullopt when unknown.
-std::optional<size_t> rtu_reply_length(std::span<const uint8_t> head);
-
 }  // namespace mbc::conf::live
 
 namespace mbc::conf {

@@ -26,8 +26,6 @@
 #include "host_protocol.h"
 #include "loader.h"
 #include "mbconform_plugin.h"
-#include "modbus/judge.h"
-#include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "targets/kinds.h"
 #include "targets/live_link.h"

@@ -13,8 +13,6 @@
 #include "engine/device.h"
 #include "faults/faults.h"
 #include "loader.h"
-#include "modbus/judge.h"
-#include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "targets/kinds.h"
 

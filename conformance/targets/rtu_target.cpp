@@ -24,10 +24,8 @@
 #include <thread>
 
 #include "modbus/crc16.h"
-#include "modbus/judge.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
-#include "serve/rtu_framing.h"
 #include "targets/kinds.h"
 #include "targets/live_link.h"
 
@@ -108,7 +106,7 @@ class RtuTarget final : public Target {
     info_.live = true;
     info_.raw = true;
     info_.baud = baud;
-    frame_gap_ = baud ? serve::frame_gap(*baud) : microseconds(0);
+    frame_gap_ = baud ? frame_gap(*baud) : microseconds(0);
     end_silence_ = std::max<microseconds>(frame_gap_, kReplyEndSilenceFloor);
     split_gap_ = std::max<microseconds>(3 * frame_gap_, kSplitGapFloor);
     if (u.param("gap")) split_gap_ = milliseconds(int_param(u, uri_text_, "gap", 0, 1, 10000));
@@ -158,7 +156,7 @@ class RtuTarget final : public Target {
     Bytes adu = rtu_frame(unit, pdu);
     // Only well-formed exchanges with a slave time the device (a broadcast has no reply).
     bool timed = unit != 0;
-    if (ctx_ && !pdu.empty() && pdu.size() <= serve::kMaxRtuAdu - 3) {
+    if (ctx_ && !pdu.empty() && pdu.size() <= kMaxPdu) {
       return exchange(adu, unit, timed, [&] {
         Bytes raw{unit};
         raw.insert(raw.end(), pdu.begin(), pdu.end());
@@ -218,10 +216,10 @@ class RtuTarget final : public Target {
     Reply r;
     r.request = adu;
     auto first_by = t0 + window_.window();
-    auto wire = info_.baud ? serve::wire_time(serve::kMaxRtuAdu, *info_.baud) : microseconds(0);
+    auto wire = info_.baud ? wire_time(kMaxRtuAdu, *info_.baud) : microseconds(0);
     auto hard = first_by + window_.timeout() + 2 * wire;
     ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, [](std::span<const uint8_t> b) {
-      auto n = rtu_reply_length(b);
+      auto n = rtu_adu_length(b, Direction::reply);
       return n && b.size() == *n && crc_ok(b);
     });
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);

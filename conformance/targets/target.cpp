@@ -6,6 +6,7 @@
 #include <stdexcept>
 
 #include "modbus/crc16.h"
+#include "modbus/limits.h"
 #include "targets/kinds.h"
 
 namespace mbc::conf {
@@ -83,8 +84,8 @@ void decode_rtu_reply(Reply& r, uint8_t slave) {
     r.framing_error = fmt::format("reply of {} bytes is shorter than the 4 of an RTU frame", r.frame.size());
     return;
   }
-  if (r.frame.size() > 256) {
-    r.framing_error = fmt::format("reply of {} bytes exceeds the 256 of MB-SL v1.02 §2.5.1.1", r.frame.size());
+  if (r.frame.size() > kMaxRtuAdu) {
+    r.framing_error = fmt::format("reply of {} bytes exceeds the {} of MB-SL v1.02 §2.5.1.1", r.frame.size(), kMaxRtuAdu);
     return;
   }
   if (!crc_ok(r.frame)) {

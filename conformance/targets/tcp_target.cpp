@@ -14,7 +14,7 @@
 #include <stdexcept>
 #include <thread>
 
-#include "serve/mbap.h"
+#include "modbus/mbap.h"
 #include "targets/kinds.h"
 #include "targets/live_link.h"
 
@@ -72,13 +72,13 @@ class TcpTarget final : public Target {
 
   Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override {
     uint16_t tid = next_tid_++;
-    Bytes adu = serve::mbap_reply(serve::Mbap{tid, 0, 0, unit}, pdu);
+    Bytes adu = mbap_frame(tid, unit, pdu);
     // Only well-formed exchanges with a unit time the device (a broadcast has no reply).
-    return exchange(adu, serve::Mbap{tid, 0, 0, unit}, std::nullopt, unit != 0);
+    return exchange(adu, Mbap{tid, 0, 0, unit}, std::nullopt, unit != 0);
   }
 
   Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
-    return exchange(Bytes(bytes.begin(), bytes.end()), serve::parse_mbap(bytes), gap_after, false);
+    return exchange(Bytes(bytes.begin(), bytes.end()), parse_mbap(bytes), gap_after, false);
   }
 
   void advance(std::chrono::microseconds) override {
@@ -95,12 +95,12 @@ class TcpTarget final : public Target {
   }
 
   static bool whole_adu(std::span<const uint8_t> b) {
-    auto h = serve::parse_mbap(b);
+    auto h = parse_mbap(b);
     return h && h->length_ok() && b.size() >= h->adu_size();
   }
 
   // Latency runs from the start of the request's last write to the reply's last byte.
-  Reply exchange(const Bytes& adu, std::optional<serve::Mbap> sent, std::optional<size_t> gap_after, bool timed) {
+  Reply exchange(const Bytes& adu, std::optional<Mbap> sent, std::optional<size_t> gap_after, bool timed) {
     if (!connected_) connect();  // the server closed it after the last exchange (e.g. a bad MBAP length)
     int fd = modbus_get_socket(ctx_);
     if (drain(fd) > 0) window_.late_reply();
@@ -119,11 +119,11 @@ class TcpTarget final : public Target {
     ReadResult rr;
     for (;;) {
       rr = read_frame(fd, in_, first_by, kReplyEndSilence, first_by + timeout_, whole_adu);
-      if (!whole_adu(in_) || !is_stale(*serve::parse_mbap(in_), sent)) break;
-      in_.erase(in_.begin(), in_.begin() + ptrdiff_t(serve::parse_mbap(in_)->adu_size()));
+      if (!whole_adu(in_) || !is_stale(*parse_mbap(in_), sent)) break;
+      in_.erase(in_.begin(), in_.begin() + ptrdiff_t(parse_mbap(in_)->adu_size()));
       window_.late_reply();
     }
-    size_t take = whole_adu(in_) ? serve::parse_mbap(in_)->adu_size() : in_.size();
+    size_t take = whole_adu(in_) ? parse_mbap(in_)->adu_size() : in_.size();
     r.frame.assign(in_.begin(), in_.begin() + ptrdiff_t(take));
     in_.clear();
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
@@ -137,7 +137,7 @@ class TcpTarget final : public Target {
     return r;
   }
 
-  bool is_stale(const serve::Mbap& got, const std::optional<serve::Mbap>& sent) const {
+  bool is_stale(const Mbap& got, const std::optional<Mbap>& sent) const {
     if (sent && got.transaction == sent->transaction) return false;
     return std::find(stale_.begin(), stale_.end(), got.transaction) != stale_.end();
   }
@@ -148,9 +148,9 @@ class TcpTarget final : public Target {
 
   // MB TCP v1.0b §3.1.3: the server copies the transaction and unit ids, the
   // protocol id is 0, the length counts the unit id and the PDU.
-  static void judge_mbap(Reply& r, const std::optional<serve::Mbap>& sent) {
+  static void judge_mbap(Reply& r, const std::optional<Mbap>& sent) {
     if (r.frame.empty()) return;
-    auto h = serve::parse_mbap(r.frame);
+    auto h = parse_mbap(r.frame);
     if (!h) {
       r.framing_error = fmt::format("reply of {} bytes is shorter than the 7-byte MBAP header", r.frame.size());
     } else if (h->protocol != 0) {
@@ -162,7 +162,7 @@ class TcpTarget final : public Target {
     } else if (sent && h->unit != sent->unit) {
       r.framing_error = fmt::format("reply unit id {}, request went to {}", h->unit, sent->unit);
     } else {
-      r.pdu = Bytes(r.frame.begin() + serve::kMbapHeader, r.frame.end());
+      r.pdu = Bytes(r.frame.begin() + kMbapHeader, r.frame.end());
     }
   }
 

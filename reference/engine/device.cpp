@@ -9,6 +9,8 @@
 #include "modbus/bytes.h"
 #include "modbus/crc16.h"
 #include "modbus/limits.h"
+#include "modbus/rtu.h"
+#include "modbus/words.h"
 
 namespace mbc::ref {
 
@@ -18,7 +20,6 @@ using spec::PolicyEntry;
 using spec::Register;
 using spec::Table;
 using spec::Violation;
-using spec::WordOrder;
 
 namespace {
 
@@ -415,23 +416,13 @@ std::optional<Bytes> Device::handle_rtu(std::span<const uint8_t> adu) {
     Engine e{*this};
     auto pdu = e.violate(Violation::crc_error, adu[1] & 0x7F);
     if (!pdu) return std::nullopt;
-    Bytes out{address};
-    out.insert(out.end(), pdu->begin(), pdu->end());
-    uint16_t c = crc16(out);
-    out.push_back(uint8_t(c & 0xFF));
-    out.push_back(uint8_t(c >> 8));
-    return out;
+    return rtu_frame(address, *pdu);
   }
   if (!broadcast && address != slave_id_) return std::nullopt;
   ++counters_.bus_messages;
   auto pdu = handle_pdu(adu.subspan(1, adu.size() - 3), broadcast);
   if (!pdu || broadcast) return std::nullopt;
-  Bytes out{address};
-  out.insert(out.end(), pdu->begin(), pdu->end());
-  uint16_t c = crc16(out);
-  out.push_back(uint8_t(c & 0xFF));
-  out.push_back(uint8_t(c >> 8));
-  return out;
+  return rtu_frame(address, *pdu);
 }
 
 std::optional<Bytes> Device::handle_pdu(std::span<const uint8_t> pdu, bool broadcast) {
@@ -477,9 +468,7 @@ int64_t Device::value(const Register& r) const {
     uint16_t v = w[r.address];
     return r.type == DataType::s16 ? int64_t(int16_t(v)) : int64_t(v);
   }
-  uint16_t lo_addr = r.address, hi_addr = uint16_t(r.address + 1);
-  uint16_t first = w[lo_addr], second = w[hi_addr];
-  uint32_t v = r.word_order == WordOrder::low_first ? (uint32_t(second) << 16 | first) : (uint32_t(first) << 16 | second);
+  uint32_t v = join_u32(w[r.address], w[uint16_t(r.address + 1)], r.low_word_first());
   return r.type == DataType::s32 ? int64_t(int32_t(v)) : int64_t(v);
 }
 
@@ -497,15 +486,9 @@ void Device::set_value(const Register& r, int64_t v) {
     w[r.address] = uint16_t(v);
     return;
   }
-  uint32_t u = uint32_t(v);
-  uint16_t hi = uint16_t(u >> 16), lo = uint16_t(u & 0xFFFF);
-  if (r.word_order == WordOrder::low_first) {
-    w[r.address] = lo;
-    w[uint16_t(r.address + 1)] = hi;
-  } else {
-    w[r.address] = hi;
-    w[uint16_t(r.address + 1)] = lo;
-  }
+  auto split = split_u32(uint32_t(v), r.low_word_first());
+  w[r.address] = split[0];
+  w[uint16_t(r.address + 1)] = split[1];
 }
 
 double Device::float_value(const Register& r) const {

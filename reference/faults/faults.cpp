@@ -8,6 +8,8 @@
 
 #include "modbus/bytes.h"
 #include "modbus/crc16.h"
+#include "modbus/limits.h"
+#include "modbus/rtu.h"
 
 namespace mbc::faults {
 
@@ -108,18 +110,9 @@ bool pdu_level(const FaultSet& f) {
   return false;
 }
 
-
 Bytes with_crc(Bytes frame) {
-  uint16_t c = crc16(frame);
-  frame.push_back(uint8_t(c & 0xFF));
-  frame.push_back(uint8_t(c >> 8));
+  append_crc(frame);
   return frame;
-}
-
-Bytes rtu(uint8_t address, const Bytes& pdu) {
-  Bytes out{address};
-  out.insert(out.end(), pdu.begin(), pdu.end());
-  return with_crc(std::move(out));
 }
 
 // The quantity limit the engine applies to FC 03/04/16: the spec's, capped by
@@ -337,7 +330,7 @@ std::optional<Bytes> FaultyBus::device_pdu(ref::Device& d, std::span<const uint8
 
 std::optional<Bytes> FaultyBus::handle_rtu(std::span<const uint8_t> adu) {
   if (faults_.empty()) return bus_.handle_rtu(adu);
-  if (adu.size() < 4 || adu.size() > 256 || bus_.devices().empty()) return bus_.handle_rtu(adu);
+  if (adu.size() < 4 || adu.size() > kMaxRtuAdu || bus_.devices().empty()) return bus_.handle_rtu(adu);
   Bytes frame(adu.begin(), adu.end());
   const uint8_t address = frame[0];
   const bool crc_good = crc_ok(frame);
@@ -364,7 +357,7 @@ std::optional<Bytes> FaultyBus::handle_rtu(std::span<const uint8_t> adu) {
       if (!reply) reply = r;
     }
     if (!reply) return std::nullopt;
-    Bytes out = rtu(0, *reply);
+    Bytes out = rtu_frame(0, *reply);
     if (faults_.has(Fault::bad_reply_crc)) out.back() ^= 0xFF;
     return out;
   }
@@ -375,7 +368,7 @@ std::optional<Bytes> FaultyBus::handle_rtu(std::span<const uint8_t> adu) {
   if (pdu_level(faults_) || address != d->slave_id()) {
     reply = device_pdu(*d, pdu, false);
     if (!reply) return std::nullopt;
-    reply = rtu(address, *reply);
+    reply = rtu_frame(address, *reply);
   } else {
     frame[0] = d->slave_id();
     reply = d->handle_rtu(with_crc(Bytes(frame.begin(), frame.end() - 2)));

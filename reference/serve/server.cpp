@@ -28,9 +28,9 @@
 #include <fmt/core.h>
 
 #include "modbus/crc16.h"
+#include "modbus/mbap.h"
+#include "modbus/rtu.h"
 #include "serve/eeprom_store.h"
-#include "serve/mbap.h"
-#include "serve/rtu_framing.h"
 #include "serve/trace.h"
 
 namespace mbc::serve {
@@ -419,7 +419,7 @@ struct Server::Impl {
     if (l.in.empty() && !l.overflow) return false;
     if (now - l.last_rx >= rtu_gap(l)) return true;
     if (l.transport != Transport::rtu_tcp || l.overflow) return false;
-    auto n = rtu_request_length(l.in);
+    auto n = rtu_adu_length(l.in, Direction::request);
     return n && *n == l.in.size() && crc_ok(l.in);
   }
 

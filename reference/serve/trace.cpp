@@ -4,52 +4,10 @@
 
 #include "modbus/bytes.h"
 #include "modbus/crc16.h"
+#include "modbus/function_codes.h"
 
 namespace mbc::serve {
 namespace {
-
-
-// MBAP v1.1b3 §6 names.
-const char* function_name(uint8_t fc) {
-  switch (fc) {
-    case 0x01: return "read coils";
-    case 0x02: return "read discrete inputs";
-    case 0x03: return "read holding registers";
-    case 0x04: return "read input registers";
-    case 0x05: return "write single coil";
-    case 0x06: return "write single register";
-    case 0x07: return "read exception status";
-    case 0x08: return "diagnostics";
-    case 0x0B: return "get comm event counter";
-    case 0x0C: return "get comm event log";
-    case 0x0F: return "write multiple coils";
-    case 0x10: return "write multiple registers";
-    case 0x11: return "report server id";
-    case 0x14: return "read file record";
-    case 0x15: return "write file record";
-    case 0x16: return "mask write register";
-    case 0x17: return "read/write multiple registers";
-    case 0x18: return "read FIFO queue";
-    case 0x2B: return "encapsulated interface transport";
-    default: return "unknown function";
-  }
-}
-
-// MBAP v1.1b3 §7.
-const char* exception_name(uint8_t code) {
-  switch (code) {
-    case 1: return "illegal function";
-    case 2: return "illegal data address";
-    case 3: return "illegal data value";
-    case 4: return "server device failure";
-    case 5: return "acknowledge";
-    case 6: return "server device busy";
-    case 8: return "memory parity error";
-    case 0x0A: return "gateway path unavailable";
-    case 0x0B: return "gateway target failed to respond";
-    default: return "non-standard";
-  }
-}
 
 std::string words(std::span<const uint8_t> data) {
   std::string s;

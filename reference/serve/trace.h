@@ -6,9 +6,9 @@
 #include <span>
 #include <string>
 
-namespace mbc::serve {
+#include "modbus/pdu.h"
 
-enum class Direction { request, reply };
+namespace mbc::serve {
 
 // "FC 03 read holding registers addr 0x0023 qty 1", "FC 83 exception 02 (illegal data address)".
 std::string describe_pdu(std::span<const uint8_t> pdu, Direction dir);

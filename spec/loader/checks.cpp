@@ -5,6 +5,7 @@
 #include <map>
 #include <set>
 
+#include "modbus/bytes.h"
 #include "modbus/hex.h"
 
 namespace mbc::spec {
@@ -314,16 +315,15 @@ struct Checker {
         error(p + "/request", "example-map", "example '" + e.id + "': function code " + std::to_string(fc) + " is not in profile.function_codes");
         continue;
       }
-      auto u16 = [&](size_t at) { return unsigned((*req)[at] << 8 | (*req)[at + 1]); };
       Table table = table_for_function(fc);
       unsigned start = 0, qty = 0;
       if ((fc >= 1 && fc <= 4) || fc == 15 || fc == 16) {
         if (req->size() < 6) continue;
-        start = u16(2);
-        qty = u16(4);
+        start = be16(*req, 2);
+        qty = be16(*req, 4);
       } else if (fc == 5 || fc == 6 || fc == 22) {
         if (req->size() < 4) continue;
-        start = u16(2);
+        start = be16(*req, 2);
         qty = 1;
       } else {
         continue;

@@ -6,27 +6,12 @@
 
 #include "modbus/crc16.h"
 #include "modbus/hex.h"
+#include "modbus/rtu.h"
 
 namespace mbc::spec {
 namespace {
 
 using nlohmann::json;
-
-// The length an RTU frame of this function code must have (MB-SL v1.02
-// §2.5.1.1 with MBAP v1.1b3 §6), or 0 when it depends on more than we know.
-size_t expected_length(const Bytes& b, bool request) {
-  if (b.size() < 2) return 0;
-  uint8_t fc = b[1];
-  if (fc & 0x80) return 5;  // address, fc|0x80, code, CRC
-  if (request) {
-    if (fc >= 1 && fc <= 6) return 8;
-    if ((fc == 15 || fc == 16) && b.size() > 6) return 9 + size_t(b[6]);
-    return 0;
-  }
-  if (fc >= 1 && fc <= 4 && b.size() > 2) return 5 + size_t(b[2]);
-  if (fc == 5 || fc == 6 || fc == 15 || fc == 16) return 8;
-  return 0;
-}
 
 json frame_entry(const Example& e, const std::string& role, const std::string& hex) {
   json f{{"example", e.id}, {"section", e.section}, {"role", role}, {"hex", hex}};
@@ -53,7 +38,8 @@ json frame_entry(const Example& e, const std::string& role, const std::string& h
     // Printed with the two CRC bytes swapped?
     if ((*bytes)[bytes->size() - 2] == hi && (*bytes)[bytes->size() - 1] == lo) f["problem"] = "CRC bytes printed high byte first";
   }
-  size_t want = expected_length(*bytes, role == "request");
+  // MB-SL v1.02 §2.5.1.1 with MBAP v1.1b3 §6; 0 when it depends on more than the frame says.
+  size_t want = rtu_adu_length(*bytes, role == "request" ? Direction::request : Direction::reply).value_or(0);
   f["length_ok"] = want == 0 || want == bytes->size();
   if (want && want != bytes->size())
     f["problem"] = std::to_string(bytes->size()) + " bytes where a function " + std::to_string((*bytes)[1] & 0x7F) + " " +

@@ -112,6 +112,8 @@ struct Register {
 
   bool is_signed() const { return type == DataType::s16 || type == DataType::s32; }
   uint32_t last_address() const { return uint32_t(address) + uint32_t(words) - 1; }
+  // word_order as modbus/words.h's flag: the word at the lower address holds the low 16 bits.
+  bool low_word_first() const { return word_order == WordOrder::low_first; }
 };
 
 // What the device answers to one kind of violation.

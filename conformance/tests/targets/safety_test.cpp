@@ -12,7 +12,6 @@
 #include "loader.h"
 #include "modbus/judge.h"
 #include "modbus/pdu.h"
-#include "modbus/rtu.h"
 #include "safety/safety.h"
 #include "serve_process.h"
 
