@@ -20,6 +20,13 @@
 
 namespace mbc::conf {
 
+// A fact a case relies on, and where it comes from (spec/README.md, "Where
+// each fact comes from"). Recorded by the accessors of cases/facts.h only.
+struct Reliance {
+  std::string fact;         // "register 0x0BB8 read", "exception_policy.crc_error", "FC 16 max_quantity"
+  spec::FactBasis basis;
+};
+
 // What a step expects back.
 struct Expect {
   enum class Kind {
@@ -37,6 +44,13 @@ struct Expect {
   std::vector<uint16_t> words;
   int memo = -1;         // index of the earlier step whose reply this must equal
   std::string text;      // the expectation in words, for reports ("exception 03 (policy value_out_of_range, §6.2.4)")
+  // The facts this expectation was built from (cases/facts.h); a case
+  // relies on its steps' facts too.
+  std::vector<Reliance> relies;
+  // The source prints two readings: the reply may meet this expectation or
+  // any of `either` (each with its `reading` named); the runner records which.
+  std::vector<Expect> either;
+  std::string reading;   // this reading's name ("silence (the text)")
 };
 
 struct Step {
@@ -66,6 +80,11 @@ struct Case {
   std::string requirement;  // the sentence checked
   std::vector<Step> steps;
   std::vector<std::string> errata;
+  // The facts the case relies on beyond its steps' expectations
+  // (cases/facts.h). settle_level() turns an inferred one into OBSERVED.
+  std::vector<Reliance> relies;
+  // Set by settle_level() when an inferred fact moved the case off MUST/SHOULD.
+  std::optional<Level> level_if_stated;
   std::optional<uint16_t> register_address;  // for the per-register table
   // Registers (holding, address + words) the case writes: the runner reads
   // them before and writes them back after, so cases do not leak state.
@@ -89,7 +108,7 @@ std::vector<Case> function_code_cases(const GenContext&);   // function_codes.cp
 std::vector<Case> framing_cases(const GenContext&);         // framing.cpp
 std::vector<Case> deviation_cases(const GenContext&);       // deviations.cpp
 
-// Every family, in report order.
+// Every family, in report order, each case's level settled (cases/facts.h).
 std::vector<Case> all_cases(const GenContext&);
 
 }  // namespace mbc::conf

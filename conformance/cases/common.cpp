@@ -6,6 +6,7 @@
 #include <cmath>
 #include <limits>
 
+#include "cases/facts.h"
 #include "modbus/pdu.h"
 #include "modbus/words.h"
 
@@ -117,11 +118,24 @@ std::optional<Step> write_step(const GenContext& g, const Register& r, const std
   return s;
 }
 
+namespace {
+// One reading of a policy entry as an expectation.
+Expect policy_reading(const spec::PolicyEntry& p, Violation v) {
+  if (p.kind == spec::PolicyEntry::Kind::exception)
+    return exception(uint8_t(p.code), fmt::format("exception {:02X} (policy {})", p.code, spec::to_string(v)));
+  if (p.kind == spec::PolicyEntry::Kind::silent) return silence(fmt::format("silence (policy {})", spec::to_string(v)));
+  Expect e;
+  e.text = "not stated";
+  return e;
+}
+}  // namespace
+
 PolicyExpect policy_expect(const GenContext& g, Violation v) {
   PolicyExpect out;
-  spec::PolicyEntry p = g.spec.profile.policy(v);
-  out.erratum = p.erratum;
-  if (p.kind == spec::PolicyEntry::Kind::unspecified) {
+  facts::Relies relies;
+  spec::PolicyEntry p = facts::policy(relies, g.spec, v);
+  out.erratum = p.erratum.empty() ? p.basis.erratum : p.erratum;
+  if (p.kind == spec::PolicyEntry::Kind::unspecified && p.readings.empty()) {
     out.level = Level::observed;
     // The manual is silent: record what the device does beside the standard's answer.
     spec::PolicyEntry std_p = g.standard ? g.standard->profile.policy(v) : spec::PolicyEntry{};
@@ -135,10 +149,23 @@ PolicyExpect policy_expect(const GenContext& g, Violation v) {
     return out;
   }
   out.clause = clause(g.spec, p.section.empty() ? g.spec.profile.section : p.section);
-  if (p.kind == spec::PolicyEntry::Kind::exception)
-    out.expect = exception(uint8_t(p.code), fmt::format("exception {:02X} (policy {})", p.code, spec::to_string(v)));
-  else
-    out.expect = silence(fmt::format("silence (policy {})", spec::to_string(v)));
+  if (p.readings.empty()) {
+    out.expect = policy_reading(p, v);
+  } else {
+    // Printed two ways: either reading passes, and the runner records which.
+    out.expect = policy_reading(p.readings.front(), v);
+    out.expect.reading = out.expect.text;
+    for (size_t i = 1; i < p.readings.size(); ++i) {
+      Expect alt = policy_reading(p.readings[i], v);
+      alt.reading = alt.text;
+      out.expect.either.push_back(std::move(alt));
+    }
+    std::string all;
+    for (const auto& r : p.readings) all += (all.empty() ? "" : " or ") + policy_reading(r, v).text;
+    out.expect.text = all + " (printed two ways)";
+  }
+  if (p.basis.is_inferred()) out.expect.text += fmt::format(" (inferred: {})", p.basis.why);
+  out.expect.relies = std::move(relies);
   return out;
 }
 
@@ -159,16 +186,24 @@ std::string write_forbidden(const GenContext& g, const Register& r) {
 const Register* plain_register(const GenContext& g) {
   // A register with a stated range first; else any plain u16 (the values 0
   // and 1 are then written, and the cases using it are OBSERVED or check
-  // only what the standard fixes).
-  const Register* fallback = nullptr;
-  for (const auto& r : g.spec.registers) {
-    if (r.table != Table::holding || r.access != Access::rw || r.words != 1) continue;
-    if (!write_forbidden(g, r).empty()) continue;
-    if (r.persistence.store != spec::Store::none && g.target.live && !g.policy.allow_eeprom_writes) continue;
-    if (r.range && r.range->max > r.range->min) return &r;
-    if (!r.range && !fallback && r.type == DataType::u16) fallback = &r;
+  // only what the standard fixes). Registers whose reading, writing or range
+  // is only inferred come last: cases built on them are OBSERVED.
+  for (bool stated_only : {true, false}) {
+    const Register* fallback = nullptr;
+    for (const auto& r : g.spec.registers) {
+      if (r.table != Table::holding || r.access != Access::rw || r.words != 1) continue;
+      if (!write_forbidden(g, r).empty()) continue;
+      if (r.persistence.store != spec::Store::none && g.target.live && !g.policy.allow_eeprom_writes) continue;
+      bool stated = true;
+      for (spec::Fact f : {spec::Fact::read, spec::Fact::write, spec::Fact::range})
+        stated = stated && r.basis_of(f).basis == spec::Basis::stated;
+      if (stated_only && !stated) continue;
+      if (r.range && r.range->max > r.range->min) return &r;
+      if (!r.range && !fallback && r.type == DataType::u16) fallback = &r;
+    }
+    if (fallback) return fallback;
   }
-  return fallback;
+  return nullptr;
 }
 
 std::pair<int64_t, int64_t> plain_values(const Register& r) {
@@ -204,6 +239,12 @@ std::vector<std::string> planned_broadcast_writes(const std::vector<Case>& cases
       for (const auto& st : c.steps)
         if (is_broadcast_write(st)) out.push_back(fmt::format("{}: {}", c.id, st.what));
   return out;
+}
+
+void plain_relies(std::vector<Reliance>& into, const Register& r) {
+  facts::readable(into, r);
+  facts::writable(into, r);
+  facts::range(into, r);
 }
 
 std::string describe(const Expect& e) {

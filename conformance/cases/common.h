@@ -64,6 +64,9 @@ const spec::Register* plain_register(const GenContext&);
 // Two different values plain_register()'s register accepts: its range's
 // bounds, or 0 and 1 when it states no range.
 std::pair<int64_t, int64_t> plain_values(const spec::Register&);
+// Records what a case using plain_register()'s register and plain_values()
+// relies on (cases/facts.h): that it reads, writes, and its range.
+void plain_relies(std::vector<Reliance>&, const spec::Register&);
 
 // Step `st` with its value words taken from `read_reply` (an FC 03 reply)
 // when st.words_from is set; nullopt when the reply holds no usable words.

@@ -9,6 +9,7 @@
 #include <map>
 
 #include "cases/common.h"
+#include "cases/facts.h"
 #include "errata.h"
 #include "modbus/crc16.h"
 #include "modbus/pdu.h"
@@ -175,8 +176,10 @@ std::vector<Case> all_cases(const GenContext& g) {
   }
   // Ids are stable and unique: a repeated one gets "-2", "-3", ...
   std::map<std::string, int> seen;
-  for (auto& c : out)
+  for (auto& c : out) {
     if (int n = ++seen[c.id]; n > 1) c.id += fmt::format("-{}", n);
+    facts::settle_level(c);
+  }
   return out;
 }
 

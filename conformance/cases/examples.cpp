@@ -11,6 +11,7 @@
 #include <map>
 
 #include "cases/common.h"
+#include "cases/facts.h"
 #include "modbus/crc16.h"
 #include "modbus/rtu.h"
 
@@ -131,6 +132,17 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
     else e = cases::normal("a well-formed normal reply (no response printed)");
   }
 
+  facts::example(e.relies, ex);
+  if (ex.basis.basis == spec::Basis::either && ex.response && ex.has_resolution()) {
+    // The manual prints two readings: the resolved one above, or the frame as printed.
+    if (auto printed = parse_hex(*ex.response); printed && printed->size() >= 4) {
+      e.reading = e.text;
+      Expect alt = cases::exact(Bytes(printed->begin() + 1, printed->end() - 2), "the printed response");
+      alt.reading = alt.text;
+      e.text += " or the printed response (printed two ways)";
+      e.either.push_back(std::move(alt));
+    }
+  }
   Step s;
   s.what = fmt::format("{} ({})", ex.id, ex.does.empty() ? "printed frame" : ex.does.substr(0, 80));
   if (crc_valid) {

@@ -109,6 +109,7 @@ struct Gen {
     for (bool effect : {false, true}) {
       bool stated = effect ? ser.broadcast_writes == "applied" : ser.broadcast_reply == "none";
       Case c = base("broadcast", effect ? "write-applied" : "no-reply", stated ? cl : "MB-SL v1.02 §2.1");
+      cases::plain_relies(c.relies, *r);
       c.level = stated ? Level::must : Level::observed;
       c.register_address = r->address;
       c.title = effect ? fmt::format("a broadcast write of {} takes effect", hex16(r->address))
@@ -225,6 +226,7 @@ struct Gen {
     Case c = base("pdu", "byte-count-mismatch", pe.clause);
     c.level = pe.level;
     c.register_address = r->address;
+    cases::plain_relies(c.relies, *r);
     if (!pe.erratum.empty()) c.errata.push_back(pe.erratum);
     c.title = fmt::format("FC 16 to {}: quantity 2 but byte count 2", hex16(r->address));
     c.requirement = "The byte count must be 2 x quantity (MBAP v1.1b3 §6.12): " + pe.expect.text + "; nothing is written.";

@@ -8,6 +8,7 @@
 #include <algorithm>
 
 #include "cases/common.h"
+#include "cases/facts.h"
 #include "modbus/limits.h"
 #include "modbus/pdu.h"
 
@@ -46,24 +47,32 @@ struct Gen {
   }
 
   // The limit the case tests and whether the manual states it.
-  std::pair<int, bool> limit_of(const spec::FunctionCode& f) {
-    if (f.max_quantity) return {*f.max_quantity, true};
+  std::pair<int, bool> limit_of(const spec::FunctionCode& f, facts::Relies& relies) {
+    if (auto q = facts::limit(relies, f, "max_quantity")) return {*q, true};
     if (g.standard)
       if (const auto* s = g.standard->profile.function(f.code); s && s->max_quantity) return {*s->max_quantity, false};
     return {0, false};
   }
 
-  // The first address where `n` consecutive addresses of `t` are all readable.
-  std::optional<uint16_t> readable_run(Table t, int n) {
-    int run = 0;
-    std::optional<uint32_t> start;
+  // The first address where `n` consecutive addresses of `t` are all
+  // readable: registers the manual states readable first, else any (their
+  // `read` facts then go into `relies`).
+  std::optional<uint16_t> readable_run(Table t, int n, facts::Relies* relies = nullptr) {
     std::optional<uint16_t> last = g.spec.last_address(t);
     if (!last) return std::nullopt;
-    for (uint32_t a = 0; a <= *last; ++a) {
-      if (readable(g.spec.register_covering(uint16_t(a), t))) {
-        if (run == 0) start = a;
-        if (++run >= n) return uint16_t(*start);
-      } else {
+    for (bool stated_only : {true, false}) {
+      int run = 0;
+      std::optional<uint32_t> start;
+      for (uint32_t a = 0; a <= *last; ++a) {
+        const Register* r = g.spec.register_covering(uint16_t(a), t);
+        if (readable(r) && (!stated_only || !r->basis_of(spec::Fact::read).is_inferred())) {
+          if (run == 0) start = a;
+          if (++run < n) continue;
+          if (relies)
+            for (uint32_t x = *start; x < *start + uint32_t(n); ++x)
+              facts::readable(*relies, *g.spec.register_covering(uint16_t(x), t));
+          return uint16_t(*start);
+        }
         run = 0;
       }
     }
@@ -104,8 +113,10 @@ struct Gen {
 
   void reads(const spec::FunctionCode& f) {
     Table t = spec::table_for_function(f.code);
-    auto [limit, stated] = limit_of(f);
-    std::optional<uint16_t> first = readable_run(t, 1);
+    facts::Relies lim;
+    auto [limit, stated] = limit_of(f, lim);
+    facts::Relies first_read;
+    std::optional<uint16_t> first = readable_run(t, 1, &first_read);
     if (!first) return;
     {
       auto pe = cases::policy_expect(g, Violation::quantity_zero);
@@ -118,15 +129,17 @@ struct Gen {
       Case c = base(f.code, "quantity-1", f.section);
       c.title = fmt::format("FC {:02} reads 1 item at {}", f.code, hex16(*first));
       c.requirement = "A read of one mapped, readable item gets a normal reply.";
+      c.relies = first_read;
       add(std::move(c), cases::read_range_step(g, t, *first, 1, cases::normal("a normal reply with 1 item")));
     }
     if (limit > 0) {
       Case c = base(f.code, "quantity-limit", f.section);
       c.level = stated ? Level::must : Level::observed;
+      c.relies = lim;
       c.title = fmt::format("FC {:02} reads the limit of {} items", f.code, limit);
       c.requirement = stated ? fmt::format("The manual allows up to {} items per request.", limit)
                              : fmt::format("The manual states no limit; the standard's is {}.", limit);
-      std::optional<uint16_t> at = readable_run(t, limit);
+      std::optional<uint16_t> at = readable_run(t, limit, &c.relies);
       if (!at) {
         c.skip_reason = fmt::format("no run of {} consecutive readable addresses in the map", limit);
         out.push_back(std::move(c));
@@ -136,6 +149,7 @@ struct Gen {
       auto pe = cases::policy_expect(g, Violation::quantity_over_limit);
       Case o = with_policy(base(f.code, "quantity-limit+1", f.section), Violation::quantity_over_limit);
       if (!stated) o.level = Level::observed;
+      o.relies = lim;
       o.title = fmt::format("FC {:02} reads {} items, one over the limit", f.code, limit + 1);
       o.requirement = fmt::format("Over the limit of {}: {}.", limit, pe.expect.text);
       add(std::move(o), cases::read_range_step(g, t, at.value_or(*first), uint16_t(limit + 1), pe.expect));
@@ -181,7 +195,7 @@ struct Gen {
 
   // A run of `n` words of consecutive holding registers the case may write
   // whole (starting and ending on register boundaries), with in-range values.
-  std::optional<std::pair<uint16_t, std::vector<uint16_t>>> writable_run(int n) {
+  std::optional<std::pair<uint16_t, std::vector<uint16_t>>> writable_run(int n, facts::Relies* relies = nullptr) {
     std::vector<const Register*> run;
     int words = 0;
     for (const auto& r : g.spec.registers) {
@@ -200,8 +214,14 @@ struct Gen {
       }
       if (words == n) {
         std::vector<uint16_t> values;
-        for (const Register* x : run)
-          for (auto w : cases::encode(*x, int64_t(x->range ? x->range->min : x->default_value.value_or(0)))) values.push_back(w);
+        facts::Relies rel;
+        for (const Register* x : run) {
+          facts::writable(rel, *x);
+          const auto& range = facts::range(rel, *x);
+          auto dflt = range ? std::nullopt : facts::default_value(rel, *x);
+          for (auto w : cases::encode(*x, int64_t(range ? range->min : dflt.value_or(0)))) values.push_back(w);
+        }
+        if (relies) relies->insert(relies->end(), rel.begin(), rel.end());
         return std::make_pair(run.front()->address, values);
       }
     }
@@ -209,14 +229,15 @@ struct Gen {
   }
 
   void write_multiple(const spec::FunctionCode& f) {
-    auto [limit, stated] = limit_of(f);
+    facts::Relies lim;
+    auto [limit, stated] = limit_of(f, lim);
     auto touches = [](uint16_t a, size_t n) { return std::vector<std::pair<uint16_t, int>>{{a, int(n)}}; };
     {
       auto pe = cases::policy_expect(g, Violation::quantity_zero);
       Case c = with_policy(base(16, "quantity-0", f.section), Violation::quantity_zero);
       c.title = "FC 16 with quantity 0 and byte count 0";
       c.requirement = fmt::format("Quantity 0 is outside 1..123 (MBAP v1.1b3 §6.12): {}.", pe.expect.text);
-      auto run = writable_run(1);
+      auto run = writable_run(1, &c.relies);
       Step s;
       s.unit = g.target.unit;
       s.pdu = {16, uint8_t(run ? run->first >> 8 : 0), uint8_t(run ? run->first & 0xFF : 0), 0, 0, 0};
@@ -232,6 +253,7 @@ struct Gen {
       if (n == 1 && limit == 1 && !over) what = "quantity-limit";
       Case c = over ? with_policy(base(16, what, f.section), Violation::quantity_over_limit) : base(16, what, f.section);
       if (n > 1 && !stated) c.level = Level::observed;
+      if (n > 1 || over) c.relies = lim;
       auto pe = cases::policy_expect(g, Violation::quantity_over_limit);
       c.title = fmt::format("FC 16 writes {} registers{}", n, over ? ", one over the limit" : n == limit ? " (the limit)" : "");
       c.requirement = over ? fmt::format("Over the limit of {}: {}.", limit, pe.expect.text)
@@ -241,7 +263,7 @@ struct Gen {
         out.push_back(std::move(c));
         continue;
       }
-      auto run = writable_run(over ? limit : n);
+      auto run = writable_run(over ? limit : n, &c.relies);
       if (!run) {
         c.skip_reason = fmt::format("no run of {} consecutive registers this run may write", over ? limit : n);
         out.push_back(std::move(c));

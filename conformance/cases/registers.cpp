@@ -17,6 +17,7 @@
 #include <cmath>
 
 #include "cases/common.h"
+#include "cases/facts.h"
 
 namespace mbc::conf {
 namespace {
@@ -78,6 +79,7 @@ struct Gen {
     c.title = fmt::format("read {} ({})", hex16(r.address), r.name.en);
     c.requirement = fmt::format("{} {} is readable ({}, {} word{}).", spec::to_string(r.table), hex16(r.address),
                                 spec::to_string(r.access), r.words, r.words == 1 ? "" : "s");
+    facts::readable(c.relies, r);
     Expect e = cases::normal(fmt::format("a normal reply with {} item{}", r.words, r.words == 1 ? "" : "s"));
     auto st = cases::read_step(g, r, e);
     if (!st) return;
@@ -94,9 +96,14 @@ struct Gen {
   }
 
   // Write `v`, expect the echo, read it back.
-  void write_in_range(const Register& r, const std::string& what, double v, Level level, const std::string& why) {
+  void write_in_range(const Register& r, const std::string& what, double v, Level level, const std::string& why,
+                      const facts::Relies& relies) {
     Case c = base(r, what);
     c.level = level;
+    c.relies = relies;
+    facts::writable(c.relies, r);
+    facts::readable(c.relies, r);  // the read-back
+    facts::word_order(c.relies, r);
     c.title = fmt::format("write {} = {} ({}) and read it back", hex16(r.address), show(r, v), why);
     c.requirement = level == Level::observed ? fmt::format("{} states no range; a write of {} (the type's {}) is recorded.",
                                                            hex16(r.address), show(r, v), why)
@@ -111,16 +118,26 @@ struct Gen {
     } else {
       writable(r, c);  // a forbidden write is skipped, its frames still shown by --plan
       c.steps.push_back(std::move(*st));
-      if (auto rd = cases::read_step(g, r, want_words(r, w, fmt::format("{} (as written)", show(r, v)))))
-        c.steps.push_back(std::move(*rd));
+      Expect back = want_words(r, w, fmt::format("{} (as written)", show(r, v)));
+      if (r.word_order_readings.size() > 1 && w.size() == 2) {
+        // Word order printed two ways: either order reads back right.
+        back.reading = fmt::format("{} (word order {})", show(r, v), spec::to_string(r.word_order));
+        Expect swapped = want_words(r, {w[1], w[0]}, "");
+        swapped.reading = swapped.text = fmt::format("{} (the other word order)", show(r, v));
+        back.either.push_back(std::move(swapped));
+        back.text += " or its words swapped (word order printed two ways)";
+      }
+      if (auto rd = cases::read_step(g, r, back)) c.steps.push_back(std::move(*rd));
     }
     out.push_back(std::move(c));
   }
 
   // A rejected write: read (memo), write, the policy's answer, read unchanged.
   void rejected_write(const Register& r, const std::string& what, std::vector<uint16_t> w, spec::Violation v,
-                      const std::string& title) {
+                      const std::string& title, const facts::Relies& relies = {}) {
     Case c = base(r, what);
+    c.relies = relies;
+    facts::word_order(c.relies, r);  // the words of the rejected value
     auto pe = cases::policy_expect(g, v);
     c.level = pe.level;
     c.clause = pe.level == Level::observed ? clause(g.spec, r.section) + "; " + pe.clause : pe.clause;
@@ -128,7 +145,7 @@ struct Gen {
     c.title = title;
     c.requirement = fmt::format("{}: {}; the value stays unchanged.", title, pe.expect.text);
     c.touches.push_back({r.address, r.words});
-    bool readable = r.access != Access::wo && r.access != Access::command;
+    bool readable = facts::readable(c.relies, r);  // the before/after reads
     int memo = -1;
     if (readable) {
       if (auto rd = cases::read_step(g, r, Expect{})) {
@@ -156,52 +173,74 @@ struct Gen {
   }
 
   void writes(const Register& r) {
-    bool has_range = r.range.has_value();
-    double lo = has_range ? r.range->min : double(cases::type_min(r));
-    double hi = has_range ? r.range->max : double(cases::type_max(r));
+    facts::Relies rel;
+    const auto& range = facts::range(rel, r);
+    facts::type(rel, r);
+    bool has_range = range.has_value();
+    double lo = has_range ? range->min : double(cases::type_min(r));
+    double hi = has_range ? range->max : double(cases::type_max(r));
+    // Range printed two ways: accepted writes stay inside both readings,
+    // rejected ones outside both, so a case passes on either.
+    double out_lo = lo, out_hi = hi;
+    for (const auto& x : r.range_readings) {
+      lo = std::max(lo, x.min);
+      hi = std::min(hi, x.max);
+      out_lo = std::min(out_lo, x.min);
+      out_hi = std::max(out_hi, x.max);
+    }
+    if (lo > hi) return;  // the readings share no value
     if (r.type == DataType::f32 && !has_range) return;  // no float bounds to test
     if (r.type == DataType::bitfield && !has_range) return;  // reserved bits make type bounds meaningless
     // A coil's values are the type itself (MBAP v1.1b3 §6.5: OFF or ON); other
     // registers without a stated range are written at the type's bounds, OBSERVED.
     Level lv = has_range || r.type == DataType::bit ? Level::must : Level::observed;
-    write_in_range(r, "write-min", lo, lv, "minimum");
-    if (hi != lo) write_in_range(r, "write-max", hi, lv, "maximum");
+    write_in_range(r, "write-min", lo, lv, "minimum", rel);
+    if (hi != lo) write_in_range(r, "write-max", hi, lv, "maximum", rel);
     double mid = r.type == DataType::f32 ? (lo + hi) / 2 : std::floor((lo + hi) / 2);
     if (r.type == DataType::enumeration) {
       // The middle of an enumeration is its middle value, not a hole between values.
       if (const auto* en = g.spec.find_enum(r.enum_id); en && !en->values.empty())
         mid = double(en->values[en->values.size() / 2].value);
     }
-    if (mid != lo && mid != hi) write_in_range(r, "write-mid", mid, lv, "middle");
+    if (mid != lo && mid != hi) write_in_range(r, "write-mid", mid, lv, "middle", rel);
 
     if (has_range && r.type != DataType::f32 && r.type != DataType::bit) {
-      if (lo - 1 >= double(cases::type_min(r)))
-        rejected_write(r, "below-min", words_for(r, lo - 1), spec::Violation::value_out_of_range,
-                       fmt::format("write {} = {} (minimum - 1)", hex16(r.address), show(r, lo - 1)));
-      if (hi + 1 <= double(cases::type_max(r)))
-        rejected_write(r, "above-max", words_for(r, hi + 1), spec::Violation::value_out_of_range,
-                       fmt::format("write {} = {} (maximum + 1)", hex16(r.address), show(r, hi + 1)));
+      if (out_lo - 1 >= double(cases::type_min(r)))
+        rejected_write(r, "below-min", words_for(r, out_lo - 1), spec::Violation::value_out_of_range,
+                       fmt::format("write {} = {} (minimum - 1)", hex16(r.address), show(r, out_lo - 1)), rel);
+      if (out_hi + 1 <= double(cases::type_max(r)))
+        rejected_write(r, "above-max", words_for(r, out_hi + 1), spec::Violation::value_out_of_range,
+                       fmt::format("write {} = {} (maximum + 1)", hex16(r.address), show(r, out_hi + 1)), rel);
     }
     if (r.words == 2 && r.type != DataType::f32) {
       // Both halves non-zero and different, so swapped words cannot read back right.
       int64_t v = 0x00010002;
       if (v < lo || v > hi) v = -0x00010002;
-      if (v >= lo && v <= hi) write_in_range(r, "word-order", double(v), lv, "distinct words");
+      if (v >= lo && v <= hi) write_in_range(r, "word-order", double(v), lv, "distinct words", rel);
     }
   }
 
   // Power-on state (spec/README.md: `default` is the power-on value of a
   // volatile register; a persistent one keeps what was stored).
   void power_cycle(const Register& r) {
-    if (r.table != Table::holding || r.words != 1 || !r.range || r.type == DataType::f32) return;
-    if (r.persistence.by == spec::PersistBy::save_command) return;  // needs the save command; the examples cover it
-    bool persistent = r.persistence.store != spec::Store::none;
-    if (!persistent && !r.default_value) return;
-    double dflt = r.default_value.value_or(r.range->min);
-    if (dflt < r.range->min || dflt > r.range->max) return;  // a default the range excludes is an erratum of its own
-    double v = r.range->max != dflt ? r.range->max : r.range->min;
+    facts::Relies rel;
+    const auto& range = facts::range(rel, r);
+    const auto& persistence = facts::persistence(rel, r);
+    if (r.table != Table::holding || r.words != 1 || !range || r.type == DataType::f32) return;
+    if (persistence.by == spec::PersistBy::save_command) return;  // needs the save command; the examples cover it
+    bool persistent = persistence.store != spec::Store::none;
+    std::optional<double> dv = persistent ? r.default_value : facts::default_value(rel, r);
+    if (!persistent && !dv) return;
+    double dflt = dv.value_or(range->min);
+    if (dflt < range->min || dflt > range->max) return;  // a default the range excludes is an erratum of its own
+    double v = range->max != dflt ? range->max : range->min;
     if (v == dflt) return;
+    for (double x : r.default_readings)
+      if (x == v) return;  // every reading's default must differ from the value written
     Case c = base(r, persistent ? "persists" : "volatile");
+    c.relies = rel;
+    facts::writable(c.relies, r);
+    facts::readable(c.relies, r);
     c.clause = clause(g.spec, !r.persistence.section.empty() ? r.persistence.section : r.section);
     c.title = persistent ? fmt::format("{} keeps {} across a power cycle", hex16(r.address), show(r, v))
                          : fmt::format("{} returns to its default {} after a power cycle", hex16(r.address), show(r, dflt));
@@ -236,8 +275,18 @@ struct Gen {
     pc.what = "power cycle";
     c.steps.push_back(std::move(pc));
     auto want = persistent ? w : words_for(r, dflt);
-    if (auto rd = cases::read_step(g, r, want_words(r, want, persistent ? show(r, v) + " (stored)" : show(r, dflt) + " (the default)")))
-      c.steps.push_back(std::move(*rd));
+    Expect after = want_words(r, want, persistent ? show(r, v) + " (stored)" : show(r, dflt) + " (the default)");
+    if (!persistent && r.default_readings.size() > 1) {
+      // The default is printed two ways: either reads back right.
+      after.reading = after.text;
+      for (double x : r.default_readings) {
+        if (x == dflt) continue;
+        Expect alt = want_words(r, words_for(r, x), show(r, x) + " (the other printed default)");
+        alt.reading = alt.text;
+        after.either.push_back(std::move(alt));
+      }
+    }
+    if (auto rd = cases::read_step(g, r, after)) c.steps.push_back(std::move(*rd));
     out.push_back(std::move(c));
   }
 
@@ -248,8 +297,11 @@ struct Gen {
       if (r.access == Access::rw && (r.table == Table::holding || r.table == Table::coil)) writes(r);
       if (r.access == Access::ro && r.table == Table::holding) {
         double v = r.default_value.value_or(0);
+        facts::Relies rel;
+        facts::writable(rel, r);  // that it is not writable
+        facts::default_value(rel, r);  // the value written
         rejected_write(r, "read-only", r.type == DataType::f32 ? words_for(r, v) : cases::encode(r, int64_t(v)),
-                       spec::Violation::write_read_only, fmt::format("write read-only {}", hex16(r.address)));
+                       spec::Violation::write_read_only, fmt::format("write read-only {}", hex16(r.address)), rel);
       }
       if (r.access == Access::wo) {
         Case c = base(r, "write-only");
@@ -257,6 +309,7 @@ struct Gen {
         c.level = pe.level;
         c.clause = pe.clause;
         if (!pe.erratum.empty()) c.errata.push_back(pe.erratum);
+        facts::readable(c.relies, r);  // that it is not readable
         c.title = fmt::format("read write-only {}", hex16(r.address));
         c.requirement = fmt::format("A read of write-only {}: {}.", hex16(r.address), pe.expect.text);
         if (auto st = cases::read_step(g, r, pe.expect)) {

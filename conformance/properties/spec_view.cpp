@@ -78,6 +78,9 @@ SpecView::SpecView(const spec::Spec& s, const TargetInfo& target, const WritePol
   if (broadcast_unavailable_.empty()) broadcast_unavailable_ = broadcast_forbidden(target, policy, 6);
   for (const auto& r : s.registers) {
     if (r.table != Table::holding) continue;
+    // A property never fails on an inferred fact (spec/README.md): registers
+    // whose readability or writability is only inferred stay out of it.
+    if (r.basis_of(spec::Fact::read).is_inferred() || r.basis_of(spec::Fact::write).is_inferred()) continue;
     // The safety rules (safety.h) decide on live targets; a live run also
     // leaves the do-not-persist switch as Snapshot::take set it.
     if (r.access == Access::rw && !is_serial_setting(s, r.address) && may_write(s, r, target, policy).allowed &&
@@ -126,6 +129,9 @@ Expected SpecView::expected(Violation v) const {
   // The language: quantity_zero, when absent, is covered by quantity_over_limit.
   if (v == Violation::quantity_zero && !spec_->profile.exception_policy.count(v))
     p = spec_->profile.policy(Violation::quantity_over_limit);
+  // An inferred, observed or twice-printed answer is not held against the
+  // device: any refusal passes.
+  if (p.basis.is_inferred() || p.basis.basis == spec::Basis::either) return {Expected::Kind::refused, 0};
   switch (p.kind) {
     case spec::PolicyEntry::Kind::exception: return {Expected::Kind::exception, p.code};
     case spec::PolicyEntry::Kind::silent: return {Expected::Kind::silence, 0};
@@ -167,6 +173,7 @@ std::vector<uint32_t> SpecView::boundary_values(const Register& r) const {
 
 std::vector<uint32_t> SpecView::out_of_range_values(const Register& r) const {
   std::vector<uint32_t> out;
+  if (r.basis_of(spec::Fact::range).basis != spec::Basis::stated) return out;  // no stated range to be outside of
   if (r.type == DataType::f32) {
     if (r.range) out.push_back(0x7FC00000u);  // NaN is in no range
     if (r.range) out.push_back(to_raw(r, r.range->max * 2 + 1)), out.push_back(to_raw(r, r.range->min * 2 - 1));

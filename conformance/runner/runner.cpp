@@ -5,6 +5,7 @@
 #include <chrono>
 
 #include "cases/common.h"
+#include "cases/facts.h"
 #include "modbus/crc16.h"
 #include "modbus/judge.h"
 #include "modbus/pdu.h"
@@ -126,7 +127,17 @@ class CaseRunner {
         bool adu = info.framing == Framing::rtu && e.size() >= 4 && crc_ok(e) && !(e.size() == 2);
         fr.expected_decoded = describe_pdu(adu ? std::span<const uint8_t>(e).subspan(1, e.size() - 3) : std::span<const uint8_t>(e), false);
       }
-      std::string why = judge(st, x, replies);
+      std::string why = judge(st.expect, x, replies);
+      if (!st.expect.either.empty()) {
+        // Printed two ways: the step passes on any reading; record which one.
+        std::string chosen = why.empty() ? st.expect.reading : "";
+        for (const auto& alt : st.expect.either) {
+          if (!chosen.empty()) break;
+          if (judge(alt, x, replies).empty()) chosen = alt.reading;
+        }
+        if (!chosen.empty()) why.clear();
+        res.extra["either"].push_back({{"step", st.what}, {"chose", chosen.empty() ? "neither reading" : chosen}});
+      }
       replies.push_back(x.reply.pdu);
       if (!why.empty()) {
         if (st.setup) setup_failed = true;
@@ -167,8 +178,7 @@ class CaseRunner {
   }
 
   // Empty when the reply meets the expectation, else why not.
-  std::string judge(const Step& st, const Exchange& x, const std::vector<std::optional<Bytes>>& replies) {
-    const Expect& e = st.expect;
+  std::string judge(const Expect& e, const Exchange& x, const std::vector<std::optional<Bytes>>& replies) {
     const Reply& r = x.reply;
     if (e.kind == Expect::Kind::none) return "";
     if (e.kind == Expect::Kind::silence) return r.silent() ? "" : "a reply came";
@@ -291,6 +301,12 @@ CaseResult result_header(const Case& c) {
   r.register_address = c.register_address;
   r.errata = c.errata;
   r.outcome = Outcome::skip;
+  if (c.level_if_stated) r.extra["level_if_stated"] = to_string(*c.level_if_stated);
+  // What the case relies on that the manual does not simply state.
+  for (const auto& rel : facts::all_relies(c)) {
+    if (rel.basis.basis == spec::Basis::stated) continue;
+    r.extra[rel.basis.is_inferred() ? "inferred" : "printed_two_ways"].push_back(facts::describe(rel));
+  }
   return r;
 }
 

@@ -1,6 +1,7 @@
 #include "errata.h"
 
 #include <algorithm>
+#include <map>
 #include <set>
 #include <sstream>
 
@@ -125,6 +126,54 @@ json deviations(const Spec& d, const Spec& std_) {
   return out;
 }
 
+// Every fact the spec states, infers, observed or prints two ways
+// (spec/README.md, "Where each fact comes from"), with the inferred and
+// either ones listed.
+json fact_bases(const Spec& d) {
+  std::map<std::string, int> count{{"stated", 0}, {"inferred", 0}, {"observed", 0}, {"either", 0}};
+  json inferred = json::array(), either = json::array();
+  auto add = [&](const std::string& fact, const FactBasis& b) {
+    count[to_string(b.basis)]++;
+    json e{{"fact", fact}, {"basis", to_string(b.basis)}, {"section", b.section}};
+    if (b.is_inferred()) {
+      e["why"] = b.why;
+      if (!b.searched.empty()) e["searched"] = b.searched;
+      inferred.push_back(e);
+    } else if (b.basis == Basis::either) {
+      e["readings"] = b.readings;
+      e["erratum"] = b.erratum;
+      either.push_back(e);
+    }
+  };
+  for (const auto& r : d.registers) {
+    if (r.block_index > 0) continue;  // a block's facts are stated once
+    std::string reg = std::string(r.table == Table::holding ? "" : std::string(to_string(r.table)) + " ") + "register " +
+                      std::to_string(r.address) + (r.block_index == 0 ? " (block)" : "");
+    for (Fact f : kRegisterFacts) {
+      bool present = r.basis.count(f) > 0 || f == Fact::read || f == Fact::write || f == Fact::type ||
+                     (f == Fact::range && r.range) || (f == Fact::default_value && r.default_value) ||
+                     (f == Fact::word_order && r.words == 2) ||
+                     (f == Fact::takes_effect && r.takes_effect != TakesEffect::immediate) ||
+                     (f == Fact::persistence && r.persistence.store != Store::none);
+      if (present) add(reg + " " + to_string(f), r.basis_of(f));
+    }
+  }
+  for (const auto& f : d.profile.function_codes)
+    for (const char* k : {"max_quantity", "max_read_quantity", "max_write_quantity"}) {
+      bool set = std::string(k) == "max_quantity" ? bool(f.max_quantity)
+                 : std::string(k) == "max_read_quantity" ? bool(f.max_read_quantity) : bool(f.max_write_quantity);
+      if (set) add("FC " + std::to_string(f.code) + " " + k, f.basis_of(k));
+    }
+  for (Violation v : kAllViolations) {
+    PolicyEntry p = d.profile.policy(v);
+    if (p.kind != PolicyEntry::Kind::unspecified || p.basis.basis == Basis::either)
+      add(std::string("exception_policy.") + to_string(v), p.basis);
+  }
+  for (const auto& e : d.examples) add("example " + e.id, e.basis);
+  return {{"stated", count["stated"]}, {"inferred", count["inferred"]}, {"observed", count["observed"]},
+          {"either", count["either"]}, {"inferred_facts", inferred}, {"either_facts", either}};
+}
+
 }  // namespace
 
 nlohmann::json errata_report(const Spec& d, const Spec& standard) {
@@ -151,10 +200,13 @@ nlohmann::json errata_report(const Spec& d, const Spec& standard) {
   }
   r["errata"] = contradictions;
   r["deviations"] = deviations(d, standard);
+  r["facts"] = fact_bases(d);
   size_t bad = std::count_if(frames.begin(), frames.end(), [](const json& f) { return !f["crc_ok"].get<bool>(); });
   size_t bad_len = std::count_if(frames.begin(), frames.end(), [](const json& f) { return !f.value("length_ok", true); });
   r["summary"] = {{"frames", frames.size()}, {"frames_bad_crc", bad}, {"frames_bad_length", bad_len}, {"errata", d.errata.size()},
-                  {"deviations", r["deviations"].size()}, {"registers", d.registers.size()}, {"examples", d.examples.size()}};
+                  {"deviations", r["deviations"].size()}, {"registers", d.registers.size()}, {"examples", d.examples.size()},
+                  {"facts_stated", r["facts"]["stated"]}, {"facts_inferred", r["facts"]["inferred"].get<int>() + r["facts"]["observed"].get<int>()},
+                  {"facts_either", r["facts"]["either"]}};
   return r;
 }
 
@@ -203,6 +255,26 @@ std::string errata_markdown(const nlohmann::json& r) {
         first = false;
       }
       o << "\n";
+    }
+    o << "\n";
+  }
+  const json& fb = r["facts"];
+  o << "## Where the facts come from\n\n" << fb["stated"] << " stated, " << fb["inferred"] << " inferred, " << fb["observed"]
+    << " observed, " << fb["either"] << " printed two ways (spec/README.md, \"Where each fact comes from\"). A case relying on an "
+    << "inferred or observed fact is OBSERVED; one relying on a fact printed two ways passes on either reading.\n\n";
+  if (!fb["inferred_facts"].empty()) {
+    o << "| inferred fact | section | why | searched |\n|---|---|---|---|\n";
+    for (const auto& f : fb["inferred_facts"])
+      o << "| " << cell(f["fact"]) << (f["basis"] == "observed" ? " (observed)" : "") << " | " << cell(f["section"]) << " | "
+        << cell(f["why"]) << " | " << cell(f.value("searched", std::string())) << " |\n";
+    o << "\n";
+  }
+  if (!fb["either_facts"].empty()) {
+    o << "| fact printed two ways | section | readings | erratum |\n|---|---|---|---|\n";
+    for (const auto& f : fb["either_facts"]) {
+      std::string rs;
+      for (const auto& x : f["readings"]) rs += (rs.empty() ? "" : " / ") + x.get<std::string>();
+      o << "| " << cell(f["fact"]) << " | " << cell(f["section"]) << " | " << cell(rs) << " | " << cell(f["erratum"]) << " |\n";
     }
     o << "\n";
   }

@@ -126,21 +126,80 @@ struct Builder {
     return r.empty() ? "" : r.front();
   }
 
-  PolicyEntry policy(const json& j, const std::string& p) {
+  void error(const std::string& p, const char* rule, const std::string& what) {
+    SourceLoc l = at(p);
+    out.push_back({file, l.line, l.col, rule, what});
+  }
+
+  // A basis object ({stated|inferred|observed|either, searched, section,
+  // erratum}); `p` is its JSON pointer, `what` names the fact in messages.
+  FactBasis fact_basis(const json& j, const std::string& p, const std::string& what) {
+    FactBasis b;
+    b.loc = at(p);
+    int forms = 0;
+    for (const char* k : {"stated", "inferred", "observed", "either"}) forms += j.contains(k) ? 1 : 0;
+    if (forms > 1)
+      error(p, "basis", what + ": give one of stated, inferred, observed, either (found " + std::to_string(forms) + ")");
+    if (j.contains("inferred")) {
+      b.basis = Basis::inferred;
+      b.why = str(j, "inferred");
+      if (str(j, "searched").empty())
+        error(p, "basis", what + ": an inferred fact names the sections searched for it (searched: \"6.1; 6.2.4\")");
+    } else if (j.contains("observed")) {
+      b.basis = Basis::observed;
+      b.why = str(j, "observed");
+    } else if (j.contains("either")) {
+      b.basis = Basis::either;
+      for (const auto& r : j["either"]) b.readings.push_back(r.dump());
+      if (b.readings.size() < 2)
+        error(p + "/either", "either-readings", what + ": either gives at least two readings");
+      else if (std::set<std::string>(b.readings.begin(), b.readings.end()).size() != b.readings.size())
+        error(p + "/either", "either-readings", what + ": the readings of either must differ");
+      if (str(j, "erratum").empty())
+        error(p, "either-readings", what + ": a fact printed two ways cites the erratum that records it (erratum: <id>)");
+    } else {
+      b.quote = str(j, "stated", str(j, "quote"));
+    }
+    b.searched = str(j, "searched");
+    b.section = str(j, "section");
+    b.erratum = str(j, "erratum");
+    return b;
+  }
+
+  PolicyEntry policy(const json& j, const std::string& p, bool top = true) {
     PolicyEntry e;
     e.loc = at(p);
     if (j.is_string()) {
       e.kind = j == "silent" ? PolicyEntry::Kind::silent : PolicyEntry::Kind::unspecified;
       return e;
     }
-    if (j.contains("exception")) {
+    if (!j.is_object()) {
+      error(p, "either-readings", "a policy reading is silent, unspecified, {exception: N} or {silent: true}");
+      return e;
+    }
+    if (j.contains("exception") && j["exception"].is_number_integer()) {
       e.kind = PolicyEntry::Kind::exception;
       e.code = j["exception"].get<int>();
     } else if (j.contains("silent")) {
       e.kind = PolicyEntry::Kind::silent;
+    } else if (j.contains("unspecified")) {
+      e.kind = PolicyEntry::Kind::unspecified;
+    } else if (!top || !j.contains("either")) {
+      error(p, "either-readings", "a policy reading is silent, unspecified, {exception: N} or {silent: true}");
     }
     e.section = str(j, "section");
     e.erratum = str(j, "erratum");
+    if (!top) return e;
+    e.basis = fact_basis(j, p, "exception policy");
+    if (e.basis.section.empty()) e.basis.section = e.section;
+    if (e.basis.basis == Basis::either) {
+      for (size_t i = 0; i < j["either"].size(); ++i)
+        e.readings.push_back(policy(j["either"][i], p + "/either/" + std::to_string(i), false));
+      if (!e.readings.empty()) {
+        e.kind = e.readings.front().kind;
+        e.code = e.readings.front().code;
+      }
+    }
     return e;
   }
 
@@ -162,6 +221,7 @@ struct Builder {
     s.device.manual.file = str(d["manual"], "file");
     s.device.manual.address_notation = str(d["manual"], "address_notation");
     s.device.manual.addressing_note = str(d["manual"], "addressing_note");
+    s.device.manual.source = str(d["manual"], "source", "manual");
     s.device.section = str(d, "section");
     s.device.identification.vendor_name = s.device.vendor;
     s.device.identification.product_code = s.device.models.empty() ? s.device.id : s.device.models.front();
@@ -226,13 +286,30 @@ struct Builder {
       fc.section = str(f, "section");
       fc.erratum = str(f, "erratum");
       fc.loc = at("/profile/function_codes/" + std::to_string(i));
+      if (f.contains("basis"))
+        for (const auto& [k, v] : f["basis"].items()) {
+          auto b = fact_basis(v, "/profile/function_codes/" + std::to_string(i) + "/basis/" + k, "FC " + std::to_string(fc.code) + " " + k);
+          if (b.section.empty()) b.section = fc.section;
+          fc.basis[k] = b;
+        }
+      if (s.device.manual.source == "discover")
+        for (const char* k : {"max_quantity", "max_read_quantity", "max_write_quantity"})
+          if (f.contains(k) && !fc.basis.count(k)) fc.basis[k] = discovered(s, fc.section, fc.loc);
       s.profile.function_codes.push_back(fc);
     }
     for (Violation v : kAllViolations) {
       const char* key = to_string(v);
       const json& pol = pr["exception_policy"];
-      if (pol.contains(key))
-        s.profile.exception_policy[v] = policy(pol[key], std::string("/profile/exception_policy/") + key);
+      if (!pol.contains(key)) continue;
+      std::string p = std::string("/profile/exception_policy/") + key;
+      PolicyEntry e = policy(pol[key], p);
+      // A policy is stated outside any table: a stated one carries the words.
+      if (s.device.manual.source == "manual" && e.kind != PolicyEntry::Kind::unspecified &&
+          e.basis.basis == Basis::stated && e.basis.quote.empty())
+        error(p, "stated-needs-quote", std::string(key) + ": a stated exception policy quotes the manual (quote: \"...\"), or says why it is inferred (inferred:, searched:)");
+      if (s.device.manual.source == "discover" && e.kind != PolicyEntry::Kind::unspecified && e.basis.basis == Basis::stated)
+        e.basis = discovered(s, e.section, e.loc);
+      s.profile.exception_policy[v] = e;
     }
     if (pr.contains("exception_codes"))
       for (const auto& c : pr["exception_codes"])
@@ -310,6 +387,17 @@ struct Builder {
       }
       x.origin = "/examples/" + std::to_string(i);
       x.loc = at(x.origin);
+      if (e.contains("basis")) {
+        x.basis = fact_basis(e["basis"], x.origin + "/basis", "example " + x.id);
+        if (x.basis.basis == Basis::either) {
+          std::set<std::string> rs(x.basis.readings.begin(), x.basis.readings.end());
+          if (rs != std::set<std::string>{"\"printed\"", "\"resolved\""})
+            error(x.origin + "/basis/either", "either-readings", "example " + x.id + ": the readings of an example are [printed, resolved]");
+          if (!x.has_resolution() || !x.response)
+            error(x.origin + "/basis/either", "either-readings", "example " + x.id + ": either needs a printed response and a resolved: reading");
+        }
+      }
+      if (x.basis.section.empty()) x.basis.section = x.section;
       s.examples.push_back(x);
     }
     for (size_t i = 0; i < r["errata"].size(); ++i) {
@@ -318,7 +406,22 @@ struct Builder {
                           str(e, "why"), at("/errata/" + std::to_string(i))});
     }
     if (r.contains("operations")) build_operations(s, r["operations"]);
+    check_basis_errata(s);
     return s;
+  }
+
+  // Every erratum a basis cites exists (rule unknown-reference).
+  void check_basis_errata(const Spec& s) {
+    auto check = [&](const FactBasis& b, const std::string& what) {
+      if (b.erratum.empty() || s.find_erratum(b.erratum)) return;
+      out.push_back({file, b.loc.line, b.loc.col, "unknown-reference", what + " cites erratum '" + b.erratum + "', which errata: does not define"});
+    };
+    for (const auto& r : s.registers)
+      if (r.block_index <= 0)
+        for (const auto& [f, b] : r.basis) check(b, std::string(to_string(f)) + " of register " + std::to_string(r.address));
+    for (const auto& f : s.profile.function_codes)
+      for (const auto& [k, b] : f.basis) check(b, "FC " + std::to_string(f.code) + " " + k);
+    for (const auto& e : s.examples) check(e.basis, "example " + e.id);
   }
 
   RegisterWrite register_write(const json& j, const std::string& p) {
@@ -376,6 +479,48 @@ struct Builder {
       mo.position_command_key = str(m["positioning_needs_homing"], "position_command");
     }
     s.operations.motion = mo;
+  }
+
+  // `device.manual.source: discover`: a fact with no basis of its own was probed.
+  static FactBasis discovered(const Spec& s, const std::string& section, SourceLoc loc) {
+    FactBasis b;
+    b.basis = Basis::observed;
+    b.why = "found by probing the target (" + s.device.manual.file + ")";
+    b.section = section;
+    b.loc = loc;
+    return b;
+  }
+
+  void register_basis(Register& r, const json& j, const std::string& p) {
+    for (Fact f : kRegisterFacts) {
+      const char* key = to_string(f);
+      if (!j.contains(key)) continue;
+      std::string fp = p + "/" + key;
+      FactBasis b = fact_basis(j[key], fp, std::string(key) + " of register " + std::to_string(r.address));
+      if (b.section.empty()) b.section = r.section;
+      if (b.basis == Basis::either) either_readings(r, f, j[key]["either"], fp + "/either");
+      r.basis[f] = b;
+    }
+  }
+
+  // The typed readings of a register's `either`.
+  void either_readings(Register& r, Fact f, const json& arr, const std::string& p) {
+    for (size_t i = 0; i < arr.size(); ++i) {
+      const json& x = arr[i];
+      std::string xp = p + "/" + std::to_string(i);
+      if (f == Fact::range && x.is_object() && x.contains("min") && x.contains("max") && x["min"].is_number() &&
+          x["max"].is_number() && x["min"].get<double>() <= x["max"].get<double>())
+        r.range_readings.push_back({x["min"].get<double>(), x["max"].get<double>()});
+      else if (f == Fact::default_value && x.is_number())
+        r.default_readings.push_back(x.get<double>());
+      else if (f == Fact::word_order && x.is_string() && (x == "high_first" || x == "low_first"))
+        r.word_order_readings.push_back(x == "high_first" ? WordOrder::high_first : WordOrder::low_first);
+      else if (f == Fact::range || f == Fact::default_value || f == Fact::word_order)
+        error(xp, "either-readings", std::string(to_string(f)) + " reading " + x.dump() + " is not " +
+                  (f == Fact::range ? "a {min, max} with min <= max" : f == Fact::default_value ? "a number" : "high_first or low_first"));
+      else
+        error(xp, "either-readings", std::string(to_string(f)) + " cannot be printed two ways here; mark it inferred, or use an erratum");
+    }
   }
 
   void build_register(Spec& s, const json& j, size_t index) {
@@ -438,6 +583,10 @@ struct Builder {
     base.errata = refs(j, "erratum");
     base.note = str(j, "note");
     base.section = str(j, "section");
+    if (j.contains("basis")) register_basis(base, j["basis"], p + "/basis");
+    if (s.device.manual.source == "discover")
+      for (Fact f : kRegisterFacts)
+        if (!base.basis.count(f)) base.basis[f] = discovered(s, base.section, base.loc);
     int count = j.value("count", 1);
     if (count == 1) {
       s.registers.push_back(base);

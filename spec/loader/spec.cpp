@@ -128,3 +128,49 @@ std::optional<uint16_t> Spec::last_address(Table table) const {
 }
 
 }  // namespace mbc::spec
+
+namespace mbc::spec {
+
+const char* to_string(Basis b) {
+  switch (b) {
+    case Basis::stated: return "stated";
+    case Basis::inferred: return "inferred";
+    case Basis::observed: return "observed";
+    case Basis::either: return "either";
+  }
+  return "?";
+}
+
+const char* to_string(Fact f) {
+  switch (f) {
+    case Fact::read: return "read";
+    case Fact::write: return "write";
+    case Fact::range: return "range";
+    case Fact::default_value: return "default";
+    case Fact::word_order: return "word_order";
+    case Fact::type: return "type";
+    case Fact::takes_effect: return "takes_effect";
+    case Fact::persistence: return "persistence";
+  }
+  return "?";
+}
+
+FactBasis Register::basis_of(Fact f) const {
+  auto it = basis.find(f);
+  if (it != basis.end()) return it->second;
+  FactBasis b;
+  b.section = section;
+  b.loc = loc;
+  return b;
+}
+
+FactBasis FunctionCode::basis_of(const std::string& fact) const {
+  auto it = basis.find(fact);
+  if (it != basis.end()) return it->second;
+  FactBasis b;
+  b.section = section;
+  b.loc = loc;
+  return b;
+}
+
+}  // namespace mbc::spec

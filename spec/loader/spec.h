@@ -33,7 +33,34 @@ enum class TakesEffect { immediate, power_cycle };
 struct Range {
   double min = 0;
   double max = 0;
+  bool operator==(const Range&) const = default;
 };
+
+// Where a fact comes from (spec/README.md, "Where each fact comes from").
+// stated: the source prints it (a register table, or `quote`); inferred: our
+// reading (`why`, and the sections `searched`); observed: probed on a live
+// target (`why` says how), which counts as inferred; either: the source
+// prints two readings (`readings`, as the JSON text of each).
+enum class Basis { stated, inferred, observed, either };
+struct FactBasis {
+  Basis basis = Basis::stated;
+  std::string why;       // inferred / observed
+  std::string searched;  // inferred: the sections searched
+  std::string quote;     // stated: the source's words, when outside a table
+  std::string section;   // where; empty = the owner's section
+  std::string erratum;   // either: the erratum recording the contradiction
+  std::vector<std::string> readings;  // either: each reading as JSON text
+  SourceLoc loc;
+
+  bool is_inferred() const { return basis == Basis::inferred || basis == Basis::observed; }
+};
+const char* to_string(Basis);
+
+// The facts of a register a case can rely on (`basis:` keys).
+enum class Fact { read, write, range, default_value, word_order, type, takes_effect, persistence };
+inline constexpr Fact kRegisterFacts[] = {Fact::read, Fact::write, Fact::range, Fact::default_value,
+                                          Fact::word_order, Fact::type, Fact::takes_effect, Fact::persistence};
+const char* to_string(Fact);  // the `basis:` key ("default" for default_value)
 
 struct EnumValue {
   int64_t value = 0;
@@ -106,11 +133,19 @@ struct Register {
   std::vector<std::string> errata;
   std::string note;
   std::string section;
+  // Facts not plainly stated by the register's table row; absent = stated.
+  std::map<Fact, FactBasis> basis;
+  // `either` readings of range / default / word_order (each non-empty only then).
+  std::vector<Range> range_readings;
+  std::vector<double> default_readings;
+  std::vector<WordOrder> word_order_readings;
   int block_index = -1;  // index inside a `count:` block, -1 if not from one
   SourceLoc loc;
   std::string origin;  // JSON pointer of the declaration ("/registers/7")
 
   bool is_signed() const { return type == DataType::s16 || type == DataType::s32; }
+  // The basis of a fact: its `basis:` entry, else stated by `section`.
+  FactBasis basis_of(Fact f) const;
   uint32_t last_address() const { return uint32_t(address) + uint32_t(words) - 1; }
   // word_order as modbus/words.h's flag: the word at the lower address holds the low 16 bits.
   bool low_word_first() const { return word_order == WordOrder::low_first; }
@@ -122,6 +157,10 @@ struct PolicyEntry {
   int code = 0;  // exception code when kind == exception
   std::string section;
   std::string erratum;
+  // stated (with basis.quote), inferred, observed, or either (then
+  // `readings` holds each reading, and kind/code are the first one's).
+  FactBasis basis;
+  std::vector<PolicyEntry> readings;
   SourceLoc loc;
 };
 
@@ -155,7 +194,10 @@ struct FunctionCode {
   std::string note;
   std::string section;
   std::string erratum;
+  std::map<std::string, FactBasis> basis;  // "max_quantity", ...; absent = stated
   SourceLoc loc;
+
+  FactBasis basis_of(const std::string& fact) const;
 };
 
 struct ExceptionCodeMeaning {
@@ -231,6 +273,9 @@ struct Example {
   std::optional<std::string> resolved_response;
   bool resolved_silent = false;
   bool no_reply = false;  // the source says the device does not answer this frame
+  // either: the device may answer as printed or as `resolved` (readings
+  // "printed", "resolved"); inferred/observed: the frame is not printed.
+  FactBasis basis;
   SourceLoc loc;
   std::string origin;  // JSON pointer of the declaration ("/examples/3")
 
@@ -251,6 +296,7 @@ struct Erratum {
 
 struct Manual {
   std::string file;
+  std::string source = "manual";  // manual | csv | discover (every unmarked fact observed)
   std::string address_notation;  // hex | decimal
   std::string addressing_note;
 };
