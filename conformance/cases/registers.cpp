@@ -13,6 +13,7 @@
 // Registers with no stated range are written at the type's bounds as OBSERVED.
 #include <fmt/core.h>
 
+#include <algorithm>
 #include <bit>
 #include <cmath>
 
@@ -179,6 +180,14 @@ struct Gen {
     bool has_range = range.has_value();
     double lo = has_range ? range->min : double(cases::type_min(r));
     double hi = has_range ? range->max : double(cases::type_max(r));
+    // An enumeration without a range takes its value set as one (spec/README.md).
+    if (const auto* en = !has_range && r.type == DataType::enumeration ? g.spec.find_enum(r.enum_id) : nullptr;
+        en && !en->values.empty()) {
+      auto [a, b] = std::minmax_element(en->values.begin(), en->values.end(),
+                                        [](const auto& x, const auto& y) { return x.value < y.value; });
+      lo = double(a->value);
+      hi = double(b->value);
+    }
     // Range printed two ways: accepted writes stay inside both readings,
     // rejected ones outside both, so a case passes on either.
     double out_lo = lo, out_hi = hi;

@@ -11,6 +11,7 @@
 #include "modbus/limits.h"
 #include "modbus/rtu.h"
 #include "modbus/words.h"
+#include "loader.h"
 
 namespace mbc::ref {
 
@@ -23,22 +24,12 @@ using spec::Violation;
 
 namespace {
 
-// What a device answers when its manual is silent on a violation: the
-// standard's answer (MBAP v1.1b3 §7; MB over Serial Line v1.02 §2.4.2 for CRC).
-uint8_t standard_code(Violation v) {
-  switch (v) {
-    case Violation::unsupported_function: return 1;
-    case Violation::unmapped_address:
-    case Violation::address_past_map:
-    case Violation::write_read_only:
-    case Violation::read_write_only: return 2;
-    case Violation::quantity_zero:
-    case Violation::quantity_over_limit:
-    case Violation::wrong_byte_count:
-    case Violation::value_out_of_range: return 3;
-    case Violation::crc_error: return 0;  // silence
-  }
-  return 4;
+// The Modbus standard as the project states it (spec/devices/modbus-standard.yaml):
+// its quantity limits and its answer to each violation are what a device
+// falls back to where its manual is silent. Nothing of it is repeated here.
+const spec::Spec& standard_spec() {
+  static const spec::Spec s = spec::load_spec_by_id("modbus-standard");
+  return s;
 }
 
 }  // namespace
@@ -62,18 +53,31 @@ struct Engine {
       case PolicyEntry::Kind::exception: return exception(fc, uint8_t(p.code));
       case PolicyEntry::Kind::silent: ++d.counters_.no_responses; return std::nullopt;
       case PolicyEntry::Kind::unspecified: {
-        uint8_t code = standard_code(v);
-        if (!code) return std::nullopt;
-        return exception(fc, code);
+        // The manual is silent: the standard's answer.
+        PolicyEntry sp = standard().profile.policy(v);
+        if (v == Violation::quantity_zero && !standard().profile.exception_policy.count(v))
+          sp = standard().profile.policy(Violation::quantity_over_limit);
+        if (sp.kind != PolicyEntry::Kind::exception) {
+          ++d.counters_.no_responses;
+          return std::nullopt;
+        }
+        return exception(fc, uint8_t(sp.code));
       }
     }
     return std::nullopt;
   }
 
-  int max_quantity(int fc, int standard) const {
+  const spec::Spec& standard() const { return d.spec_.device.id == "modbus-standard" ? d.spec_ : standard_spec(); }
+
+  // A quantity limit of the device's profile, capped by the standard's
+  // (which the PDU size fixes: MBAP v1.1b3 §6).
+  int limit(int fc, std::optional<int> spec::FunctionCode::*which) const {
+    const spec::FunctionCode* s = standard().profile.function(fc);
+    int cap = s && s->*which ? *(s->*which) : int(kMaxPdu);
     const spec::FunctionCode* f = d.spec_.profile.function(fc);
-    return f && f->max_quantity ? std::min(*f->max_quantity, standard) : standard;
+    return f && f->*which ? std::min(*(f->*which), cap) : cap;
   }
+  int max_quantity(int fc) const { return limit(fc, &spec::FunctionCode::max_quantity); }
 
   // Address check of [start, start+qty) in `table`; nullopt when fine.
   std::optional<Violation> check_addresses(Table table, uint32_t start, uint32_t qty, bool reading) {
@@ -157,7 +161,7 @@ struct Engine {
     if (pdu.size() != 5) return violate(Violation::wrong_byte_count, fc);
     uint16_t start = be16(pdu, 1), qty = be16(pdu, 3);
     if (qty == 0) return violate(Violation::quantity_zero, fc);
-    if (qty > max_quantity(fc, 125)) return violate(Violation::quantity_over_limit, fc);
+    if (qty > max_quantity(fc)) return violate(Violation::quantity_over_limit, fc);
     if (auto v = check_addresses(table, start, qty, true)) return violate(*v, fc);
     return read_block(fc, start, qty, table);
   }
@@ -174,7 +178,7 @@ struct Engine {
     if (pdu.size() != 5) return violate(Violation::wrong_byte_count, fc);
     uint16_t start = be16(pdu, 1), qty = be16(pdu, 3);
     if (qty == 0) return violate(Violation::quantity_zero, fc);
-    if (qty > max_quantity(fc, 2000)) return violate(Violation::quantity_over_limit, fc);
+    if (qty > max_quantity(fc)) return violate(Violation::quantity_over_limit, fc);
     if (auto v = check_addresses(table, start, qty, true)) return violate(*v, fc);
     const auto& bits = table == Table::coil ? d.coils_ : d.discrete_;
     Bytes out{fc, uint8_t((qty + 7) / 8)};
@@ -201,7 +205,7 @@ struct Engine {
     uint16_t start = be16(pdu, 1), qty = be16(pdu, 3);
     uint8_t bc = pdu[5];
     if (qty == 0) return violate(Violation::quantity_zero, fc);
-    if (qty > max_quantity(fc, 1968)) return violate(Violation::quantity_over_limit, fc);
+    if (qty > max_quantity(fc)) return violate(Violation::quantity_over_limit, fc);
     if (bc != (qty + 7) / 8 || pdu.size() != size_t(6 + bc)) return violate(Violation::wrong_byte_count, fc);
     if (auto v = check_addresses(Table::coil, start, qty, false)) return violate(*v, fc);
     for (uint16_t i = 0; i < qty; ++i) d.coils_[uint16_t(start + i)] = (pdu[6 + i / 8] >> (i % 8)) & 1;
@@ -226,7 +230,7 @@ struct Engine {
     uint16_t start = be16(pdu, 1), qty = be16(pdu, 3);
     uint8_t bc = pdu[5];
     if (qty == 0) return violate(Violation::quantity_zero, fc);
-    if (qty > max_quantity(fc, 123)) return violate(Violation::quantity_over_limit, fc);
+    if (qty > max_quantity(fc)) return violate(Violation::quantity_over_limit, fc);
     if (bc != qty * 2 || pdu.size() != size_t(6 + bc)) return violate(Violation::wrong_byte_count, fc);
     std::vector<uint16_t> values(qty);
     for (uint16_t i = 0; i < qty; ++i) values[i] = be16(pdu, 6 + 2 * i);
@@ -255,9 +259,8 @@ struct Engine {
     if (pdu.size() < 10) return violate(Violation::wrong_byte_count, fc);
     uint16_t rstart = be16(pdu, 1), rqty = be16(pdu, 3), wstart = be16(pdu, 5), wqty = be16(pdu, 7);
     uint8_t bc = pdu[9];
-    const spec::FunctionCode* f = d.spec_.profile.function(fc);
-    int rmax = std::min(125, f && f->max_read_quantity ? *f->max_read_quantity : 125);
-    int wmax = std::min(121, f && f->max_write_quantity ? *f->max_write_quantity : 121);
+    int rmax = limit(fc, &spec::FunctionCode::max_read_quantity);
+    int wmax = limit(fc, &spec::FunctionCode::max_write_quantity);
     if (rqty == 0 || wqty == 0) return violate(Violation::quantity_zero, fc);
     if (rqty > rmax || wqty > wmax) return violate(Violation::quantity_over_limit, fc);
     if (bc != wqty * 2 || pdu.size() != size_t(10 + bc)) return violate(Violation::wrong_byte_count, fc);
@@ -598,10 +601,15 @@ Device* Bus::find(uint8_t id) {
 
 std::optional<Bytes> Bus::handle_rtu(std::span<const uint8_t> adu) {
   if (adu.size() < 4 || adu.size() > kMaxRtuAdu) return std::nullopt;
-  if (adu[0] == 0) {
-    for (auto& d : devices_) d->handle_rtu(adu);  // broadcast: every device acts, none answers
-    return std::nullopt;
-  }
+  // A broadcast (each device's spec names its address, MB-SL v1.02 §2.1):
+  // every device it addresses acts, none answers.
+  bool broadcast = false;
+  for (auto& d : devices_)
+    if (d->spec().serial.broadcast_address == adu[0]) {
+      d->handle_rtu(adu);
+      broadcast = true;
+    }
+  if (broadcast) return std::nullopt;
   Device* d = find(adu[0]);
   return d ? d->handle_rtu(adu) : std::nullopt;
 }
@@ -612,10 +620,13 @@ Device* Bus::direct(uint8_t unit) {
 
 std::optional<Bytes> Bus::handle_pdu(uint8_t unit, std::span<const uint8_t> pdu) {
   if (Device* d = direct(unit)) return d->handle_pdu(pdu, false);
-  if (unit == 0) {
-    for (auto& d : devices_) d->handle_pdu(pdu, true);
-    return std::nullopt;
-  }
+  bool broadcast = false;
+  for (auto& d : devices_)
+    if (d->spec().serial.broadcast_address == unit) {
+      d->handle_pdu(pdu, true);
+      broadcast = true;
+    }
+  if (broadcast) return std::nullopt;
   Device* d = find(unit);
   return d ? d->handle_pdu(pdu, false) : std::nullopt;
 }
