@@ -20,6 +20,13 @@ using spec::Table;
 using spec::Violation;
 
 std::string Expected::text() const {
+  if (!either.empty()) {
+    Expected first = *this;
+    first.either.clear();
+    std::string t = first.text();
+    for (const auto& alt : either) t += " or " + alt.text();
+    return t + " (printed two ways)";
+  }
   switch (kind) {
     case Kind::exception: return fmt::format("exception {:02X}", code);
     case Kind::silence: return "silence";
@@ -29,6 +36,8 @@ std::string Expected::text() const {
 }
 
 bool Expected::allows(const Reply& reply) const {
+  for (const auto& alt : either)
+    if (alt.allows(reply)) return true;
   if (reply.silent()) return kind != Kind::exception;
   if (!reply.pdu || reply.pdu->size() != 2 || !((*reply.pdu)[0] & 0x80)) return false;
   return kind == Kind::refused || (kind == Kind::exception && (*reply.pdu)[1] == code);
@@ -131,7 +140,17 @@ Expected SpecView::expected(Violation v) const {
     p = spec_->profile.policy(Violation::quantity_over_limit);
   // An inferred, observed or twice-printed answer is not held against the
   // device: any refusal passes.
-  if (p.basis.is_inferred() || p.basis.basis == spec::Basis::either) return {Expected::Kind::refused, 0};
+  if (p.basis.is_inferred()) return {Expected::Kind::refused, 0};
+  if (p.basis.basis == spec::Basis::either && !p.readings.empty()) {
+    auto one = [](const spec::PolicyEntry& r) -> Expected {
+      if (r.kind == spec::PolicyEntry::Kind::exception) return {Expected::Kind::exception, r.code};
+      if (r.kind == spec::PolicyEntry::Kind::silent) return {Expected::Kind::silence, 0};
+      return {Expected::Kind::refused, 0};
+    };
+    Expected e = one(p.readings.front());
+    for (size_t i = 1; i < p.readings.size(); ++i) e.either.push_back(one(p.readings[i]));
+    return e;
+  }
   switch (p.kind) {
     case spec::PolicyEntry::Kind::exception: return {Expected::Kind::exception, p.code};
     case spec::PolicyEntry::Kind::silent: return {Expected::Kind::silence, 0};

@@ -37,17 +37,11 @@ std::optional<uint8_t> policy_code(const spec::Spec& s, Violation v) {
   switch (p.kind) {
     case spec::PolicyEntry::Kind::exception: return uint8_t(p.code);
     case spec::PolicyEntry::Kind::silent: return std::nullopt;
-    case spec::PolicyEntry::Kind::unspecified:
-      // The standard's answer (MBAP v1.1b3 §7), which the reference gives when the manual is silent.
-      switch (v) {
-        case Violation::unsupported_function: return 1;
-        case Violation::unmapped_address:
-        case Violation::address_past_map:
-        case Violation::write_read_only:
-        case Violation::read_write_only: return 2;
-        case Violation::crc_error: return std::nullopt;
-        default: return 3;
-      }
+    case spec::PolicyEntry::Kind::unspecified: {
+      // The standard's answer (modbus-standard.yaml), which the reference gives when the manual is silent.
+      static const spec::Spec standard = spec::load_spec_by_id("modbus-standard");
+      return s.device.id == "modbus-standard" ? std::nullopt : policy_code(standard, v);
+    }
   }
   return std::nullopt;
 }

@@ -61,9 +61,11 @@ std::string slurp(const std::string& path) {
 TEST(RunCli, ExitCodes) {
   TempDir dir;
   EXPECT_EQ(run({"run", "--quiet", "--target", "ref:hsc60", "--out", dir / "ok"}).rc, 0);
-  Out failed = run({"run", "--quiet", "--target", "ref:hsc60?fault=accept-out-of-range", "--out", dir / "bad"});
+  // HSC60's answer to an out-of-range value is inferred (its cases are
+  // OBSERVED); the 57HS-R states it (exception 07), so there a fault fails.
+  Out failed = run({"run", "--quiet", "--target", "ref:sihong-57hs-r?fault=accept-out-of-range", "--out", dir / "bad"});
   EXPECT_EQ(failed.rc, 1) << failed.text;
-  EXPECT_NE(failed.text.find("FAIL hsc60/registers/"), std::string::npos) << failed.text;
+  EXPECT_NE(failed.text.find("FAIL sihong-57hs-r/registers/"), std::string::npos) << failed.text;
   EXPECT_EQ(run({"run", "--target", "nope:x", "--out", dir / "x"}).rc, 2);
   EXPECT_EQ(run({"run", "--target", "ref:no-such-device", "--out", dir / "x"}).rc, 2);
   // A live target needs a spec to be tested against.
@@ -200,7 +202,9 @@ TEST_P(OverTheWire, EveryMustCasePasses) {
   auto j = nlohmann::json::parse(slurp(dir / "r/report.json"));
   const auto& d = j["devices"][0];
   EXPECT_EQ(d["counts"]["must_failed"], 0);
-  EXPECT_GT(d["counts"]["pass"].get<int>(), 10);
+  // A manual that states little (7TRSM5740Q) leaves most cases OBSERVED.
+  EXPECT_GT(d["counts"]["pass"].get<int>() + d["counts"]["observed"].get<int>(), 10);
+  EXPECT_GT(d["counts"]["pass"].get<int>(), 0);
   EXPECT_TRUE(d["restore_failures"].empty()) << d["restore_failures"].dump();
   if (t != "tcp") {  // RTU framing
     // RTU framing cases ran (not skipped) through the raw path.
@@ -288,7 +292,9 @@ TEST(RunCli, PluginStackAgainstTheStandard) {
   EXPECT_EQ(framing.rc, 0) << framing.text;
   Out all = run({"run", "--quiet", "--target", uri, "--device", "modbus-standard", "--out", dir / "a"});
   EXPECT_EQ(all.rc, 1) << all.text;
-  EXPECT_NE(all.text.find("FAIL modbus-standard/registers/0x0212/above-max"), std::string::npos) << all.text;
+  // Its answer to an out-of-range value (03) is not the standard's 04, but 04
+  // is an inferred reading (modbus-standard.yaml): recorded, not failed.
+  EXPECT_EQ(all.text.find("FAIL modbus-standard/registers/0x0212/above-max"), std::string::npos) << all.text;
 }
 #endif
 

@@ -191,7 +191,7 @@ INSTANTIATE_TEST_SUITE_P(
         FaultCase{"rieding-dhe", "refuse-limit", "rieding-dhe/function-codes/fc03/quantity-limit"},
         FaultCase{"sihong-57hs-r", "swapped-words", "sihong-57hs-r/registers/0x0024/word-order"},
         FaultCase{"hsc60", "swapped-words", "hsc60/examples/四_1.2.3/fc16-write-travel"},
-        FaultCase{"hsc60", "accept-out-of-range", "hsc60/registers/0x0000/above-max"},
+        FaultCase{"sihong-57hs-r", "accept-out-of-range", "sihong-57hs-r/registers/0x0020/above-max"},
         FaultCase{"modbus-standard", "accept-out-of-range", "modbus-standard/examples/MBAP_7_MBAP_6.6_Figure_16/write-out-of-range"},
         FaultCase{"sihong-57hs-r", "accept-read-only", "sihong-57hs-r/registers/0x0000/read-only"},
         FaultCase{"sihong-57hs-r", "lost-write", "sihong-57hs-r/examples/6.2.2/write-accel-time-500"},
