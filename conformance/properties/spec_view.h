@@ -24,6 +24,7 @@ struct Expected {
   enum class Kind { exception, silence, refused };  // refused: policy unspecified, any exception or silence
   Kind kind = Kind::refused;
   int code = 0;
+  std::vector<Expected> either = {};  // the manual prints two readings: any of them passes
   std::string text() const;  // "exception 03", "silence", "an exception or silence (policy unspecified)"
   // Whether `reply` (a judged reply, or silence) is allowed.
   bool allows(const Reply& reply) const;
