@@ -369,7 +369,9 @@ class Importer {
     y += "mbconform_spec: 1\n\ndevice:\n";
     y += fmt::format("  id: {}\n  vendor: {}\n  title: {}\n  models: [{}]\n", id_,
                      yaml_str("not stated in " + name_), yaml_str(id_ + " register map (from " + name_ + ")"), yaml_str(id_));
-    y += fmt::format("  manual:\n    file: {}\n    address_notation: {}\n", yaml_str(name_), hex ? "hex" : "decimal");
+    // source: csv: the CSV is the register table, its facts are stated by it (spec/README.md).
+    y += fmt::format("  manual:\n    file: {}\n    source: csv\n    address_notation: {}\n", yaml_str(name_),
+                     hex ? "hex" : "decimal");
     y += fmt::format("    addressing_note: {}\n", yaml_str("Imported from " + name_ + ": addresses are wire (PDU) addresses; "
                                                            "1-based 0x/1x/3x/4x references in the CSV were converted (40001 -> 0)."));
     y += fmt::format("  section: {}\n\n", yaml_str(name_));

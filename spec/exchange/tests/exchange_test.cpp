@@ -57,8 +57,11 @@ TEST_P(RoundTrip, CsvExportThenImportGivesTheSameMap) {
     EXPECT_EQ(b.name.en, a.name.en);
     // Every imported fact cites the CSV row it came from (row 1 is the header).
     EXPECT_EQ(b.section, GetParam() + ".csv:" + std::to_string(i + 2));
+    for (auto f : {spec::Fact::read, spec::Fact::write, spec::Fact::range, spec::Fact::default_value, spec::Fact::type})
+      EXPECT_EQ(b.basis_of(f).basis, spec::Basis::stated) << spec::to_string(f);
   }
   EXPECT_EQ(back.device.manual.file, GetParam() + ".csv");
+  EXPECT_EQ(back.device.manual.source, "csv");
 }
 
 INSTANTIATE_TEST_SUITE_P(Specs, RoundTrip, ::testing::ValuesIn(spec::spec_ids()), [](const auto& info) {
