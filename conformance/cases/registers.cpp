@@ -240,9 +240,12 @@ struct Gen {
     bool persistent = persistence.store != spec::Store::none;
     std::optional<double> dv = persistent ? r.default_value : facts::default_value(rel, r);
     if (!persistent && !dv) return;
-    double dflt = dv.value_or(range->min);
-    if (dflt < range->min || dflt > range->max) return;  // a default the range excludes is an erratum of its own
-    double v = range->max != dflt ? range->max : range->min;
+    // A range printed two ways: the value written lies inside every reading.
+    double lo = range->min, hi = range->max;
+    for (const auto& x : r.range_readings) lo = std::max(lo, x.min), hi = std::min(hi, x.max);
+    double dflt = dv.value_or(lo);
+    if (lo > hi || dflt < range->min || dflt > range->max) return;  // a default the range excludes is an erratum of its own
+    double v = hi != dflt ? hi : lo;
     if (v == dflt) return;
     for (double x : r.default_readings)
       if (x == v) return;  // every reading's default must differ from the value written

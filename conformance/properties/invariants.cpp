@@ -263,6 +263,8 @@ void persistence(Session& s) {
     std::string why;
     if (saved && held_back.count(a)) {
       continue;  // whether a save stores what the do-not-persist switch held back is not stated (57HS-R §6.1)
+    } else if (r.basis_of(spec::Fact::persistence).basis != spec::Basis::stated) {
+      continue;  // an inferred persistence is not held against the device (spec/README.md)
     } else if (r.persistence.store == spec::Store::none) {
       want = v.default_raw(r), why = "volatile: its default";
     } else if (stored.count(a)) {

@@ -92,8 +92,13 @@ SpecView::SpecView(const spec::Spec& s, const TargetInfo& target, const WritePol
     if (r.basis_of(spec::Fact::read).is_inferred() || r.basis_of(spec::Fact::write).is_inferred()) continue;
     // The safety rules (safety.h) decide on live targets; a live run also
     // leaves the do-not-persist switch as Snapshot::take set it.
-    if (r.access == Access::rw && !is_serial_setting(s, r.address) && may_write(s, r, target, policy).allowed &&
-        !(target.live && is_persist_switch(s, r.address)))
+    // A write whose value or words rest on an inferred range, type or word
+    // order is not held against the device either: such registers are read,
+    // not written.
+    bool inferred_value = r.basis_of(spec::Fact::range).is_inferred() || r.basis_of(spec::Fact::type).is_inferred() ||
+                          r.basis_of(spec::Fact::word_order).is_inferred();
+    if (r.access == Access::rw && !inferred_value && !is_serial_setting(s, r.address) &&
+        may_write(s, r, target, policy).allowed && !(target.live && is_persist_switch(s, r.address)))
       writable_.push_back(&r);
     if (r.access == Access::ro) read_only_.push_back(&r);
     if (r.access == Access::wo) continue;
@@ -167,6 +172,9 @@ bool SpecView::in_range(const Register& r, uint32_t raw) const {
   }
   double v = r.words == 1 ? (r.type == DataType::s16 ? double(int16_t(raw)) : double(uint16_t(raw)))
                           : (r.type == DataType::s32 ? double(int32_t(raw)) : double(raw));
+  // A range printed two ways: in range means inside every reading.
+  for (const auto& x : r.range_readings)
+    if (v < x.min || v > x.max) return false;
   if (r.range) return v >= r.range->min && v <= r.range->max;
   if (r.type == DataType::enumeration && !r.enum_id.empty())
     if (const spec::Enumeration* e = spec_->find_enum(r.enum_id))
@@ -220,7 +228,8 @@ uint32_t SpecView::raw_of(const Register& r, std::span<const uint16_t> w) const 
 }
 
 std::optional<uint32_t> SpecView::default_raw(const Register& r) const {
-  if (!r.default_value) return std::nullopt;
+  // Only a stated default is held against the device.
+  if (!r.default_value || r.basis_of(spec::Fact::default_value).basis != spec::Basis::stated) return std::nullopt;
   return to_raw(r, *r.default_value);
 }
 

@@ -55,6 +55,22 @@ json number(double d) {
 
 json name(const Name& n) { return {{"zh", n.zh}, {"en", n.en}}; }
 
+// Where a fact comes from (spec/README.md, "Where each fact comes from").
+json basis(const FactBasis& b) {
+  json j{{"basis", to_string(b.basis)}};
+  if (!b.section.empty()) j["section"] = b.section;
+  if (!b.quote.empty()) j["quote"] = b.quote;
+  if (!b.why.empty()) j[b.basis == Basis::observed ? "observed" : "why"] = b.why;
+  if (!b.searched.empty()) j["searched"] = b.searched;
+  if (b.basis == Basis::either) {
+    json r = json::array();
+    for (const auto& t : b.readings) r.push_back(json::parse(t, nullptr, false));
+    j["readings"] = r;
+    j["erratum"] = b.erratum;
+  }
+  return j;
+}
+
 json policy(const PolicyEntry& e) {
   json j;
   switch (e.kind) {
@@ -67,6 +83,7 @@ json policy(const PolicyEntry& e) {
   }
   j["section"] = e.section;
   if (!e.erratum.empty()) j["erratum"] = e.erratum;
+  if (e.kind != PolicyEntry::Kind::unspecified || e.basis.basis == Basis::either) j["basis"] = basis(e.basis);
   return j;
 }
 
@@ -108,6 +125,10 @@ json reg(const Register& r) {
   j["errata"] = r.errata;
   if (!r.note.empty()) j["note"] = r.note;
   j["section"] = r.section;
+  // Every fact not stated by the register's table row (absent = stated by `section`).
+  json b = json::object();
+  for (const auto& [fact, fb] : r.basis) b[to_string(fact)] = basis(fb);
+  if (!b.empty()) j["basis"] = b;
   j["line"] = r.loc.line;
   return j;
 }
@@ -130,6 +151,7 @@ nlohmann::json to_json(const Spec& s) {
                  {"manual",
                   {{"file", s.device.manual.file},
                    {"address_notation", s.device.manual.address_notation},
+                   {"source", s.device.manual.source},
                    {"addressing_note", s.device.manual.addressing_note}}},
                  {"section", s.device.section}};
   const Serial& se = s.serial;
@@ -156,6 +178,7 @@ nlohmann::json to_json(const Spec& s) {
     if (!f.subfunctions.empty()) x["subfunctions"] = f.subfunctions;
     if (!f.mei_types.empty()) x["mei_types"] = f.mei_types;
     if (!f.note.empty()) x["note"] = f.note;
+    for (const auto& [fact, fb] : f.basis) x["basis"][fact] = basis(fb);
     fcs.push_back(x);
   }
   json pol = json::object();
@@ -202,6 +225,7 @@ nlohmann::json to_json(const Spec& s) {
       if (e.resolved_silent) r["silent"] = true;
       x["resolved"] = r;
     }
+    x["basis"] = basis(e.basis);
     ex.push_back(x);
   }
   j["examples"] = ex;

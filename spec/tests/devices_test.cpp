@@ -82,3 +82,23 @@ TEST(Dump, HasTheDocumentedFields) {
     if (e["request"] == "01 03 00 23 00 01 75 C0" && e["response"] == "01 03 02 00 3C B8 55") found = true;
   EXPECT_TRUE(found);
 }
+
+// The dump says where a fact comes from: an inferred one with its reason and
+// the sections searched, one printed two ways with both readings.
+TEST(Dump, ShowsWhereEachFactComesFrom) {
+  auto h = to_json(load_spec_by_id("hanstar-7trsm5740q"));
+  bool inferred = false;
+  for (const auto& r : h["registers"])
+    if (r["address"] == 3000) {
+      ASSERT_TRUE(r.contains("basis"));
+      EXPECT_EQ(r["basis"]["read"]["basis"], "inferred");
+      EXPECT_FALSE(r["basis"]["read"]["why"].get<std::string>().empty());
+      EXPECT_FALSE(r["basis"]["read"]["searched"].get<std::string>().empty());
+      inferred = true;
+    }
+  EXPECT_TRUE(inferred);
+  auto s = to_json(load_spec_by_id("sihong-57hs-r"));
+  const auto& crc = s["profile"]["exception_policy"]["crc_error"]["basis"];
+  EXPECT_EQ(crc["basis"], "either");
+  EXPECT_EQ(crc["readings"].size(), 2u);
+}

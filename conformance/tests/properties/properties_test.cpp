@@ -190,3 +190,41 @@ TEST(PropertyRegressions, FormatRoundTrips) {
 
 }  // namespace
 }  // namespace mbc::conf::props
+
+namespace mbc::conf::props {
+namespace {
+
+// ---- facts the manual does not state are not held against a device --------
+// (spec/README.md, "Where each fact comes from"): no property writes a register
+// whose access, range, type or word order is inferred; a range printed two
+// ways is written only inside both readings; only a stated default is
+// expected back.
+TEST(PropertyFacts, NothingInferredIsHeldAgainstTheDevice) {
+  int inferred = 0, either = 0;
+  for (const auto& id : spec::spec_ids()) {
+    SCOPED_TRACE(id);
+    spec::Spec s = spec::load_spec_by_id(id);
+    auto target = open_target("ref:" + id);
+    SpecView view(s, target->info(), WritePolicy{});
+    for (const spec::Register* r : view.writable())
+      for (spec::Fact f : {spec::Fact::read, spec::Fact::write, spec::Fact::range, spec::Fact::type, spec::Fact::word_order})
+        EXPECT_FALSE(r->basis_of(f).is_inferred()) << "register " << r->address << " " << spec::to_string(f);
+    for (const auto& r : s.registers) {
+      if (r.basis_of(spec::Fact::range).is_inferred() || r.basis_of(spec::Fact::persistence).is_inferred()) ++inferred;
+      if (r.basis_of(spec::Fact::default_value).basis != spec::Basis::stated)
+        EXPECT_FALSE(view.default_raw(r).has_value()) << "register " << r.address;
+      if (r.range_readings.empty()) continue;
+      ++either;
+      for (uint32_t raw : view.boundary_values(r))
+        for (const auto& x : r.range_readings) {
+          double v = r.is_signed() ? double(int16_t(raw)) : double(raw);
+          EXPECT_TRUE(v >= x.min && v <= x.max) << "register " << r.address << " value " << v;
+        }
+    }
+  }
+  EXPECT_GT(inferred, 0) << "the specs infer a range or a persistence somewhere (57HS-R 0x0024, 0x0043)";
+  EXPECT_GT(either, 0) << "the specs print a range two ways somewhere (HSC60 25, 57HS-R 0x004C)";
+}
+
+}  // namespace
+}  // namespace mbc::conf::props
