@@ -189,7 +189,7 @@ INSTANTIATE_TEST_SUITE_P(
         FaultCase{"sihong-57hs-r", "wrong-exception-code", "sihong-57hs-r/registers/0x0026/above-max"},
         FaultCase{"sihong-57hs-r", "off-by-one-limit", "sihong-57hs-r/function-codes/fc03/quantity-limit+1"},
         FaultCase{"rieding-dhe", "refuse-limit", "rieding-dhe/function-codes/fc03/quantity-limit"},
-        FaultCase{"sihong-57hs-r", "swapped-words", "sihong-57hs-r/registers/0x0024/word-order"},
+        FaultCase{"sihong-57hs-r", "swapped-words", "sihong-57hs-r/examples/6.2.3/write-total-pulses"},
         FaultCase{"hsc60", "swapped-words", "hsc60/examples/四_1.2.3/fc16-write-travel"},
         FaultCase{"sihong-57hs-r", "accept-out-of-range", "sihong-57hs-r/registers/0x0020/above-max"},
         FaultCase{"modbus-standard", "accept-out-of-range", "modbus-standard/examples/MBAP_7_MBAP_6.6_Figure_16/write-out-of-range"},
