@@ -37,6 +37,7 @@ struct Expect {
     normal,      // a well-formed normal reply (MBAP v1.1b3 §6), any values
     registers,   // a well-formed read reply holding exactly `words`
     unchanged,   // a read reply equal to the one step `memo` got
+    answered,    // any reply to the request's function code: normal, or an exception (any code); not silence
   } kind = Kind::none;
   Bytes pdu;
   std::optional<Bytes> adu;
@@ -92,6 +93,12 @@ struct Case {
   // Set when the case cannot run on this target (capability, safety); the
   // runner reports skip with this reason.
   std::string skip_reason;
+  // Every function is optional (MBAP v1.1b3 §5.1): when set (cases on a
+  // server's probed or given map, not on a spec of its own), an exception 01
+  // to a step that expected something else means the server does not
+  // implement that function, and the case does not apply (skip), rather than
+  // fails.
+  bool functions_optional = false;
 };
 
 // What a generator knows about where the cases will run.

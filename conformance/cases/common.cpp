@@ -261,6 +261,7 @@ std::string describe(const Expect& e) {
       return "registers [" + s + "]";
     }
     case Expect::Kind::unchanged: return "the value read before the write (unchanged)";
+    case Expect::Kind::answered: return "a reply: a normal one or an exception";
   }
   return "";
 }

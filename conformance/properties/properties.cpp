@@ -274,6 +274,9 @@ TargetSource source_for(const std::string& uri, const spec::Spec* spec_override)
         Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override { return t->transact(unit, pdu); }
         Reply send_raw(std::span<const uint8_t> b, std::optional<size_t> g) override { return t->send_raw(b, g); }
         std::chrono::microseconds silence_window() const override { return t->silence_window(); }
+        void set_wait(Wait w) override { t->set_wait(w); }
+        uint64_t late_replies() const override { return t->late_replies(); }
+        bool reconnect() override { return t->reconnect(); }
         void advance(std::chrono::microseconds dt) override { t->advance(dt); }
         void power_cycle() override { t->power_cycle(); }
       };

@@ -35,6 +35,7 @@ int severity(Outcome o) {
     case Outcome::observed: return 2;
     case Outcome::pass: return 1;
     case Outcome::skip: return 0;
+    case Outcome::error: return 0;
   }
   return 0;
 }
@@ -65,6 +66,7 @@ table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding
 code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
 .bar{background:#4a7;height:1em}.hist td:nth-child(2){width:30em}.regs td{font-size:12px}
 </style></head><body>)";
+  if (std::string inc = incomplete_line(rep); !inc.empty()) h += "<p class=fail><b>" + esc(inc) + "</b></p>";
   h += fmt::format("<h1>mbconform {}</h1><p>Started {} · version {}{}</p>", esc(rep.command), esc(rep.started_at),
                    esc(rep.version), rep.interrupted ? " · <b>interrupted: partial results</b>" : "");
   h += "<h2>Summary</h2><table><tr><th>device</th><th>target</th><th>cases</th><th>pass</th><th>fail</th><th>MUST failed</th>"
@@ -83,6 +85,7 @@ code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
     h += fmt::format("<h2 id=\"{0}\">{0}</h2><p>Spec <code>{1}</code> · {2} frames, {3} bytes sent, {4} received</p>",
                      esc(d.device_id), esc(d.spec_path), d.frames_sent, d.bytes_sent, d.bytes_received);
     if (!d.error.empty()) h += "<p class=fail><b>Run stopped:</b> " + esc(d.error) + "</p>";
+    for (const auto& n : d.notes) h += "<p>" + esc(n) + "</p>";
     if (!d.restore_failures.empty()) {
       h += "<p class=fail><b>Could not restore:</b></p><ul>";
       for (const auto& f : d.restore_failures) h += "<li>" + esc(f) + "</li>";
@@ -119,7 +122,7 @@ code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
     h += "<h3>Failing cases</h3>";
     bool any = false;
     for (const auto& r : d.cases) {
-      if (r.outcome != Outcome::fail) continue;
+      if (r.outcome != Outcome::fail || !r.quirk.empty()) continue;
       any = true;
       h += fmt::format("<div class=fail><p><b>{}</b> [{}] <i>{}</i><br>{}<br>Requirement: {}<br>{}{}</p>", esc(r.id),
                        to_string(r.level), esc(r.clause), esc(r.title), esc(r.requirement), esc(r.message),
@@ -139,9 +142,18 @@ code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
       if (r.outcome == Outcome::observed)
         h += fmt::format("<tr><td>{}</td><td>{}</td><td>{}</td></tr>", esc(r.id), esc(r.clause), esc(r.message));
     h += "</table>";
+    bool quirks = false;
+    for (const auto& r : d.cases)
+      if (r.outcome == Outcome::fail && !r.quirk.empty()) {
+        if (!quirks) h += "<h3>Declared quirks (--quirks: known deviations, not failures)</h3><table><tr><th>case</th><th>clause</th><th>declared</th><th>what came</th></tr>";
+        quirks = true;
+        h += fmt::format("<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>", esc(r.id), esc(r.clause), esc(r.quirk), esc(r.message));
+      }
+    if (quirks) h += "</table>";
     h += "<h3>Skipped</h3><table>";
     for (const auto& r : d.cases)
-      if (r.outcome == Outcome::skip) h += fmt::format("<tr><td>{}</td><td>{}</td></tr>", esc(r.id), esc(r.message));
+      if (r.outcome == Outcome::skip || r.outcome == Outcome::error)
+        h += fmt::format("<tr><td>{}</td><td>{}{}</td></tr>", esc(r.id), r.outcome == Outcome::error ? "not run: " : "", esc(r.message));
     h += "</table><h3>Latency</h3>" + histogram(d.latencies_us);
   }
   h += "</body></html>\n";

@@ -38,14 +38,31 @@ Counts count(const DeviceRun& d) {
     switch (r.outcome) {
       case Outcome::pass: ++c.pass; break;
       case Outcome::fail:
+        if (!r.quirk.empty()) {
+          ++c.quirks;
+          break;
+        }
         ++c.fail;
         if (r.level == Level::must) ++c.must_failed;
         break;
       case Outcome::skip: ++c.skip; break;
       case Outcome::observed: ++c.observed; break;
+      case Outcome::error: ++c.error; break;
     }
   }
   return c;
+}
+
+std::string incomplete_line(const RunReport& rep) {
+  std::string why;
+  for (const auto& d : rep.devices) {
+    size_t not_run = count(d).error;
+    if (!d.error.empty())
+      why += fmt::format("{}{}: {}{}", why.empty() ? "" : "; ", d.device_id, d.error,
+                         not_run ? fmt::format(" ({} cases not run)", not_run) : "");
+  }
+  if (rep.interrupted) why += std::string(why.empty() ? "" : "; ") + "interrupted";
+  return why.empty() ? "" : "INCOMPLETE: " + why;
 }
 
 nlohmann::json report_json(const RunReport& rep) {
@@ -54,6 +71,7 @@ nlohmann::json report_json(const RunReport& rep) {
   j["started_at"] = rep.started_at;
   j["version"] = rep.version;
   j["interrupted"] = rep.interrupted;
+  j["incomplete"] = incomplete_line(rep);
   j["devices"] = nlohmann::json::array();
   for (const auto& d : rep.devices) {
     nlohmann::json dj;
@@ -62,8 +80,9 @@ nlohmann::json report_json(const RunReport& rep) {
     dj["spec_path"] = d.spec_path;
     Counts c = count(d);
     dj["counts"] = {{"pass", c.pass}, {"fail", c.fail}, {"skip", c.skip}, {"observed", c.observed},
-                    {"must_failed", c.must_failed}, {"total", c.total()}};
+                    {"error", c.error}, {"quirks", c.quirks}, {"must_failed", c.must_failed}, {"total", c.total()}};
     dj["frames_sent"] = d.frames_sent;
+    dj["silences"] = d.silences;
     dj["bytes_sent"] = d.bytes_sent;
     dj["bytes_received"] = d.bytes_received;
     dj["wall_seconds"] = d.wall_seconds;
@@ -73,6 +92,7 @@ nlohmann::json report_json(const RunReport& rep) {
     dj["restore_failures"] = d.restore_failures;
     dj["safety_notes"] = d.safety_notes;
     dj["broadcast_writes"] = d.broadcast_writes;
+    dj["notes"] = d.notes;
     dj["interrupted"] = d.interrupted;
     dj["error"] = d.error;
     dj["cases"] = nlohmann::json::array();
@@ -86,6 +106,7 @@ nlohmann::json report_json(const RunReport& rep) {
       cj["requirement"] = r.requirement;
       cj["outcome"] = to_string(r.outcome);
       cj["message"] = r.message;
+      if (!r.quirk.empty()) cj["quirk"] = r.quirk;
       cj["register"] = r.register_address ? nlohmann::json(*r.register_address) : nlohmann::json(nullptr);
       cj["errata"] = r.errata;
       cj["duration_ms"] = r.duration_ms;

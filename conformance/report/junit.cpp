@@ -31,19 +31,24 @@ std::string xml_escape(const std::string& s) {
 
 std::string junit_xml(const RunReport& rep) {
   std::string x = "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n";
-  size_t tests = 0, failures = 0, skipped = 0;
+  if (std::string inc = incomplete_line(rep); !inc.empty()) {
+    for (size_t at; (at = inc.find("--")) != std::string::npos;) inc.replace(at, 2, "- ");  // not inside a comment
+    x += "<!-- " + xml_escape(inc) + " -->\n";
+  }
+  size_t tests = 0, failures = 0, skipped = 0, errors = 0;
   for (const auto& d : rep.devices) {
     Counts c = count(d);
     tests += c.total();
     failures += c.fail;
     skipped += c.skip;
+    errors += c.error;
   }
-  x += fmt::format("<testsuites name=\"mbconform {}\" tests=\"{}\" failures=\"{}\" skipped=\"{}\">\n", xml_escape(rep.command),
-                   tests, failures, skipped);
+  x += fmt::format("<testsuites name=\"mbconform {}\" tests=\"{}\" failures=\"{}\" errors=\"{}\" skipped=\"{}\">\n",
+                   xml_escape(rep.command), tests, failures, errors, skipped);
   for (const auto& d : rep.devices) {
     Counts c = count(d);
-    x += fmt::format("  <testsuite name=\"{}\" tests=\"{}\" failures=\"{}\" errors=\"0\" skipped=\"{}\" time=\"{:.3f}\"{}>\n",
-                     xml_escape(d.device_id), c.total(), c.fail, c.skip, d.wall_seconds,
+    x += fmt::format("  <testsuite name=\"{}\" tests=\"{}\" failures=\"{}\" errors=\"{}\" skipped=\"{}\" time=\"{:.3f}\"{}>\n",
+                     xml_escape(d.device_id), c.total(), c.fail, c.error, c.skip, d.wall_seconds,
                      rep.started_at.empty() ? "" : fmt::format(" timestamp=\"{}\"", xml_escape(rep.started_at)));
     x += fmt::format("    <properties><property name=\"target\" value=\"{}\"/><property name=\"spec\" value=\"{}\"/>"
                      "<property name=\"interrupted\" value=\"{}\"/></properties>\n",
@@ -52,13 +57,18 @@ std::string junit_xml(const RunReport& rep) {
       x += fmt::format("    <testcase name=\"{}\" classname=\"{}.{}\" time=\"{:.6f}\">\n", xml_escape(r.id), xml_escape(d.device_id),
                        xml_escape(r.family), r.duration_ms / 1000.0);
       std::string head = fmt::format("[{}] {} — {}", to_string(r.level), r.clause, r.requirement);
-      if (r.outcome == Outcome::fail) {
+      if (r.outcome == Outcome::fail && !r.quirk.empty()) {
+        x += fmt::format("      <system-out>{}</system-out>\n",
+                         xml_escape("DECLARED QUIRK: " + r.quirk + "\n" + head + "\n" + r.message));
+      } else if (r.outcome == Outcome::fail) {
         std::string body = head + "\n";
         for (const auto& f : r.frames)
           body += fmt::format("{}\n  request  {}\n  expected {}{}\n  actual   {}\n", f.step, to_hex(f.request), f.expected_text,
                               f.expected ? " = " + to_hex(*f.expected) : "", f.actual ? to_hex(*f.actual) : "silence");
         x += fmt::format("      <failure message=\"{}\" type=\"{}\">{}</failure>\n", xml_escape(r.message), to_string(r.level),
                          xml_escape(body));
+      } else if (r.outcome == Outcome::error) {
+        x += fmt::format("      <error message=\"{}\" type=\"not run\"/>\n", xml_escape(r.message));
       } else if (r.outcome == Outcome::skip) {
         x += fmt::format("      <skipped message=\"{}\"/>\n", xml_escape(r.message));
       } else if (r.outcome == Outcome::observed) {

@@ -30,8 +30,8 @@ std::string summary_markdown(const nlohmann::json& summary);
 
 // Counts over a device run.
 struct Counts {
-  size_t pass = 0, fail = 0, skip = 0, observed = 0, must_failed = 0;
-  size_t total() const { return pass + fail + skip + observed; }
+  size_t pass = 0, fail = 0, skip = 0, observed = 0, error = 0, quirks = 0, must_failed = 0;
+  size_t total() const { return pass + fail + skip + observed + error + quirks; }
 };
 Counts count(const DeviceRun&);
 
@@ -40,6 +40,10 @@ Counts count(const DeviceRun&);
 // "COMMAND: error: --out: ..." and returns false (the caller exits 2).
 std::string out_dir_problem(const std::string& dir);
 bool out_dir_ok(const std::string& dir, const char* command);
+// "INCOMPLETE: ..." when a target was lost or the run was interrupted, else
+// empty: the first line of every report (terminal, HTML, JUnit comment, JSON
+// "incomplete").
+std::string incomplete_line(const RunReport&);
 
 // Writes junit.xml, report.json and (unless junit_only) report.html into
 // `dir` (created). Throws std::runtime_error when a file cannot be written.

@@ -17,6 +17,7 @@ const char* to_string(Outcome o) {
     case Outcome::fail: return "fail";
     case Outcome::skip: return "skip";
     case Outcome::observed: return "observed";
+    case Outcome::error: return "error";
   }
   return "?";
 }

@@ -17,7 +17,9 @@ namespace mbc::conf {
 // MUST: the manual's or the standard's requirement; SHOULD: a recommendation;
 // OBSERVED: behaviour the manual leaves open, recorded, never failed.
 enum class Level { must, should, observed };
-enum class Outcome { pass, fail, skip, observed };
+// error: the case could not be run (the target was lost before it); neither
+// a pass nor a failure of the device.
+enum class Outcome { pass, fail, skip, observed, error };
 const char* to_string(Level);
 const char* to_string(Outcome);
 
@@ -46,6 +48,9 @@ struct CaseResult {
   std::vector<FrameRecord> frames;
   std::vector<std::string> errata;  // erratum ids the case relies on
   double duration_ms = 0;
+  // Set when the case failed and a quirks file (--quirks) declares the
+  // deviation: the reason given there. Counted apart, never a failure.
+  std::string quirk;
   nlohmann::json extra = nlohmann::json::object();  // e.g. props: cases, seed, counterexample
 };
 
@@ -57,6 +62,7 @@ struct DeviceRun {
   std::vector<CaseResult> cases;
   std::vector<double> latencies_us;  // every answered exchange
   uint64_t frames_sent = 0, bytes_sent = 0, bytes_received = 0;
+  uint64_t silences = 0;             // exchanges that got no reply (each cost a wait the wire-time bound does not count)
   double wall_seconds = 0;
   std::optional<int> baud;          // for the wire-time bound
   double wire_time_bound_seconds = 0;  // bytes at the baud rate + 3.5 char gaps
@@ -66,9 +72,11 @@ struct DeviceRun {
   std::vector<std::string> safety_notes;
   // Every broadcast write sent (unit 0: every drive on the line took it).
   std::vector<std::string> broadcast_writes;
+  std::vector<std::string> notes;   // how the run was set up (a probed map, a partial map)
   bool interrupted = false;
   // Set when the run against this target had to stop (the target kept
-  // throwing: a lost connection, a device that cannot go on).
+  // throwing: a lost connection, a device that cannot go on); the cases it
+  // could not run are Outcome::error.
   std::string error;
 };
 

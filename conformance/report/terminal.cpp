@@ -14,7 +14,9 @@ std::string progress_line(const CaseResult& r, size_t done, size_t total) {
 }
 
 std::string summary_table(const RunReport& rep) {
-  std::string s = fmt::format("{:<22} {:>6} {:>6} {:>6} {:>6} {:>9} {:>6} {:>10} {:>12}\n", "device", "cases", "pass", "fail",
+  std::string s = incomplete_line(rep);
+  if (!s.empty()) s += "\n";
+  s += fmt::format("{:<22} {:>6} {:>6} {:>6} {:>6} {:>9} {:>6} {:>10} {:>12}\n", "device", "cases", "pass", "fail",
                               "MUST!", "observed", "skip", "wall s", "wire-bound s");
   for (const auto& d : rep.devices) {
     Counts c = count(d);
@@ -24,12 +26,18 @@ std::string summary_table(const RunReport& rep) {
   }
   for (const auto& d : rep.devices)
     for (const auto& r : d.cases)
-      if (r.outcome == Outcome::fail && r.level == Level::must)
+      if (r.outcome == Outcome::fail && r.level == Level::must && r.quirk.empty())
         s += fmt::format("FAIL {} [{}]\n     {}\n", r.id, r.clause, r.message);
+  for (const auto& d : rep.devices)
+    for (const auto& r : d.cases)
+      if (r.outcome == Outcome::fail && !r.quirk.empty())
+        s += fmt::format("QUIRK {} (declared: {})\n     {}\n", r.id, r.quirk, r.message);
   for (const auto& d : rep.devices) {
     if (!d.error.empty()) s += fmt::format("{}: {}\n", d.device_id, d.error);
     for (const auto& b : d.broadcast_writes) s += fmt::format("{}: broadcast sent: {}\n", d.device_id, b);
   }
+  for (const auto& d : rep.devices)
+    for (const auto& n : d.notes) s += fmt::format("{}: {}\n", d.device_id, n);
   if (rep.interrupted) s += "interrupted: the reports hold the cases run so far\n";
   return s;
 }

@@ -31,8 +31,23 @@ class CaseRunner {
     baud_ = t.info().baud;
   }
 
+  // What the last case met on the line: the runner decides from it whether
+  // to probe the target and which cases a late reply cancels.
+  struct LineState {
+    bool silence = false;             // some exchange was judged silent
+    bool unanswered = false;          // a step that expected a reply got silence
+    Bytes last_request;               // the last frame sent
+    std::string last_what;            // and what it was
+  };
+  LineState line;
+
   Exchange send(const Step& st) {
     Exchange x;
+    // A reply that is expected is waited for up to the timeout; only an
+    // expected silence (or a step that records whatever comes) gets the window.
+    bool want_reply = st.expect.kind != Expect::Kind::silence && st.expect.kind != Expect::Kind::none;
+    t_.set_wait(want_reply ? Target::Wait::reply : Target::Wait::automatic);
+    if (st.expect.kind == Expect::Kind::silence) t_.set_wait(Target::Wait::window);
     if (st.kind == Step::Kind::raw) {
       x.reply = t_.send_raw(st.adu, st.gap_after);
       if (st.adu.size() >= 4) x.request_pdu.assign(st.adu.begin() + 1, st.adu.end() - 2);
@@ -42,17 +57,35 @@ class CaseRunner {
       x.request_pdu = st.pdu;
       account(x.reply, 0);
     }
+    line.last_request = x.reply.request;
+    line.last_what = st.what;
+    if (x.reply.silent()) {
+      line.silence = true;
+      line.unanswered |= want_reply;
+    }
     return x;
+  }
+
+  // One read the spec says is answered (any reply, even an exception, shows
+  // the target is there); waits up to the timeout.
+  bool alive() {
+    Bytes probe = probe_request();
+    t_.set_wait(Target::Wait::reply);
+    Reply r = t_.transact(t_.info().unit, probe);
+    account(r, 0);
+    return !r.silent();
   }
 
   // Quiet traffic of the runner itself (per-case save and restore).
   std::optional<Bytes> quiet(uint8_t unit, const Bytes& pdu) {
+    t_.set_wait(Target::Wait::reply);
     Reply r = t_.transact(unit, pdu);
     account(r, 0);
     return r.pdu;
   }
 
   CaseResult run(const Case& c) {
+    line = LineState{};
     CaseResult res = result_header(c);
     auto t0 = clock_type::now();
     if (!c.skip_reason.empty()) {
@@ -147,6 +180,12 @@ class CaseRunner {
       res.frames.push_back(std::move(fr));
     }
     restore(saved);
+    if (c.functions_optional && !failures.empty())
+      if (auto fc = not_implemented(c, res); fc) {
+        res.duration_ms = std::chrono::duration<double, std::milli>(clock_type::now() - t0).count();
+        return skipped(res, fmt::format("the server does not implement FC {:02} (exception 01); every function is optional "
+                                        "(MBAP v1.1b3 §5.1)", *fc));
+      }
     res.duration_ms = std::chrono::duration<double, std::milli>(clock_type::now() - t0).count();
     if (failures.empty()) {
       res.outcome = c.level == Level::observed ? Outcome::observed : Outcome::pass;
@@ -166,6 +205,23 @@ class CaseRunner {
     r.outcome = Outcome::skip;
     r.message = why;
     return r;
+  }
+
+  // The function code a step was refused with exception 01 (illegal
+  // function) for, when the step expected anything else.
+  static std::optional<int> not_implemented(const Case& c, const CaseResult& r) {
+    for (size_t i = 0; i < c.steps.size() && i < r.frames.size(); ++i) {
+      const auto& f = r.frames[i];
+      if (c.steps[i].expect.kind == Expect::Kind::exception && c.steps[i].expect.code == 1) continue;
+      if (!f.actual || f.actual_decoded.empty()) continue;
+      const Bytes& a = *f.actual;
+      // The PDU's last two bytes of an exception reply: FC | 0x80, 01 (RTU: before the CRC).
+      size_t at = a.size() >= 4 && (a[a.size() - 4] & 0x80) && a[a.size() - 3] == 1 ? a.size() - 4
+                  : a.size() >= 2 && (a[a.size() - 2] & 0x80) && a.back() == 1 ? a.size() - 2
+                                                                                  : a.size();
+      if (at < a.size()) return a[at] & 0x7F;
+    }
+    return std::nullopt;
   }
 
   static std::string observed_summary(const CaseResult& r) {
@@ -214,6 +270,12 @@ class CaseRunner {
             return fmt::format("read [{}]", g);
           }
         }
+        return "";
+      }
+      case Expect::Kind::answered: {
+        uint8_t fc = x.request_pdu.empty() ? 0 : x.request_pdu[0];
+        if (pdu.empty() || (pdu[0] & 0x7F) != fc) return fmt::format("reply to FC {:02X}, request was FC {:02X}", pdu.empty() ? 0 : pdu[0] & 0x7F, fc);
+        if ((pdu[0] & 0x80) && pdu.size() != 2) return "exception reply longer than 2 bytes";
         return "";
       }
       case Expect::Kind::unchanged: {
@@ -265,11 +327,22 @@ class CaseRunner {
     }
   }
 
+  // The first readable item the profile can read (FC 03/04/01/02), one item.
+  Bytes probe_request() const {
+    for (const auto& r : s_.registers) {
+      if (r.access == spec::Access::wo || r.access == spec::Access::command) continue;
+      int fc = r.table == spec::Table::holding ? 3 : r.table == spec::Table::input ? 4 : r.table == spec::Table::coil ? 1 : 2;
+      if (cases::has_fc(s_, fc)) return read_request(uint8_t(fc), r.address, 1);
+    }
+    return read_request(3, 0, 1);
+  }
+
   void account(const Reply& r, int extra_gaps) {
     run_.frames_sent++;
     run_.bytes_sent += r.request.size();
     run_.bytes_received += r.frame.size();
     if (!r.silent()) run_.latencies_us.push_back(double(r.latency.count()));
+    else run_.silences++;
     if (baud_) {
       double b = frame_wire_seconds(r.request.size(), *baud_) +
                  extra_gaps * std::chrono::duration<double>(frame_gap(*baud_)).count();
@@ -310,6 +383,20 @@ CaseResult result_header(const Case& c) {
   return r;
 }
 
+namespace {
+
+// A late reply cancels the verdicts of the cases judged since the silence it
+// belonged to; each case is re-run at most this often (a reply that comes
+// later than every widened window keeps its last verdict).
+constexpr int kMaxReruns = 2;
+
+std::string lost_message(const CaseRunner::LineState& line, const std::string& what) {
+  return fmt::format("{} after the request {} ({}); the cause cannot be told from outside the device",
+                     what, line.last_request.empty() ? "(none)" : to_hex(line.last_request), line.last_what);
+}
+
+}  // namespace
+
 DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Case>& cases, const RunOptions& opt) {
   DeviceRun run;
   run.device_id = spec.device.id;
@@ -318,29 +405,104 @@ DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Ca
   run.baud = target.info().baud;
   auto t0 = clock_type::now();
   CaseRunner runner(target, spec, run);
-  int target_errors = 0;
+  const bool live = target.info().live;
+  std::vector<int> reruns(cases.size(), 0);
+  std::vector<bool> saw_silence(cases.size(), false);
+  // Transport errors and failed liveness probes in a row (never a silence a
+  // case expected). Probes until the target answers, reconnecting between
+  // tries: how many probes failed, or nullopt when the target is lost.
+  int errors = 0;
+  auto probe = [&]() -> std::optional<int> {
+    for (int failed = 0;; ++failed) {
+      bool ok = false;
+      try {
+        ok = runner.alive();
+      } catch (const std::exception&) {
+      }
+      if (ok) {
+        errors = 0;
+        return failed;
+      }
+      if (++errors >= kMaxTargetErrors) return std::nullopt;
+      target.reconnect();
+    }
+  };
+  auto report = [&](size_t i) {
+    if (opt.on_case) opt.on_case(run.cases[i], i + 1, cases.size());
+  };
   for (size_t i = 0; i < cases.size(); ++i) {
     if (opt.stop && opt.stop->load()) {
       run.interrupted = true;
       break;
     }
+    uint64_t late_before = target.late_replies();
+    CaseResult res;
+    bool transport_error = false;
     try {
-      run.cases.push_back(runner.run(cases[i]));
-      target_errors = 0;
+      res = runner.run(cases[i]);
+      if (!live) errors = 0;
     } catch (const std::exception& e) {
-      // The target threw (transport lost, device could not go on): the case
-      // fails; a target that keeps throwing ends the run against it.
-      CaseResult r = result_header(cases[i]);
-      r.outcome = Outcome::fail;
-      r.message = fmt::format("target error: {}", e.what());
-      run.cases.push_back(std::move(r));
-      if (++target_errors >= kMaxTargetErrors) {
-        run.error = fmt::format("stopped after {} target errors in a row; last: {}", target_errors, e.what());
-        if (opt.on_case) opt.on_case(run.cases.back(), i + 1, cases.size());
-        break;
+      // The target threw (connection refused or reset, a device that cannot go on).
+      transport_error = true;
+      res = result_header(cases[i]);
+      res.outcome = Outcome::fail;
+      res.message = fmt::format("target error: {}", e.what());
+      ++errors;
+    }
+    saw_silence[i] = runner.line.silence;
+    bool lost = !live && errors >= kMaxTargetErrors;
+    if (live && (transport_error || runner.line.unanswered)) {
+      // A request that should have been answered was not, or the transport
+      // failed: is the target still there? A wedged connection (answers
+      // again only after a reconnect) or a lost target is one FAIL of this
+      // case, naming its last request: a device that dies on a request is a finding.
+      if (transport_error) target.reconnect();
+      std::optional<int> failed = probe();
+      if (!failed || transport_error || *failed > 0) {
+        lost = !failed;
+        std::string detail = res.outcome == Outcome::fail && !res.message.empty() ? "; " + res.message : "";
+        res.outcome = Outcome::fail;
+        res.level = Level::must;
+        res.message = lost ? lost_message(runner.line, "the target was lost") + detail
+                           : lost_message(runner.line, transport_error ? "the connection failed" : "the connection stopped answering") +
+                                 "; it answered again after a reconnect" + detail;
       }
     }
-    if (opt.on_case) opt.on_case(run.cases.back(), i + 1, cases.size());
+    run.cases.push_back(std::move(res));
+    report(i);
+    if (lost) {
+      run.error = fmt::format("the target was lost during {} ({} errors in a row)", cases[i].id, kMaxTargetErrors);
+      for (size_t k = i + 1; k < cases.size(); ++k) {
+        CaseResult nr = result_header(cases[k]);
+        nr.outcome = Outcome::error;
+        nr.message = "not run: the target was lost";
+        run.cases.push_back(std::move(nr));
+      }
+      break;
+    }
+    // A late reply: the silence it belonged to was no silence. Re-run from
+    // the latest case judged silent up to this one, with the widened window.
+    if (target.late_replies() > late_before) {
+      size_t from = i;
+      for (size_t k = i + 1; k-- > 0;)
+        if (saw_silence[k]) {
+          from = k;
+          break;
+        }
+      for (size_t k = from; k <= i; ++k) {
+        if (reruns[k] >= kMaxReruns) continue;
+        ++reruns[k];
+        try {
+          CaseResult again = runner.run(cases[k]);
+          again.message = again.message.empty() ? "re-run after a late reply" : again.message + " (re-run after a late reply)";
+          saw_silence[k] = runner.line.silence;
+          run.cases[k] = std::move(again);
+          report(k);
+        } catch (const std::exception&) {
+          break;  // the next case meets the error again and handles it
+        }
+      }
+    }
   }
   run.wall_seconds = std::chrono::duration<double>(clock_type::now() - t0).count();
   return run;
@@ -373,11 +535,27 @@ script::Step to_script(const Step& st, const TargetInfo& info) {
       }
       break;
     case Expect::Kind::unchanged: s.expect = {K::normal, {}, 0}; break;  // equal to an earlier reply: checked by the runner only
+    case Expect::Kind::answered: break;  // a normal reply or any exception: checked by the runner only
   }
   s.note = st.what;
   if (e.kind != Expect::Kind::none) s.note += " | " + cases::describe(e);
   if (st.setup) s.note += " (setup)";
   return s;
+}
+
+std::string unreachable(Target& target, const spec::Spec& spec) {
+  DeviceRun scratch;
+  CaseRunner runner(target, spec, scratch);
+  std::string why = "no reply";
+  for (int attempt = 0; attempt < kMaxTargetErrors; ++attempt) {
+    if (attempt > 0) target.reconnect();
+    try {
+      if (runner.alive()) return "";
+    } catch (const std::exception& e) {
+      why = e.what();
+    }
+  }
+  return fmt::format("{} does not answer ({} tries, with reconnects; last: {})", target.info().uri, kMaxTargetErrors, why);
 }
 
 std::vector<std::string> plan_lines(const Case& c, const TargetInfo& info) {

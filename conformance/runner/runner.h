@@ -28,6 +28,11 @@ struct RunOptions {
 // Runs `cases` in order on `target`; the DeviceRun carries every result.
 DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Case>& cases, const RunOptions& = {});
 
+// Whether a live target answers at all before a run: one read the spec says
+// is answered, retried with a reconnect (kMaxTargetErrors tries). Empty when
+// it answered, else why not (the run cannot be done: exit 2).
+std::string unreachable(Target& target, const spec::Spec& spec);
+
 // The result a case gets without running (--list, --plan, skipped cases).
 CaseResult result_header(const Case& c);
 

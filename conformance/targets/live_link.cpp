@@ -37,28 +37,39 @@ void check_params(const Uri& u, const std::string& uri, std::initializer_list<co
 // ---- silence window ----
 
 SilenceWindow::SilenceWindow(milliseconds timeout, microseconds frame_gap, std::optional<milliseconds> fixed)
-    : timeout_(timeout), frame_gap_(frame_gap), ring_(kMaxSamples) {
-  if (fixed) fixed_ = *fixed;
-}
+    : timeout_(timeout), frame_gap_(frame_gap), fixed_(fixed) {}
 
-void SilenceWindow::record(microseconds latency) {
-  ring_[count_ % kMaxSamples] = latency.count();
-  ++count_;
-  size_t n = std::min(count_, kMaxSamples);
+void SilenceWindow::Estimate::record(microseconds latency) {
+  ring[count % kMaxSamples] = latency.count();
+  ++count;
+  size_t n = std::min(count, kMaxSamples);
   if (n < kMinSamples) return;
-  std::vector<int64_t> v(ring_.begin(), ring_.begin() + ptrdiff_t(n));
+  std::vector<int64_t> v(ring.begin(), ring.begin() + ptrdiff_t(n));
   size_t at = std::min(n - 1, size_t(double(n) * 0.99));
   std::nth_element(v.begin(), v.begin() + ptrdiff_t(at), v.end());
-  p99_ = microseconds(v[at]);
+  p99 = microseconds(v[at]);
 }
 
-void SilenceWindow::late_reply() { widen_ = std::min(widen_ * 2, 1 << 10); }
+void SilenceWindow::record(microseconds latency, bool exception) { (exception ? exception_ : normal_).record(latency); }
+
+std::optional<microseconds> SilenceWindow::p99() const {
+  if (!normal_.p99) return exception_.p99;
+  if (!exception_.p99) return normal_.p99;
+  return std::max(*normal_.p99, *exception_.p99);
+}
+
+void SilenceWindow::late_reply(std::optional<microseconds> seen) {
+  ++late_;
+  if (seen) late_floor_ = std::max(late_floor_, 2 * *seen);
+  else widen_ = std::min(widen_ * 2, 1 << 10);
+}
 
 microseconds SilenceWindow::window() const {
   if (fixed_) return *fixed_;
-  if (!p99_) return timeout_;
-  microseconds w = std::max<microseconds>(kLatencyMultiple * *p99_, frame_gap_ + kFloor) * widen_;
-  return std::min(w, timeout_);
+  auto p = p99();
+  if (!p) return timeout_;
+  microseconds w = std::max<microseconds>(kLatencyMultiple * *p, frame_gap_ + kFloor) * widen_;
+  return std::min(std::max(w, late_floor_), timeout_);
 }
 
 // ---- byte streams ----

@@ -31,9 +31,12 @@ void check_params(const Uri& u, const std::string& uri, std::initializer_list<co
 // How long to wait for a reply that may never come. Until enough replies were
 // timed this is the configured timeout (1 s by default); then it is a bounded
 // multiple of the observed p99 latency, never less than the line's frame gap
-// plus a floor for the host's scheduling, never more than the timeout. A
-// reply that arrives after its window closed (found stale before the next
-// request) doubles the window.
+// plus a floor for the host's scheduling, never more than the timeout.
+// Normal and exception replies are timed apart (a server may answer an
+// exception far later than a read: libmodbus 3.1.6 sleeps its response
+// timeout before an "illegal function" reply), and the window covers the
+// slower of the two. A reply that arrives after its window closed widens it:
+// to twice the latency it was seen with, when that is known, else doubled.
 class SilenceWindow {
  public:
   // The floor covers scheduling jitter of the master's host (pty, loopback).
@@ -43,21 +46,29 @@ class SilenceWindow {
   static constexpr size_t kMaxSamples = 1024;
 
   SilenceWindow(milliseconds timeout, microseconds frame_gap, std::optional<milliseconds> fixed);
-  void record(microseconds latency);
-  void late_reply();
+  void record(microseconds latency, bool exception = false);
+  // A late reply; `seen` is how long after its request it was found, when known.
+  void late_reply(std::optional<microseconds> seen = std::nullopt);
   microseconds window() const;
   microseconds timeout() const { return timeout_; }
-  std::optional<microseconds> p99() const { return p99_; }
-  size_t samples() const { return count_; }
+  std::optional<microseconds> p99() const;
+  size_t samples() const { return normal_.count + exception_.count; }
+  uint64_t late_count() const { return late_; }
 
  private:
+  struct Estimate {
+    std::vector<int64_t> ring = std::vector<int64_t>(kMaxSamples);
+    size_t count = 0;
+    std::optional<microseconds> p99;
+    void record(microseconds latency);
+  };
   microseconds timeout_;
   microseconds frame_gap_;
-  std::optional<microseconds> fixed_;
-  std::vector<int64_t> ring_;
-  size_t count_ = 0;
-  std::optional<microseconds> p99_;
+  std::optional<milliseconds> fixed_;
+  Estimate normal_, exception_;
+  microseconds late_floor_{0};
   int widen_ = 1;
+  uint64_t late_ = 0;
 };
 
 // Reads from `fd`, appending to `buf` (which may already hold bytes): waits

@@ -151,13 +151,28 @@ class RtuTarget final : public Target {
 
   const TargetInfo& info() const override { return info_; }
   microseconds silence_window() const override { return window_.window(); }
+  void set_wait(Wait w) override { wait_ = w; }
+  uint64_t late_replies() const override { return window_.late_count(); }
+  // RTU over TCP: a new socket to the gateway. A serial line has nothing to reopen.
+  bool reconnect() override {
+    if (serial_) return false;
+    if (fd_ >= 0) close(fd_);
+    fd_ = -1;
+    try {
+      fd();
+      return true;
+    } catch (const std::runtime_error&) {
+      return false;
+    }
+  }
 
   Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override {
     Bytes adu = rtu_frame(unit, pdu);
     // Only well-formed exchanges with a slave time the device (a broadcast has no reply).
     bool timed = unit != 0;
+    bool addressed = unit == info_.unit;
     if (ctx_ && !pdu.empty() && pdu.size() <= kMaxPdu) {
-      return exchange(adu, unit, timed, [&] {
+      return exchange(adu, unit, timed, addressed, [&] {
         Bytes raw{unit};
         raw.insert(raw.end(), pdu.begin(), pdu.end());
         auto t = Clock::now();
@@ -166,7 +181,7 @@ class RtuTarget final : public Target {
         return t;
       });
     }
-    return exchange(adu, unit, timed, [&] {
+    return exchange(adu, unit, timed, addressed, [&] {
       auto t = Clock::now();
       write_all(fd(), adu, info_.uri);
       return t;
@@ -176,7 +191,7 @@ class RtuTarget final : public Target {
   Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
     Bytes adu(bytes.begin(), bytes.end());
     uint8_t slave = adu.empty() ? info_.unit : adu[0];
-    return exchange(adu, slave, false, [&] {
+    return exchange(adu, slave, false, false, [&] {
       size_t split = gap_after ? std::min(*gap_after, adu.size()) : adu.size();
       auto t = Clock::now();
       write_all(fd(), std::span(adu).first(split), info_.uri);
@@ -205,8 +220,9 @@ class RtuTarget final : public Target {
   // `send` writes the request and returns when its last part started out.
   // Latency runs from there (on a serial line: from when the request left
   // the UART) to the reply's last byte.
+  // `addressed`: a well-formed request to the target's unit (Wait::automatic waits for its reply).
   template <class Send>
-  Reply exchange(const Bytes& adu, uint8_t slave, bool timed, Send send) {
+  Reply exchange(const Bytes& adu, uint8_t slave, bool timed, bool addressed, Send send) {
     if (drain(fd()) > 0) window_.late_reply();  // a reply came after its window closed
     auto t0 = send();
     if (serial_) {
@@ -215,7 +231,8 @@ class RtuTarget final : public Target {
     }
     Reply r;
     r.request = adu;
-    auto first_by = t0 + window_.window();
+    bool for_reply = wait_ == Wait::reply || (wait_ == Wait::automatic && addressed);
+    auto first_by = t0 + (for_reply ? window_.timeout() : window_.window());
     auto wire = info_.baud ? wire_time(kMaxRtuAdu, *info_.baud) : microseconds(0);
     auto hard = first_by + window_.timeout() + 2 * wire;
     ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, [](std::span<const uint8_t> b) {
@@ -229,7 +246,7 @@ class RtuTarget final : public Target {
       fd_ = -1;
     }
     decode_rtu_reply(r, slave);
-    if (!r.frame.empty() && timed) window_.record(r.latency);
+    if (r.pdu && timed) window_.record(r.latency, !r.pdu->empty() && ((*r.pdu)[0] & 0x80));
     return r;
   }
 
@@ -243,6 +260,7 @@ class RtuTarget final : public Target {
   SilenceWindow window_;
   milliseconds timeout_{kDefaultTimeout};
   microseconds frame_gap_{0}, end_silence_{0}, split_gap_{0};
+  Wait wait_ = Wait::automatic;
 };
 
 }  // namespace

@@ -68,6 +68,29 @@ class Target {
   // latency and keep this a bounded multiple of it.
   virtual std::chrono::microseconds silence_window() const { return std::chrono::microseconds(0); }
 
+  // How long a live target waits for the first byte of a reply. A reply that
+  // is expected (normal or exception) costs nothing to wait for, so only an
+  // expected silence is worth the short adaptive window; waiting the timeout
+  // for a reply keeps a late one (a loaded host, a server that sleeps before
+  // an exception) from becoming a false "silence" verdict.
+  enum class Wait {
+    automatic,  // a well-formed request to info().unit: up to the timeout; broadcast, other units, raw frames: the window
+    window,     // the silence window (silence expected, or not cared about: fuzzing)
+    reply,      // up to the timeout (a reply is expected)
+  };
+  // Applies to every exchange until changed.
+  virtual void set_wait(Wait) {}
+
+  // How many replies came after their request had been judged silent (a
+  // late reply, recognised by its transaction id or found waiting on the
+  // line before the next request). Each one widens the silence window; the
+  // runner re-runs the cases judged since (runner/runner.cpp).
+  virtual uint64_t late_replies() const { return 0; }
+
+  // Closes and reopens the connection (a wedged or reset socket); false when
+  // the kind has nothing to reopen or it failed.
+  virtual bool reconnect() { return false; }
+
   // Virtual time and power (ref and plugin targets); throw std::logic_error
   // when the info() flag is false.
   virtual void advance(std::chrono::microseconds dt) = 0;

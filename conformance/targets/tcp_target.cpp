@@ -69,16 +69,28 @@ class TcpTarget final : public Target {
 
   const TargetInfo& info() const override { return info_; }
   microseconds silence_window() const override { return window_.window(); }
+  void set_wait(Wait w) override { wait_ = w; }
+  uint64_t late_replies() const override { return window_.late_count(); }
+  bool reconnect() override {
+    modbus_close(ctx_);
+    connected_ = false;
+    try {
+      connect();
+      return true;
+    } catch (const std::runtime_error&) {
+      return false;
+    }
+  }
 
   Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override {
     uint16_t tid = next_tid_++;
     Bytes adu = mbap_frame(tid, unit, pdu);
     // Only well-formed exchanges with a unit time the device (a broadcast has no reply).
-    return exchange(adu, Mbap{tid, 0, 0, unit}, std::nullopt, unit != 0);
+    return exchange(adu, Mbap{tid, 0, 0, unit}, std::nullopt, unit != 0, unit == info_.unit);
   }
 
   Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
-    return exchange(Bytes(bytes.begin(), bytes.end()), parse_mbap(bytes), gap_after, false);
+    return exchange(Bytes(bytes.begin(), bytes.end()), parse_mbap(bytes), gap_after, false, false);
   }
 
   void advance(std::chrono::microseconds) override {
@@ -100,7 +112,9 @@ class TcpTarget final : public Target {
   }
 
   // Latency runs from the start of the request's last write to the reply's last byte.
-  Reply exchange(const Bytes& adu, std::optional<Mbap> sent, std::optional<size_t> gap_after, bool timed) {
+  // `addressed`: a well-formed request to the target's unit (Wait::automatic waits for its reply).
+  Reply exchange(const Bytes& adu, std::optional<Mbap> sent, std::optional<size_t> gap_after, bool timed,
+                 bool addressed) {
     if (!connected_) connect();  // the server closed it after the last exchange (e.g. a bad MBAP length)
     int fd = modbus_get_socket(ctx_);
     if (drain(fd) > 0) window_.late_reply();
@@ -115,13 +129,14 @@ class TcpTarget final : public Target {
     }
     Reply r;
     r.request = adu;
-    auto first_by = t0 + window_.window();
+    bool for_reply = wait_ == Wait::reply || (wait_ == Wait::automatic && addressed);
+    auto first_by = t0 + (for_reply ? microseconds(timeout_) : window_.window());
     ReadResult rr;
     for (;;) {
       rr = read_frame(fd, in_, first_by, kReplyEndSilence, first_by + timeout_, whole_adu);
       if (!whole_adu(in_) || !is_stale(*parse_mbap(in_), sent)) break;
+      window_.late_reply(stale_latency(parse_mbap(in_)->transaction));
       in_.erase(in_.begin(), in_.begin() + ptrdiff_t(parse_mbap(in_)->adu_size()));
-      window_.late_reply();
     }
     size_t take = whole_adu(in_) ? parse_mbap(in_)->adu_size() : in_.size();
     r.frame.assign(in_.begin(), in_.begin() + ptrdiff_t(take));
@@ -132,17 +147,23 @@ class TcpTarget final : public Target {
       connected_ = false;
     }
     judge_mbap(r, sent);
-    if (sent && r.frame.empty()) remember_stale(sent->transaction);
-    if (!r.frame.empty() && timed) window_.record(r.latency);
+    if (sent && r.frame.empty()) remember_stale(sent->transaction, t0);
+    if (r.pdu && timed) window_.record(r.latency, !r.pdu->empty() && ((*r.pdu)[0] & 0x80));
     return r;
   }
 
   bool is_stale(const Mbap& got, const std::optional<Mbap>& sent) const {
     if (sent && got.transaction == sent->transaction) return false;
-    return std::find(stale_.begin(), stale_.end(), got.transaction) != stale_.end();
+    return std::any_of(stale_.begin(), stale_.end(), [&](const auto& s) { return s.first == got.transaction; });
   }
-  void remember_stale(uint16_t tid) {
-    stale_.push_back(tid);
+  // How long after its request a late reply was found.
+  std::optional<microseconds> stale_latency(uint16_t tid) const {
+    for (const auto& [id, at] : stale_)
+      if (id == tid) return std::chrono::duration_cast<microseconds>(Clock::now() - at);
+    return std::nullopt;
+  }
+  void remember_stale(uint16_t tid, Clock::time_point sent_at) {
+    stale_.emplace_back(tid, sent_at);
     if (stale_.size() > kStaleMemory) stale_.pop_front();
   }
 
@@ -172,7 +193,8 @@ class TcpTarget final : public Target {
   milliseconds timeout_{kDefaultTimeout};
   SilenceWindow window_;
   uint16_t next_tid_ = 1;
-  std::deque<uint16_t> stale_;
+  std::deque<std::pair<uint16_t, Clock::time_point>> stale_;
+  Wait wait_ = Wait::automatic;
   Bytes in_;
 };
 

@@ -23,7 +23,9 @@
 #include "cases/common.h"
 #include "commands.h"
 #include "loader.h"
+#include "map/map.h"
 #include "options.h"
+#include "quirks/quirks.h"
 #include "report/report.h"
 #include "runner/runner.h"
 #include "script/script.h"
@@ -40,6 +42,10 @@ struct RunArgs {
   TargetOptions t;
   std::string filter, summary_dir;
   bool list = false, plan = false, junit_only = false, quiet = false;
+  std::string map;  // --map auto | FILE | inline
+  int map_budget = conf::map::kDefaultBudget;
+  bool allow_writes = false;
+  std::string quirks_file;
 };
 
 // GLOB (fnmatch, '*' crosses '/') or, when it has regex syntax, an ECMAScript
@@ -72,7 +78,6 @@ conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
 }
 
 int run(RunArgs& a) {
-  const std::vector<std::string> targets = targets_or_default(a.t);
 
   std::optional<spec::Spec> standard;
   try {
@@ -87,6 +92,32 @@ int run(RunArgs& a) {
     fmt::print(stderr, "mbconform run: error: {}\n", e.what());
     return kExitUsage;
   }
+
+  // A map without a spec: the standard's cases where the map allows.
+  if (!a.map.empty() && !named && standard) named = *standard;
+  conf::quirks::Quirks quirks;
+  if (!a.quirks_file.empty()) {
+    try {
+      quirks = conf::quirks::load(a.quirks_file);
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "{}\n", e.what());
+      return kExitUsage;
+    }
+  }
+  std::optional<conf::map::Map> given_map;
+  if (!a.map.empty() && a.map != "auto") {
+    try {
+      given_map = conf::map::parse_option(a.map);
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "mbconform run: error: {}\n", e.what());
+      return kExitUsage;
+    }
+  }
+  // No target: every reference device, or, when a spec is named, its own
+  // reference device once (not every reference device under one spec).
+  std::vector<std::string> targets = a.t.targets;
+  if (targets.empty() && named) targets.push_back("ref:" + named->device.id);
+  if (targets.empty()) targets = targets_or_default(a.t);
 
   auto keep = make_filter(a.filter);
   conf::RunReport report;
@@ -111,7 +142,7 @@ int run(RunArgs& a) {
     std::unique_ptr<conf::Target> target;
     conf::TargetInfo info;
     try {
-      if (!dry || uri.rfind("ref:", 0) == 0) {
+      if (!dry || (uri.rfind("ref:", 0) == 0 && !named)) {
         target = conf::open_target(uri);
         info = target->info();
       } else {
@@ -122,14 +153,46 @@ int run(RunArgs& a) {
       return kExitUsage;
     }
 
+    std::vector<std::string> notes;
+    std::optional<conf::map::Map> map = given_map;
+    if (a.map == "auto" && target) {
+      if (std::string why = conf::unreachable(*target, s); !why.empty()) {
+        fmt::print(stderr, "mbconform run: error: target {}: {}\n", uri, why);
+        return kExitUsage;
+      }
+      auto t0 = std::chrono::steady_clock::now();
+      map = conf::map::probe(*target, a.map_budget);
+      double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      notes.push_back(fmt::format("map probed in {} requests, {:.2f} s: {}", map->requests, secs, map->describe()));
+      for (const auto& u : map->unmapped)
+        notes.push_back(fmt::format("unmapped {} addresses answered: {} ({} probes)", conf::map::table_name(u.table), u.answer, u.seen));
+      if (map->partial)
+        notes.push_back(fmt::format("PARTIAL MAP: the probe budget of {} requests ran out at {}; nothing past it was probed",
+                                    a.map_budget, map->partial_at));
+      if (!a.quiet) fmt::print("{}: {}\n", uri, notes.front());
+    } else if (a.map == "auto" && a.plan) {
+      fmt::print("# --map auto: the probe sends at most {} reads (FC 01/02/03/04, --map-budget) before the cases; "
+                 "the cases below are the spec's own map's\n", conf::map::planned_requests(a.map_budget));
+    } else if (map) {
+      notes.push_back(fmt::format("map from {}: {}", map->source, map->describe()));
+    }
+    if (map && (a.map != "auto" || target)) s = conf::map::apply(s, *map);
+
     conf::GenContext g{s, info, a.t.policy, standard ? &*standard : nullptr};
     std::vector<conf::Case> cases;
     for (auto& c : conf::all_cases(g))
       if (keep(c.id)) cases.push_back(std::move(c));
 
+    if (map) conf::map::adapt_cases(cases, *map, a.allow_writes);
+    if (cases.empty() && !a.filter.empty()) {
+      fmt::print(stderr, "mbconform run: error: --filter '{}' matches none of the {} cases for {}\n", a.filter,
+                 conf::all_cases(g).size(), uri);
+      return kExitUsage;
+    }
     if (a.list) {
+      std::string column = targets.size() > 1 ? uri + "  " : "";
       for (const auto& c : cases)
-        fmt::print("{}  {}  {}  {}{}\n", c.id, conf::to_string(c.level), c.clause, c.title,
+        fmt::print("{}{}  {}  {}  {}{}\n", column, c.id, conf::to_string(c.level), c.clause, c.title,
                    c.skip_reason.empty() ? "" : "  [skip: " + c.skip_reason + "]");
       continue;
     }
@@ -164,6 +227,10 @@ int run(RunArgs& a) {
     std::optional<conf::Snapshot> snap;
     std::vector<std::string> snap_notes;
     if (info.live) {
+      if (std::string why = conf::unreachable(*target, s); !why.empty()) {
+        fmt::print(stderr, "mbconform run: error: target {}: {}\n", uri, why);
+        return kExitUsage;
+      }
       try {
         snap = conf::Snapshot::take(*target, s, a.t.policy);
         for (const auto& f : snap->failures()) snap_notes.push_back(f);
@@ -183,6 +250,8 @@ int run(RunArgs& a) {
       for (auto& n : snap_notes) dr.safety_notes.push_back(std::move(n));
       for (const auto& f : dr.restore_failures) fmt::print(stderr, "mbconform run: {}: {}\n", s.device.id, f);
     }
+    dr.notes.insert(dr.notes.begin(), notes.begin(), notes.end());
+    if (!quirks.empty()) conf::quirks::apply(quirks, dr);
     report.devices.push_back(std::move(dr));
     if (g_stop.load()) {
       report.interrupted = true;
@@ -208,12 +277,14 @@ int run(RunArgs& a) {
   }
   fmt::print("{}", conf::summary_table(report));
   fmt::print("reports: {}\n", out);
+  // Interrupted: the run was not done (2), whatever it found so far. A lost
+  // target is recorded as the FAIL of the case it was lost in (1).
+  if (report.interrupted) return kExitUsage;
   bool must_failed = false;
   for (const auto& d : report.devices) must_failed |= conf::count(d).must_failed > 0;
   if (must_failed) return kExitFailed;
   for (const auto& d : report.devices)
     if (!d.error.empty()) return kExitUsage;
-  if (report.interrupted) return kExitUsage;
   return kExitOk;
 }
 
@@ -227,6 +298,13 @@ void add_run_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--filter", a->filter, "select cases by id: a glob ('*/registers/*'), a regex, or a substring");
   cmd->add_flag("--plan", a->plan, "print every frame the cases would send, without sending anything");
   cmd->add_option("--summary", a->summary_dir, "also write the stable summary.md and summary.json into this directory");
+  cmd->add_option("--map", a->map,
+                  "the target's data map instead of the spec's: 'auto' (probe it with reads), a map file, or "
+                  "'holding=0-199,coils=0-199,input=0-199,discrete=0-199' (conformance/README.md, Maps)");
+  cmd->add_option("--map-budget", a->map_budget, "the most requests --map auto sends (default 2000)")->check(CLI::Range(1, 1000000));
+  cmd->add_flag("--allow-writes", a->allow_writes, "with --map auto or a map without access: run the cases that write");
+  cmd->add_option("--quirks", a->quirks_file, "a quirks file: known deviations (case ids or globs, with reasons) "
+                  "reported apart, not failed (conformance/README.md, Quirks files)");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
   cmd->add_flag("--quiet", a->quiet, "no progress line");
   cmd->callback([a, &exit_code] { exit_code = run(*a); });

@@ -11,15 +11,25 @@
 #include "errata.h"
 #include "exchange.h"
 #include "loader.h"
+#include "map/map.h"
+#include "runner/runner.h"
+#include "targets/target.h"
 
 namespace mbc::cli {
 namespace {
 
 namespace fs = std::filesystem;
 
+// Exit 1 when a spec has errors; 2 when a file cannot be read at all (the
+// check could not be done).
 int run_check(const std::vector<std::string>& files, bool quiet) {
   int failed = 0;
   for (const auto& f : files) {
+    std::error_code ec;
+    if (!fs::is_regular_file(f, ec) || !std::ifstream(f)) {
+      std::cerr << fmt::format("{}:0:0: error: file: cannot read {}\n", f, fs::exists(f, ec) ? "it" : "it: no such file");
+      return kExitUsage;
+    }
     auto r = spec::load_spec_file(f);
     for (const auto& d : r.diagnostics) std::cerr << d.str() << "\n";
     if (r.ok()) {
@@ -166,6 +176,30 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
       ->check(CLI::IsMember({"csv", "home-assistant", "edgex"}));
   exp->add_option("--out", export_out, "the file to write (default: stdout)");
   exp->callback([&] { exit_code = run_export(export_id, export_format, export_out); });
+
+  auto* discover = spec_cmd->add_subcommand(
+      "discover", "Probe a live target's map with reads (never writes) and write a spec skeleton whose facts are observed");
+  static std::string discover_target, discover_out, discover_id = "discovered";
+  static int discover_budget = conf::map::kDefaultBudget;
+  discover->add_option("--target", discover_target, "tcp://HOST:PORT?unit=N | rtu-tcp://... | rtu:///dev/tty...")->required();
+  discover->add_option("--out", discover_out, "the spec file to write")->required();
+  discover->add_option("--id", discover_id, "the device id to write (default: discovered)");
+  discover->add_option("--map-budget", discover_budget, "the most read requests the probe sends")->check(CLI::Range(1, 1000000));
+  discover->callback([&] {
+    try {
+      auto target = conf::open_target(discover_target);
+      spec::Spec none;
+      if (std::string why = conf::unreachable(*target, none); !why.empty()) throw std::runtime_error(why);
+      conf::map::Map m = conf::map::probe(*target, discover_budget);
+      if (!write_file(discover_out, conf::map::skeleton_yaml(m, discover_id, target->info().unit)))
+        throw std::runtime_error("cannot write " + discover_out);
+      std::cout << fmt::format("{}: {} ({} requests{})\n", discover_out, m.describe(), m.requests, m.partial ? ", PARTIAL" : "");
+      exit_code = kExitOk;
+    } catch (const std::exception& e) {
+      std::cerr << "mbconform spec discover: error: " << e.what() << "\n";
+      exit_code = kExitUsage;
+    }
+  });
 
   auto* list = spec_cmd->add_subcommand("list", "List the device specs, each with its file and where it was found");
   list->callback([&] {

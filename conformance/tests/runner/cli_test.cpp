@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <set>
 #include <sstream>
 #include <thread>
 #include <csignal>
@@ -71,6 +72,35 @@ TEST(RunCli, ExitCodes) {
   // A live target needs a spec to be tested against.
   EXPECT_EQ(run({"run", "--target", "tcp://127.0.0.1:9?unit=1", "--out", dir / "x"}).rc, 2);
   EXPECT_EQ(run({"run", "--spec", dir / "missing.yaml", "--target", "ref:hsc60", "--out", dir / "x"}).rc, 2);
+}
+
+// The run could not be done: exit 2, never a silent 0 or a 1 that blames the device.
+TEST(RunCli, CommandsThatCannotRunExit2) {
+  TempDir dir;
+  Out none = run({"run", "--target", "ref:hsc60", "--filter", "no-such-case-*", "--out", dir / "x"});
+  EXPECT_EQ(none.rc, 2) << none.text;
+  EXPECT_NE(none.text.find("matches none"), std::string::npos) << none.text;
+  EXPECT_EQ(run({"run", "--device", "hsc60", "--spec", "spec/devices/hsc60.yaml", "--list"}).rc, 2);
+  EXPECT_EQ(run({"spec", "check", dir / "missing.yaml"}).rc, 2);
+  EXPECT_EQ(run({"spec", "check", dir.path()}).rc, 2);  // a directory cannot be read as a spec
+  EXPECT_EQ(run({"run", "--map", "holding=9-1", "--target", "ref:modbus-standard", "--list"}).rc, 2);
+  EXPECT_EQ(run({"run", "--quirks", dir / "missing-quirks.yaml", "--target", "ref:hsc60", "--list"}).rc, 2);
+}
+
+// --list without a target lists the named spec's cases once, not once per reference device.
+TEST(RunCli, ListWithoutTargetListsEachCaseOnce) {
+  Out o = run({"run", "--device", "modbus-standard", "--list"});
+  ASSERT_EQ(o.rc, 0) << o.text;
+  std::istringstream in(o.text);
+  std::set<std::string> ids;
+  std::string l;
+  size_t n = 0;
+  while (std::getline(in, l)) {
+    ++n;
+    ids.insert(l.substr(0, l.find("  ")));
+  }
+  EXPECT_GT(n, 100u);
+  EXPECT_EQ(ids.size(), n) << "a case listed twice";
 }
 
 TEST(RunCli, ReportsAreWellFormed) {

@@ -1,0 +1,488 @@
+#include "map/map.h"
+
+#include <fmt/core.h>
+
+#include <algorithm>
+#include <charconv>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <stdexcept>
+
+#include "codec/hex.h"
+#include "master/pdu.h"
+#include "yaml_json.h"
+
+namespace mbc::conf::map {
+namespace {
+
+using spec::Table;
+
+struct TableInfo {
+  Table table;
+  const char* name;    // as --map and map files spell it
+  uint8_t read_fc;     // MBAP v1.1b3 §6.1-6.4
+  uint16_t max_read;   // the standard's quantity limit of that read
+};
+// Holding registers first: most servers map them, and a budget that runs out
+// should have spent itself on them.
+constexpr TableInfo kTables[] = {
+    {Table::holding, "holding", 3, 125},
+    {Table::coil, "coils", 1, 2000},
+    {Table::input, "input", 4, 125},
+    {Table::discrete_input, "discrete", 2, 2000},
+};
+
+const TableInfo& info_of(Table t) {
+  for (const auto& i : kTables)
+    if (i.table == t) return i;
+  return kTables[0];
+}
+
+std::optional<Table> table_named(const std::string& n) {
+  if (n == "holding" || n == "holding_registers" || n == "hr") return Table::holding;
+  if (n == "coils" || n == "coil") return Table::coil;
+  if (n == "input" || n == "input_registers" || n == "ir") return Table::input;
+  if (n == "discrete" || n == "discrete_inputs" || n == "discrete_input" || n == "di") return Table::discrete_input;
+  return std::nullopt;
+}
+
+void sort_blocks(Map& m) {
+  std::sort(m.blocks.begin(), m.blocks.end(), [](const Block& a, const Block& b) {
+    return std::pair(int(a.table), a.first) < std::pair(int(b.table), b.first);
+  });
+}
+
+// ---- probe ----
+
+class Prober {
+ public:
+  Prober(Target& t, int budget) : t_(t), budget_(budget) {}
+
+  Map run() {
+    m_.source = "probe of " + t_.info().uri;
+    // Replies are expected to reads; an unmapped address may be silent, so
+    // a read waits the adaptive window, and a read whose reply came late is
+    // read again.
+    t_.set_wait(Target::Wait::window);
+    for (const auto& ti : kTables) {
+      if (!table(ti)) break;
+    }
+    t_.set_wait(Target::Wait::automatic);
+    m_.requests = used_;
+    sort_blocks(m_);
+    return std::move(m_);
+  }
+
+ private:
+  enum class Answer { mapped, unmapped, unsupported, budget };
+
+  Answer read(const TableInfo& ti, uint32_t address, uint32_t quantity) {
+    for (int attempt = 0;; ++attempt) {
+      if (used_ >= budget_) return Answer::budget;
+      ++used_;
+      uint64_t late = t_.late_replies();
+      Reply r = t_.transact(t_.info().unit, read_request(ti.read_fc, uint16_t(address), uint16_t(quantity)));
+      if (t_.late_replies() != late && attempt < 2) continue;  // the window widened: ask again
+      std::string answer;
+      if (r.pdu && !r.pdu->empty() && !((*r.pdu)[0] & 0x80)) {
+        Judged j = judge_reply(read_request(ti.read_fc, uint16_t(address), uint16_t(quantity)), *r.pdu);
+        if (j.ok()) return Answer::mapped;
+        answer = "a malformed reply";
+      } else if (r.pdu && r.pdu->size() >= 2) {
+        answer = fmt::format("exception {:02X}", (*r.pdu)[1]);
+        if ((*r.pdu)[1] == 1) {
+          note(ti.table, answer + " (function not supported)");
+          return Answer::unsupported;
+        }
+      } else {
+        answer = r.silent() ? "silence" : "an unusable reply: " + r.framing_error;
+      }
+      if (quantity == 1) note(ti.table, answer);
+      return Answer::unmapped;
+    }
+  }
+
+  void note(Table t, const std::string& answer) {
+    for (auto& u : m_.unmapped)
+      if (u.table == t && u.answer == answer) {
+        ++u.seen;
+        return;
+      }
+    m_.unmapped.push_back({t, answer, 1});
+  }
+
+  bool out_of_budget(const TableInfo& ti, uint32_t at) {
+    m_.partial = true;
+    m_.partial_at = fmt::format("{} 0x{:04X}", ti.name, at);
+    return false;
+  }
+
+  // Walks the table; false when the budget ran out.
+  bool table(const TableInfo& ti) {
+    std::optional<uint32_t> last_unmapped;
+    for (uint32_t a = 0; a <= 0xFFFF;) {
+      Answer s = read(ti, a, 1);
+      if (s == Answer::budget) return out_of_budget(ti, a);
+      if (s == Answer::unsupported) return true;
+      if (s == Answer::unmapped) {
+        last_unmapped = a;
+        a = (a / kStride + 1) * kStride;
+        continue;
+      }
+      // A mapped sample: its block starts after the last unmapped address
+      // seen (bisected), and runs on as far as full reads go (bisected).
+      uint32_t first = a;
+      if (last_unmapped && *last_unmapped + 1 < a) {
+        uint32_t lo = *last_unmapped, hi = a;  // lo unmapped, hi mapped
+        while (hi - lo > 1) {
+          uint32_t mid = lo + (hi - lo) / 2;
+          Answer m = read(ti, mid, 1);
+          if (m == Answer::budget) return out_of_budget(ti, mid);
+          (m == Answer::mapped ? hi : lo) = mid;
+        }
+        first = hi;
+      }
+      uint32_t last = a;
+      for (;;) {
+        if (last == 0xFFFF) break;
+        uint32_t n = std::min<uint32_t>(ti.max_read, 0xFFFF - last);
+        Answer m = read(ti, last + 1, n);
+        if (m == Answer::budget) {
+          m_.blocks.push_back({ti.table, uint16_t(first), uint16_t(last), std::nullopt});
+          return out_of_budget(ti, last + 1);
+        }
+        if (m == Answer::mapped) {
+          last += n;
+          continue;
+        }
+        uint32_t lo = 0, hi = n;  // reads of lo items from last + 1 answer, of hi do not
+        while (hi - lo > 1) {
+          uint32_t mid = lo + (hi - lo) / 2;
+          Answer k = read(ti, last + 1, mid);
+          if (k == Answer::budget) {
+            m_.blocks.push_back({ti.table, uint16_t(first), uint16_t(last + lo), std::nullopt});
+            return out_of_budget(ti, last + 1 + lo);
+          }
+          (k == Answer::mapped ? lo : hi) = mid;
+        }
+        last += lo;
+        break;
+      }
+      m_.blocks.push_back({ti.table, uint16_t(first), uint16_t(last), std::nullopt});
+      last_unmapped = last + 1;
+      a = (last + 1) / kStride * kStride + kStride;
+      if (last + 1 < a && last + 1 <= 0xFFFF) last_unmapped = last + 1;
+    }
+    return true;
+  }
+
+  Target& t_;
+  int budget_;
+  int used_ = 0;
+  Map m_;
+};
+
+// ---- text ----
+
+uint32_t number(const std::string& s, const std::string& where) {
+  uint32_t v = 0;
+  int base = 10;
+  std::string d = s;
+  if (d.size() > 2 && d[0] == '0' && (d[1] == 'x' || d[1] == 'X')) {
+    base = 16;
+    d = d.substr(2);
+  }
+  auto [end, ec] = std::from_chars(d.data(), d.data() + d.size(), v, base);
+  if (d.empty() || ec != std::errc{} || end != d.data() + d.size() || v > 0xFFFF)
+    throw std::invalid_argument(fmt::format("{}: '{}' is not an address 0..65535", where, s));
+  return v;
+}
+
+std::optional<spec::Access> access_named(const std::string& a, const std::string& where) {
+  if (a.empty()) return std::nullopt;
+  if (a == "rw") return spec::Access::rw;
+  if (a == "ro") return spec::Access::ro;
+  throw std::invalid_argument(fmt::format("{}: access '{}': expected rw or ro", where, a));
+}
+
+void add_block(Map& m, Table t, uint32_t first, uint32_t last, std::optional<spec::Access> access, const std::string& where) {
+  if (last < first) throw std::invalid_argument(fmt::format("{}: range ends before it starts", where));
+  if ((t == Table::input || t == Table::discrete_input) && access == spec::Access::rw)
+    throw std::invalid_argument(fmt::format("{}: {} cannot be written by any function code (MBAP v1.1b3 §4.3)", where, info_of(t).name));
+  for (const auto& b : m.blocks)
+    if (b.table == t && !(last < b.first || first > b.last))
+      throw std::invalid_argument(fmt::format("{}: overlaps {} 0x{:04X}-0x{:04X}", where, info_of(t).name, b.first, b.last));
+  m.blocks.push_back({t, uint16_t(first), uint16_t(last), access});
+}
+
+}  // namespace
+
+bool Map::access_known() const {
+  return std::all_of(blocks.begin(), blocks.end(), [](const Block& b) { return b.access.has_value(); });
+}
+
+bool Map::covers(Table t, uint16_t address) const {
+  return std::any_of(blocks.begin(), blocks.end(), [&](const Block& b) { return b.table == t && b.first <= address && address <= b.last; });
+}
+
+std::string Map::describe() const {
+  std::string s;
+  for (const auto& b : blocks)
+    s += fmt::format("{}{} 0x{:04X}-0x{:04X}{}", s.empty() ? "" : ", ", info_of(b.table).name, b.first, b.last,
+                     b.access ? std::string(" ") + spec::to_string(*b.access) : "");
+  return s.empty() ? "(nothing mapped)" : s;
+}
+
+int planned_requests(int budget) { return budget; }
+
+const char* table_name(Table t) { return info_of(t).name; }
+
+Map probe(Target& target, int budget) { return Prober(target, budget).run(); }
+
+Map parse_inline(const std::string& text) {
+  Map m;
+  m.source = "inline";
+  std::stringstream parts(text);
+  std::string part;
+  while (std::getline(parts, part, ',')) {
+    if (part.empty()) continue;
+    auto eq = part.find('=');
+    std::string where = fmt::format("--map '{}': '{}'", text, part);
+    if (eq == std::string::npos) throw std::invalid_argument(where + ": expected TABLE=FIRST-LAST");
+    auto t = table_named(part.substr(0, eq));
+    if (!t) throw std::invalid_argument(where + ": table is holding, coils, input or discrete");
+    std::stringstream ranges(part.substr(eq + 1));
+    std::string range;
+    while (std::getline(ranges, range, '+')) {
+      std::string access;
+      if (auto c = range.find(':'); c != std::string::npos) {
+        access = range.substr(c + 1);
+        range = range.substr(0, c);
+      }
+      auto dash = range.find('-');
+      uint32_t first = number(range.substr(0, dash), where);
+      uint32_t last = dash == std::string::npos ? first : number(range.substr(dash + 1), where);
+      add_block(m, *t, first, last, access_named(access, where), where);
+    }
+  }
+  if (m.blocks.empty()) throw std::invalid_argument(fmt::format("--map '{}': no ranges", text));
+  sort_blocks(m);
+  return m;
+}
+
+Map load_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(fmt::format("{}:0:0: error: map: cannot read the file", path));
+  std::stringstream ss;
+  ss << in.rdbuf();
+  spec::Diagnostics diags;
+  auto doc = spec::yaml_to_json(ss.str(), path, diags);
+  if (!doc) throw std::runtime_error(diags.empty() ? path + ":0:0: error: yaml: unreadable" : diags.front().str());
+  auto fail = [&](const std::string& pointer, const std::string& what) {
+    spec::SourceLoc at = doc->where(pointer);
+    return std::runtime_error(fmt::format("{}:{}:{}: error: map: {}", path, at.line, at.col, what));
+  };
+  const auto& root = doc->root;
+  if (!root.is_object() || root.value("mbconform_map", 0) != 1)
+    throw fail("", "expected 'mbconform_map: 1' and the tables (holding, coils, input, discrete)");
+  Map m;
+  m.source = "file " + path;
+  for (const auto& [key, ranges] : root.items()) {
+    if (key == "mbconform_map") continue;
+    auto t = table_named(key);
+    std::string at = "/" + key;
+    if (!t) throw fail(at, fmt::format("unknown table '{}' (holding, coils, input, discrete)", key));
+    if (!ranges.is_array()) throw fail(at, "expected a list of {from, to, access}");
+    for (size_t i = 0; i < ranges.size(); ++i) {
+      const auto& r = ranges[i];
+      std::string ra = fmt::format("{}/{}", at, i);
+      if (!r.is_object() || !r.contains("from") || !r["from"].is_number_unsigned())
+        throw fail(ra, "expected {from: N, to: N, access: rw|ro}");
+      for (const auto& [k, v] : r.items())
+        if (k != "from" && k != "to" && k != "access") throw fail(ra + "/" + k, fmt::format("unknown key '{}'", k));
+      uint64_t first = r["from"].get<uint64_t>();
+      uint64_t last = r.contains("to") && r["to"].is_number_unsigned() ? r["to"].get<uint64_t>() : first;
+      if (r.contains("to") && !r["to"].is_number_unsigned()) throw fail(ra + "/to", "expected an address 0..65535");
+      if (first > 0xFFFF || last > 0xFFFF) throw fail(ra, "addresses are 0..65535");
+      try {
+        add_block(m, *t, uint32_t(first), uint32_t(last), access_named(r.value("access", std::string()), key),
+                  fmt::format("{} {}-{}", key, first, last));
+      } catch (const std::invalid_argument& e) {
+        throw fail(ra, e.what());
+      }
+    }
+  }
+  if (m.blocks.empty()) throw fail("", "no ranges");
+  sort_blocks(m);
+  return m;
+}
+
+Map parse_option(const std::string& text) {
+  std::error_code ec;
+  if (std::filesystem::is_regular_file(text, ec) || text.ends_with(".yaml") || text.ends_with(".yml")) return load_file(text);
+  return parse_inline(text);
+}
+
+std::string skeleton_yaml(const Map& m, const std::string& id, uint8_t unit) {
+  std::string y = fmt::format(
+      "# Written by `mbconform spec discover` from a {} ({} read requests, FC 01/02/03/04;\n"
+      "# nothing was written). Every fact below is OBSERVED: what the server answered, not\n"
+      "# what a manual states. Make it a spec: name the device, state what its manual\n"
+      "# states (line settings, writability, limits, exception policy) and cite the sections.\n"
+      "{}"
+      "mbconform_spec: 1\n"
+      "device:\n"
+      "  id: {}\n"
+      "  vendor: unknown\n"
+      "  title: \"observed by mbconform spec discover\"\n"
+      "  models: [unknown]\n"
+      "  manual: {{file: \"none: observed by a probe\", address_notation: hex}}\n"
+      "serial:  # not observable over the probe; placeholders from MB-SL v1.02 2.2, 2.5.1, 3.2\n"
+      "  slave_id: {{min: 1, max: 247, default: {}}}\n"
+      "  broadcast: {{address: 0, writes: applied, reply: none}}\n"
+      "  baud_rates: {{values: [19200], default: 19200}}\n"
+      "  frame_formats: {{values: [8E1], default: 8E1}}\n"
+      "profile:\n"
+      "  function_codes:  # the reads that answered; writes were not probed\n",
+      m.source, m.requests,
+      m.partial ? fmt::format("# PARTIAL: the probe budget ran out at {}; nothing past it was probed.\n", m.partial_at) : "",
+      id, unit ? unit : 1);
+  bool any = false;
+  for (const auto& ti : kTables) {
+    bool present = std::any_of(m.blocks.begin(), m.blocks.end(), [&](const Block& b) { return b.table == ti.table; });
+    if (!present) continue;
+    any = true;
+    y += fmt::format("    - {{code: {}, section: \"observed\", note: \"observed: reads of {} answered\"}}\n", int(ti.read_fc), ti.name);
+  }
+  if (!any) y += "    - {code: 3, section: \"observed\", note: \"placeholder: no read answered\"}\n";
+  // The answer to an unmapped address, when every table that answered agreed on one exception.
+  std::string unmapped = "unspecified";
+  for (const auto& u : m.unmapped) {
+    if (u.answer.rfind("exception 0", 0) != 0 || u.answer.find("not supported") != std::string::npos) continue;
+    std::string e = fmt::format("{{exception: {}, section: \"observed\"}}", u.answer.substr(std::string("exception ").size()));
+    if (unmapped == "unspecified" || unmapped == e) unmapped = e;
+    else unmapped = "mixed";
+  }
+  if (unmapped == "mixed") unmapped = "unspecified";
+  y += fmt::format(
+      "  exception_policy:  # observed: {}\n"
+      "    unsupported_function: unspecified\n"
+      "    unmapped_address: {}\n"
+      "    address_past_map: {}\n"
+      "    quantity_over_limit: unspecified\n"
+      "    value_out_of_range: unspecified\n"
+      "    write_read_only: unspecified\n"
+      "    read_write_only: unspecified\n"
+      "    crc_error: unspecified\n"
+      "    wrong_byte_count: unspecified\n"
+      "registers:{}\n",
+      m.unmapped.empty() ? std::string("nothing unmapped was met")
+                         : [&] {
+                             std::string s;
+                             for (const auto& u : m.unmapped)
+                               s += fmt::format("{}{} unmapped -> {} ({}x)", s.empty() ? "" : "; ", table_name(u.table), u.answer, u.seen);
+                             return s;
+                           }(),
+      unmapped, unmapped, m.blocks.empty() ? " []" : "");
+  for (const auto& b : m.blocks) {
+    bool bits = b.table == Table::coil || b.table == Table::discrete_input;
+    const char* table = b.table == Table::holding ? "holding" : b.table == Table::input ? "input" : b.table == Table::coil ? "coil" : "discrete_input";
+    y += fmt::format("  - {{address: 0x{:04X}, count: {}, table: {}, name: {{en: \"{} 0x{:04X}-0x{:04X}\"}}, access: ro, type: {}, "
+                     "section: \"observed\", note: \"observed: reads answered; writability was not probed (probing never writes)\"}}\n",
+                     b.first, b.last - b.first + 1, table, table_name(b.table), b.first, b.last, bits ? "bit" : "u16");
+  }
+  y += "examples: []\nerrata: []\n";
+  return y;
+}
+
+void adapt_cases(std::vector<Case>& cases, const Map& map, bool allow_writes) {
+  for (auto& c : cases) {
+    bool writing = std::any_of(c.steps.begin(), c.steps.end(), [](const Step& st) { return writes(st.pdu); });
+    if (writing && !allow_writes && !map.access_known() && c.skip_reason.empty())
+      c.skip_reason = "writes on a map whose access is not stated (a probe cannot tell what is writable): needs --allow-writes";
+    c.functions_optional = !(c.family == "function-codes" && c.id.ends_with("/unsupported"));
+    if (c.family == "function-codes" && c.id.ends_with("/unsupported"))
+      for (auto& st : c.steps) {
+        st.expect.kind = Expect::Kind::answered;
+        st.expect.text = "a reply, normal or exception: the server chooses which public function codes it implements (MBAP v1.1b3 §5.1)";
+        c.requirement = "A server answers every request it receives: with a normal reply, or with an exception (MBAP v1.1b3 §7).";
+      }
+  }
+}
+
+bool writes(const Bytes& pdu) {
+  if (pdu.empty()) return false;
+  switch (pdu[0]) {
+    case 5: case 6: case 15: case 16: case 22: case 23: return true;
+    default: return false;
+  }
+}
+
+namespace {
+
+// Every (table, address) an example reads, writes or states (request
+// address and quantity of FC 01-06, 15, 16, 22, 23; given; after).
+bool example_inside(const spec::Example& ex, const Map& m) {
+  auto inside = [&](Table t, uint32_t a, uint32_t n) {
+    for (uint32_t i = 0; i < n; ++i)
+      if (a + i > 0xFFFF || !m.covers(t, uint16_t(a + i))) return false;
+    return true;
+  };
+  for (const auto& v : ex.given)
+    if (!inside(v.table, v.address, 1)) return false;
+  for (const auto& v : ex.after)
+    if (!inside(v.table, v.address, 1)) return false;
+  auto parsed = parse_hex(ex.resolved_request.value_or(ex.request));
+  if (!parsed || parsed->size() < 4) return false;
+  const Bytes& adu = *parsed;
+  Bytes pdu(adu.begin() + 1, adu.end() - 2);
+  if (pdu.size() < 5) return false;
+  auto be = [&](size_t at) { return uint32_t(pdu[at] << 8 | pdu[at + 1]); };
+  uint8_t fc = pdu[0];
+  if (adu[0] == 0) return false;  // broadcast: what it means depends on the transport
+  switch (fc) {
+    case 1: case 2: case 3: case 4: return inside(spec::table_for_function(fc), be(1), std::min<uint32_t>(be(3), 2000));
+    case 5: return inside(Table::coil, be(1), 1);
+    case 6: case 22: return inside(Table::holding, be(1), 1);
+    case 15: return inside(Table::coil, be(1), std::min<uint32_t>(be(3), 2000));
+    case 16: return inside(Table::holding, be(1), std::min<uint32_t>(be(3), 125));
+    case 23:
+      return pdu.size() >= 9 && inside(Table::holding, be(1), std::min<uint32_t>(be(3), 125)) &&
+             inside(Table::holding, be(5), std::min<uint32_t>(be(7), 125));
+    default: return false;  // FC 07, 08, 11, 12, 17, 20, 21, 24, 43: the device's own contents
+  }
+}
+
+}  // namespace
+
+spec::Spec apply(const spec::Spec& base, const Map& m) {
+  spec::Spec s = base;
+  s.registers.clear();
+  for (const auto& b : m.blocks) {
+    bool bits = b.table == Table::coil || b.table == Table::discrete_input;
+    bool writable_table = b.table == Table::holding || b.table == Table::coil;
+    for (uint32_t a = b.first; a <= b.last; ++a) {
+      spec::Register r;
+      r.address = uint16_t(a);
+      r.table = b.table;
+      r.type = bits ? spec::DataType::bit : spec::DataType::u16;
+      r.access = b.access.value_or(writable_table ? spec::Access::rw : spec::Access::ro);
+      r.key = fmt::format("{}[{}]", info_of(b.table).name, a);
+      r.name.en = fmt::format("{} 0x{:04X} ({})", info_of(b.table).name, a, m.source);
+      r.section = "MBAP 4.3";
+      s.registers.push_back(std::move(r));
+    }
+  }
+  // A worked sequence goes whole or not at all.
+  std::vector<std::string> broken;
+  for (const auto& ex : base.examples)
+    if (!ex.sequence.empty() && !example_inside(ex, m)) broken.push_back(ex.sequence);
+  std::vector<spec::Example> kept;
+  for (const auto& ex : base.examples)
+    if (example_inside(ex, m) && std::find(broken.begin(), broken.end(), ex.sequence) == broken.end()) kept.push_back(ex);
+  s.examples = std::move(kept);
+  return s;
+}
+
+}  // namespace mbc::conf::map

@@ -1,0 +1,82 @@
+#include "quirks/quirks.h"
+
+#include <fmt/core.h>
+#include <fnmatch.h>
+
+#include <fstream>
+#include <sstream>
+#include <stdexcept>
+
+#include "yaml_json.h"
+
+namespace mbc::conf::quirks {
+namespace {
+
+const Quirk* first_match(const std::vector<Quirk>& list, Quirk::By by, const std::string& what) {
+  for (const auto& q : list)
+    if (q.by == by && (q.pattern == what || fnmatch(q.pattern.c_str(), what.c_str(), 0) == 0)) return &q;
+  return nullptr;
+}
+
+}  // namespace
+
+const Quirk* Quirks::for_case(const std::string& id) const { return first_match(list, Quirk::By::case_id, id); }
+const Quirk* Quirks::for_kind(const std::string& kind) const { return first_match(list, Quirk::By::kind, kind); }
+
+Quirks load(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(fmt::format("{}:0:0: error: quirks: cannot read the file", path));
+  std::stringstream ss;
+  ss << in.rdbuf();
+  spec::Diagnostics diags;
+  auto doc = spec::yaml_to_json(ss.str(), path, diags);
+  if (!doc) throw std::runtime_error(diags.empty() ? path + ":0:0: error: yaml: unreadable" : diags.front().str());
+  auto fail = [&](const std::string& pointer, const std::string& what) {
+    spec::SourceLoc at = doc->where(pointer);
+    return std::runtime_error(fmt::format("{}:{}:{}: error: quirks: {}", path, at.line, at.col, what));
+  };
+  const auto& root = doc->root;
+  if (!root.is_object() || root.value("mbconform_quirks", 0) != 1)
+    throw fail("", "expected 'mbconform_quirks: 1' and 'quirks:'");
+  for (const auto& [k, v] : root.items())
+    if (k != "mbconform_quirks" && k != "quirks") throw fail("/" + k, fmt::format("unknown key '{}' (mbconform_quirks, quirks)", k));
+  Quirks out;
+  out.path = path;
+  if (!root.contains("quirks")) return out;
+  const auto& list = root["quirks"];
+  if (!list.is_array()) throw fail("/quirks", "expected a list of {case: ID | kind: KIND, reason: TEXT}");
+  for (size_t i = 0; i < list.size(); ++i) {
+    std::string at = fmt::format("/quirks/{}", i);
+    const auto& e = list[i];
+    if (!e.is_object()) throw fail(at, "expected {case: ID | kind: KIND, reason: TEXT}");
+    for (const auto& [k, v] : e.items()) {
+      if (k != "case" && k != "kind" && k != "reason") throw fail(at + "/" + k, fmt::format("unknown key '{}' (case, kind, reason)", k));
+      if (!v.is_string() || v.get<std::string>().empty()) throw fail(at + "/" + k, fmt::format("'{}' must be a non-empty string", k));
+    }
+    if (e.contains("case") == e.contains("kind")) throw fail(at, "give exactly one of 'case' (a case id or glob) and 'kind'");
+    if (!e.contains("reason")) throw fail(at, "every quirk needs a 'reason': why the deviation is known");
+    Quirk q;
+    q.by = e.contains("case") ? Quirk::By::case_id : Quirk::By::kind;
+    q.pattern = e[q.by == Quirk::By::case_id ? "case" : "kind"].get<std::string>();
+    q.reason = e["reason"].get<std::string>();
+    q.line = doc->where(at).line;
+    out.list.push_back(std::move(q));
+  }
+  return out;
+}
+
+void apply(const Quirks& q, DeviceRun& run) {
+  std::vector<bool> seen(q.list.size(), false);
+  for (auto& r : run.cases) {
+    if (r.outcome != Outcome::fail) continue;
+    if (const Quirk* k = q.for_case(r.id)) {
+      r.quirk = k->reason;
+      seen[size_t(k - q.list.data())] = true;
+    }
+  }
+  for (size_t i = 0; i < q.list.size(); ++i)
+    if (q.list[i].by == Quirk::By::case_id && !seen[i])
+      run.notes.push_back(fmt::format("declared quirk {}:{} '{}' did not occur", q.path, q.list[i].line, q.list[i].pattern));
+}
+
+}  // namespace mbc::conf::quirks
