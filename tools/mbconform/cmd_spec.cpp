@@ -179,11 +179,11 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
 
   auto* discover = spec_cmd->add_subcommand(
       "discover", "Probe a live target's map with reads (never writes) and write a spec skeleton whose facts are observed");
-  static std::string discover_target, discover_out, discover_id = "discovered";
+  static std::string discover_target, discover_out, discover_id;
   static int discover_budget = conf::map::kDefaultBudget;
   discover->add_option("--target", discover_target, "tcp://HOST:PORT?unit=N | rtu-tcp://... | rtu:///dev/tty...")->required();
   discover->add_option("--out", discover_out, "the spec file to write")->required();
-  discover->add_option("--id", discover_id, "the device id to write (default: discovered)");
+  discover->add_option("--id", discover_id, "the device id to write (default: the --out file's name, as spec check requires)");
   discover->add_option("--map-budget", discover_budget, "the most read requests the probe sends")->check(CLI::Range(1, 1000000));
   discover->callback([&] {
     try {
@@ -191,7 +191,8 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
       spec::Spec none;
       if (std::string why = conf::unreachable(*target, none); !why.empty()) throw std::runtime_error(why);
       conf::map::Map m = conf::map::probe(*target, discover_budget);
-      if (!write_file(discover_out, conf::map::skeleton_yaml(m, discover_id, target->info().unit)))
+      std::string id = discover_id.empty() ? fs::path(discover_out).stem().string() : discover_id;
+      if (!write_file(discover_out, conf::map::skeleton_yaml(m, id, target->info().unit)))
         throw std::runtime_error("cannot write " + discover_out);
       std::cout << fmt::format("{}: {} ({} requests{})\n", discover_out, m.describe(), m.requests, m.partial ? ", PARTIAL" : "");
       exit_code = kExitOk;

@@ -233,6 +233,17 @@ examples: []
                          "--allow-writes", "--out", dir / "r"});
   EXPECT_EQ(o.rc, 0) << o.text;
   EXPECT_NE(o.text.find("holding 0x0400-0x0427"), std::string::npos) << o.text;
+
+  // The same probe as a spec skeleton: it passes spec check, its facts say they were observed.
+  std::string tcp = "tcp://127.0.0.1:" + std::to_string(port) + "?unit=1";
+  Out d = run_mbconform({"spec", "discover", "--target", tcp, "--out", dir / "served.yaml"});
+  ASSERT_EQ(d.rc, 0) << d.text;
+  Out check = run_mbconform({"spec", "check", dir / "served.yaml"});
+  EXPECT_EQ(check.rc, 0) << check.text << slurp(dir / "served.yaml");
+  std::string skeleton = slurp(dir / "served.yaml");
+  EXPECT_NE(skeleton.find("address: 0x0400, count: 40, table: holding"), std::string::npos) << skeleton;
+  EXPECT_NE(skeleton.find("OBSERVED"), std::string::npos) << skeleton;
+  EXPECT_EQ(run_mbconform({"spec", "discover", "--target", "tcp://127.0.0.1:1?unit=1&timeout=200", "--out", dir / "x.yaml"}).rc, 2);
 }
 
 }  // namespace
@@ -276,7 +287,10 @@ TEST(TargetLoss, DeadTargetIsOneFailAndTheRestNotRun) {
   EXPECT_EQ((*c)["outcome"], "fail");
   EXPECT_NE((*c)["message"].get<std::string>().find("the target was lost after the request"), std::string::npos) << (*c)["message"];
   EXPECT_NE((*c)["message"].get<std::string>().find(" 64 00 00 00 01"), std::string::npos) << (*c)["message"];  // FC 100, address 0, quantity 1
-  EXPECT_EQ(l.out.text.rfind("INCOMPLETE: ", 0), 0u) << l.out.text;
+  // The summary's first line (after the line that announces the run).
+  auto inc = l.out.text.find("\nINCOMPLETE: ");
+  EXPECT_NE(inc, std::string::npos) << l.out.text;
+  EXPECT_LT(inc, l.out.text.find("\ndevice ")) << l.out.text;
   EXPECT_NE(l.report["incomplete"].get<std::string>(), "");
   size_t failed = 0;
   for (const auto& k : l.report["devices"][0]["cases"]) failed += k["outcome"] == "fail";
