@@ -9,8 +9,9 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "codec/hex.h"
-#include "master/pdu.h"
+#include "modbus/hex.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
 #include "yaml_json.h"
 
 namespace mbc::conf::map {
