@@ -477,8 +477,14 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
              const std::function<void(const Reported&)>& on_finding) {
   Outcome out;
   std::set<std::string> seen;
+  auto declared = [&](const std::string& sig) { return o.declared && o.declared(sig); };
   Known known = [&](const Finding& f, const Step& st) {
-    if (!seen.count(signature(f, p, st))) return false;
+    std::string sig = signature(f, p, st);
+    if (declared(sig)) {
+      ++out.declared;
+      return true;
+    }
+    if (!seen.count(sig)) return false;
     ++out.repeats;
     return true;
   };
@@ -529,6 +535,10 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
       break;
     }
     std::string sig = history.empty() ? f->kind : signature(*f, p, history.back());
+    if (declared(sig)) {
+      ++out.declared;  // declared, and it took the target with it: on a fresh one
+      continue;
+    }
     if (!seen.insert(sig).second) {
       ++out.repeats;  // one that may have taken the target with it: on a fresh one
       continue;

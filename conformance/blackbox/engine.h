@@ -141,6 +141,9 @@ struct Options {
   std::string journal;     // isolate: the file the child writes each step to before sending it
   int reduce_budget = 400; // fresh-target runs per reduction; each costs a connection on live targets
   size_t history_cap = 20000;
+  // Findings declared known (`fuzz --quirks`, by kind or signature, e.g.
+  // "malformed-reply fc2B"): left aside, counted in Outcome::declared.
+  std::function<bool(const std::string& signature)> declared;
 };
 
 struct Reported {
@@ -156,6 +159,7 @@ struct Outcome {
   long frames = 0, batches = 0, rounds = 0;
   std::vector<Reported> findings;  // each distinct finding once, in the order found
   long repeats = 0;                // findings of a signature already reported
+  long declared = 0;               // findings Options::declared left aside
   bool target_lost = false;        // the target could not be opened again: fuzzing stopped early
 };
 

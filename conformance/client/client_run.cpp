@@ -1,9 +1,7 @@
 #include "client/client_run.h"
 
 #include <fmt/core.h>
-#include <fnmatch.h>
 #include <unistd.h>
-#include <yaml-cpp/yaml.h>
 
 #include <algorithm>
 #include <cstdlib>
@@ -415,44 +413,15 @@ std::vector<std::string> plan_lines(const Scenario& s, Transport t) {
   return lines;
 }
 
-std::vector<Quirk> load_quirks(const std::string& path) {
-  YAML::Node doc;
-  try {
-    doc = YAML::LoadFile(path);
-  } catch (const YAML::Exception& e) {
-    throw std::runtime_error(fmt::format("{}:{}:{}: error: yaml: {}", path, e.mark.line + 1, e.mark.column + 1, e.msg));
-  }
-  auto bad = [&](const YAML::Node& n, const std::string& what) {
-    return std::runtime_error(fmt::format("{}:{}:{}: error: quirks: {}", path, n.Mark().line + 1, n.Mark().column + 1, what));
-  };
-  std::vector<Quirk> out;
-  if (!doc || doc.IsNull()) return out;
-  if (!doc.IsSequence()) throw bad(doc, "expected a list of {case, reason}");
-  for (const auto& q : doc) {
-    if (!q.IsMap()) throw bad(q, "expected a map with 'case' and 'reason'");
-    for (const auto& kv : q) {
-      auto k = kv.first.as<std::string>();
-      if (k != "case" && k != "reason") throw bad(kv.first, "unknown key '" + k + "' (known: case, reason)");
-    }
-    if (!q["case"] || !q["case"].IsScalar()) throw bad(q, "missing 'case' (a case id or glob)");
-    if (!q["reason"] || !q["reason"].IsScalar() || q["reason"].as<std::string>().empty())
-      throw bad(q, "missing 'reason' (why the library deviates, with the clause)");
-    out.push_back({q["case"].as<std::string>(), q["reason"].as<std::string>()});
-  }
-  return out;
-}
-
-void apply_quirks(conf::DeviceRun& run, std::vector<Quirk>& quirks) {
+void apply_quirks(conf::DeviceRun& run, conf::quirks::Quirks& quirks) {
   for (auto& c : run.cases) {
     if (c.outcome != Outcome::fail) continue;
-    for (auto& q : quirks) {
-      if (fnmatch(q.pattern.c_str(), c.id.c_str(), 0) != 0) continue;
-      q.used = true;
-      c.outcome = Outcome::observed;
-      c.extra["quirk"] = q.reason;
-      c.message = "known quirk (" + q.reason + "): " + c.message;
-      break;
-    }
+    const conf::quirks::Quirk* q = quirks.for_case(c.id);
+    if (!q) continue;
+    quirks.list[size_t(q - quirks.list.data())].used = true;
+    c.outcome = Outcome::observed;
+    c.extra["quirk"] = q->reason;
+    c.message = "known quirk (" + q->reason + "): " + c.message;
   }
 }
 

@@ -13,6 +13,7 @@
 
 #include "client/scenario.h"
 #include "client/server.h"
+#include "quirks/quirks.h"
 #include "report/result.h"
 
 namespace mbc::client {
@@ -45,16 +46,9 @@ ClientRun run_client(const ClientOptions& o, const std::vector<Scenario>& list);
 // master sends, how the server answers, what passes.
 std::vector<std::string> plan_lines(const Scenario& s, Transport t);
 
-// A quirk: a case (id or glob) the library is known to fail, and why.
-struct Quirk {
-  std::string pattern, reason;
-  bool used = false;
-};
-// Reads a quirks file (a YAML list of {case, reason}); throws
-// std::runtime_error "file:line:col: error: ..." when it is malformed.
-std::vector<Quirk> load_quirks(const std::string& path);
-// Turns each failing case a quirk names into OBSERVED ("known quirk: reason")
-// and marks the quirk used.
-void apply_quirks(conf::DeviceRun& run, std::vector<Quirk>& quirks);
+// Turns each failing case a quirk (conformance/quirks: the one quirks file
+// format of run, fuzz and client) names into OBSERVED ("known quirk:
+// reason") and marks the quirk used.
+void apply_quirks(conf::DeviceRun& run, conf::quirks::Quirks& quirks);
 
 }  // namespace mbc::client

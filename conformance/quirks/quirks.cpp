@@ -35,18 +35,13 @@ Quirks load(const std::string& path) {
     spec::SourceLoc at = doc->where(pointer);
     return std::runtime_error(fmt::format("{}:{}:{}: error: quirks: {}", path, at.line, at.col, what));
   };
-  const auto& root = doc->root;
-  if (!root.is_object() || root.value("mbconform_quirks", 0) != 1)
-    throw fail("", "expected 'mbconform_quirks: 1' and 'quirks:'");
-  for (const auto& [k, v] : root.items())
-    if (k != "mbconform_quirks" && k != "quirks") throw fail("/" + k, fmt::format("unknown key '{}' (mbconform_quirks, quirks)", k));
   Quirks out;
   out.path = path;
-  if (!root.contains("quirks")) return out;
-  const auto& list = root["quirks"];
-  if (!list.is_array()) throw fail("/quirks", "expected a list of {case: ID | kind: KIND, reason: TEXT}");
+  const auto& list = doc->root;
+  if (list.is_null()) return out;
+  if (!list.is_array()) throw fail("", "expected a list of {case: ID | kind: KIND, reason: TEXT}");
   for (size_t i = 0; i < list.size(); ++i) {
-    std::string at = fmt::format("/quirks/{}", i);
+    std::string at = fmt::format("/{}", i);
     const auto& e = list[i];
     if (!e.is_object()) throw fail(at, "expected {case: ID | kind: KIND, reason: TEXT}");
     for (const auto& [k, v] : e.items()) {
@@ -65,17 +60,16 @@ Quirks load(const std::string& path) {
   return out;
 }
 
-void apply(const Quirks& q, DeviceRun& run) {
-  std::vector<bool> seen(q.list.size(), false);
+void apply(Quirks& q, DeviceRun& run) {
   for (auto& r : run.cases) {
     if (r.outcome != Outcome::fail) continue;
     if (const Quirk* k = q.for_case(r.id)) {
       r.quirk = k->reason;
-      seen[size_t(k - q.list.data())] = true;
+      q.list[size_t(k - q.list.data())].used = true;
     }
   }
   for (size_t i = 0; i < q.list.size(); ++i)
-    if (q.list[i].by == Quirk::By::case_id && !seen[i])
+    if (q.list[i].by == Quirk::By::case_id && !q.list[i].used)
       run.notes.push_back(fmt::format("declared quirk {}:{} '{}' did not occur", q.path, q.list[i].line, q.list[i].pattern));
 }
 

@@ -1,16 +1,15 @@
 // A library's declared deviations (`--quirks FILE`): case ids (globs) or
 // finding kinds, each with the reason it is known. A CI gate stays green on
 // those and fails on anything new; the reports list the declared quirks in a
-// section of their own, and the ones that no longer occur. Used by `run`,
-// `fuzz` (finding kinds) and client runs. Format: conformance/README.md,
-// "Quirks files".
+// section of their own, and the ones that no longer occur. One format and
+// one parser for `run`, `fuzz` (finding kinds) and `client` (its
+// conformance/client/deviations/*.yaml). Format: conformance/README.md,
+// "Quirks files": a YAML list (an empty file is an empty list)
 //
-//   mbconform_quirks: 1
-//   quirks:
-//     - case: "modbus-standard/function-codes/fc*/quantity-0"
-//       reason: "answers 02, not 03: src/modbus.c:..."
-//     - kind: "unanswered-request"
-//       reason: "..."
+//   - case: "modbus-standard/function-codes/fc*/quantity-0"
+//     reason: "answers 02, not 03: src/modbus.c:..."
+//   - kind: "unanswered-request"
+//     reason: "..."
 #pragma once
 
 #include <string>
@@ -25,6 +24,7 @@ struct Quirk {
   std::string pattern;  // a glob ('*' crosses '/'), or an exact id / kind
   std::string reason;   // why it is known: the clause, and the library's line that explains it
   int line = 0;         // where it is declared
+  bool used = false;    // set by apply() (and client::apply_quirks) when it matched a failure
 };
 
 struct Quirks {
@@ -41,8 +41,8 @@ struct Quirks {
 Quirks load(const std::string& path);
 
 // Marks every failed case of `run` that a case quirk declares (CaseResult::
-// quirk = the reason); notes the case quirks that matched nothing (the
-// library may have fixed them) in run.notes.
-void apply(const Quirks&, DeviceRun& run);
+// quirk = the reason, Quirk::used); notes the case quirks that matched
+// nothing (the library may have fixed them) in run.notes.
+void apply(Quirks&, DeviceRun& run);
 
 }  // namespace mbc::conf::quirks

@@ -81,10 +81,10 @@ int run(const ClientArgs& a) {
     fmt::print(stderr, "mbconform client: error: --adapter 'COMMAND ARGS' is required (or --list / --plan)\n");
     return kExitUsage;
   }
-  std::vector<client::Quirk> quirks;
+  conf::quirks::Quirks quirks;
   if (!a.quirks.empty()) {
     try {
-      quirks = client::load_quirks(a.quirks);
+      quirks = conf::quirks::load(a.quirks);
     } catch (const std::exception& e) {
       fmt::print(stderr, "{}\n", e.what());
       return kExitUsage;
@@ -117,7 +117,7 @@ int run(const ClientArgs& a) {
       nlohmann::json j;
       std::ifstream(out + "/report.json") >> j;
       nlohmann::json q = nlohmann::json::array();
-      for (const auto& k : quirks) q.push_back({{"case", k.pattern}, {"reason", k.reason}, {"matched", k.used}});
+      for (const auto& k : quirks.list) q.push_back({{"case", k.pattern}, {"reason", k.reason}, {"matched", k.used}});
       j["adapter"] = {{"command", a.adapter}, {"hello", cr.hello}, {"restarts", cr.restarts}, {"log", cr.adapter_log}};
       j["quirks"] = q;
       std::ofstream(out + "/report.json") << j.dump(1) << "\n";
@@ -129,8 +129,8 @@ int run(const ClientArgs& a) {
   }
   fmt::print("{}", conf::summary_table(report));
   int rc = conf::count(cr.run).must_failed > 0 ? kExitFailed : kExitOk;
-  for (const auto& k : quirks) {
-    if (k.used) continue;
+  for (const auto& k : quirks.list) {
+    if (k.used || k.by != conf::quirks::Quirk::By::case_id) continue;
     fmt::print("quirk '{}' matched no failing case: the library changed; update {}\n", k.pattern, a.quirks);
     rc = kExitFailed;
   }
@@ -153,7 +153,7 @@ void add_client_command(CLI::App& app, int& exit_code) {
   cmd->add_flag("--list", a->list, "print the scenarios (id, level, clause, title) and exit");
   cmd->add_flag("--plan", a->plan, "print every request expected and every answer the server gives, without running");
   cmd->add_option("--out", a->out, "report directory (default reports/client/<UTC date-time>/)");
-  cmd->add_option("--quirks", a->quirks, "a YAML list of {case: ID-or-glob, reason}: known deviations, reported apart");
+  cmd->add_option("--quirks", a->quirks, "a quirks file, a YAML list of {case: ID-or-glob, reason} (conformance/README.md): known deviations, reported apart");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
   cmd->add_flag("--quiet", a->quiet, "no progress line");
   cmd->callback([a, &exit_code] { exit_code = run(*a); });

@@ -2,13 +2,15 @@
 // engine is conformance/blackbox/engine.h; this file wires its options).
 //
 //   mbconform fuzz --target URI [--device ID | --spec FILE] --duration 30s [--out DIR] [--seed S]
-//                  [--batch N] [--allow-motion] [--allow-eeprom-writes]
+//                  [--batch N] [--quirks FILE] [--allow-motion] [--allow-eeprom-writes]
 //   mbconform fuzz --replay FILE --target URI          (the same as mbconform replay)
 //
 // Fuzzing goes on until --duration runs out. Each distinct finding (its kind
 // and the function code it came on) is reduced by delta debugging on fresh
 // targets to a minimal sequence of frames and saved once, as a frame script
 // (conformance/script/README.md) in DIR, with the command that replays it.
+// Findings whose kind (or signature, "KIND fcNN") a quirks file declares
+// (--quirks, conformance/README.md) are left aside and counted.
 // Exit 0: nothing found; 1: a finding; 2: could not run.
 //
 // Live drives get back the values they had (conformance/safety/safety.h).
@@ -20,6 +22,7 @@
 #include "blackbox/engine.h"
 #include "commands.h"
 #include "options.h"
+#include "quirks/quirks.h"
 #include "report/report.h"
 #include "safety/safety.h"
 #include "targets/target.h"
@@ -31,7 +34,7 @@ namespace fs = std::filesystem;
 
 struct FuzzArgs {
   TargetOptions t;
-  std::string duration = "10s", replay;
+  std::string duration = "10s", replay, quirks_file;
   std::optional<uint64_t> seed;
   int batch = 50;
 };
@@ -73,7 +76,9 @@ int run_fuzz(FuzzArgs& a) {
   std::unique_ptr<conf::Target> target;
   spec::Spec s;
   conf::blackbox::Plan plan;
+  conf::quirks::Quirks quirks;
   try {
+    if (!a.quirks_file.empty()) quirks = conf::quirks::load(a.quirks_file);
     auto named = named_spec(a.t);
     target = conf::open_target(uri);
     s = spec_for(named, uri, target->info().device_id);
@@ -96,6 +101,7 @@ int run_fuzz(FuzzArgs& a) {
   o.batch = a.batch;
   o.isolate = info.kind == "plugin";
   o.journal = (fs::path(a.t.out) / ".journal").string();
+  if (!quirks.empty()) o.declared = [&](const std::string& sig) { return quirks.for_kind(sig) != nullptr; };
   fmt::print("fuzzing {} as {} for {}, seed {}, batches of {} frames ({} readable, {} writable registers)\n", info.uri,
              s.device.id, a.duration, o.seed, a.batch, plan.readable.size(), plan.writable.size());
   std::fflush(stdout);
@@ -119,6 +125,7 @@ int run_fuzz(FuzzArgs& a) {
       fmt::print(stderr, "mbconform fuzz: could not restore the drive's registers: {}\n", e.what());
     }
   }
+  if (out.declared) fmt::print("{} finding(s) of a kind {} declares left aside\n", out.declared, a.quirks_file);
   if (out.target_lost) fmt::print("the target could not be opened again: fuzzing stopped before --duration ran out\n");
   if (out.findings.empty()) {
     fmt::print("no finding: {} frames in {} batches, every probe answered\n", out.frames, out.batches);
@@ -139,6 +146,8 @@ void add_fuzz_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--duration", args->duration, "How long to fuzz: 500ms, 20s, 5m, 1h (default 10s)");
   cmd->add_option("--seed", args->seed, "Random seed (default: from the clock, printed)");
   cmd->add_option("--batch", args->batch, "Frames between two liveness probes (default 50)")->check(CLI::Range(1, 100000));
+  cmd->add_option("--quirks", args->quirks_file, "a quirks file (conformance/README.md): findings of the kinds it declares "
+                  "('kind: KIND' or 'KIND fcNN', globs) are left aside");
   cmd->add_option("--replay", args->replay, "Replay a reproducer FILE instead of fuzzing (as mbconform replay)");
   cmd->callback([args, &exit_code] { exit_code = run_fuzz(*args); });
 }

@@ -222,10 +222,14 @@ registers:
 examples: []
 )" + standard.substr(errata);
   (void)examples;
+  // Spec ids are unique across spec directories: the copy gets an id of its own.
+  auto id = other.find("  id: modbus-standard\n");
+  ASSERT_NE(id, std::string::npos);
+  other.replace(id, 21, "  id: standard-other-map\n");
   std::filesystem::create_directories(dir / "spec/devices");
-  std::ofstream(dir / "spec/devices/modbus-standard.yaml") << other;
+  std::ofstream(dir / "spec/devices/standard-other-map.yaml") << other;
   setenv("MBCONFORM_SPEC_DIR", (dir / "spec").c_str(), 1);
-  ServeProcess serve({"--device", "modbus-standard@1", "--tcp", "127.0.0.1:0"});
+  ServeProcess serve({"--device", "standard-other-map@1", "--tcp", "127.0.0.1:0"});
   unsetenv("MBCONFORM_SPEC_DIR");
   ASSERT_TRUE(serve.wait_listening(1)) << serve.log();
   int port = serve.endpoint("tcp")->port();

@@ -93,9 +93,8 @@ TEST(RunCli, QuirksFileDeclaresKnownDeviations) {
   std::string target = "ref:hsc60?fault=accept-out-of-range";
   Out bad = run({"run", "--quiet", "--target", target, "--out", dir / "bad"});
   ASSERT_EQ(bad.rc, 1) << bad.text;
-  std::ofstream(dir / "quirks.yaml") << "mbconform_quirks: 1\nquirks:\n"
-                                        "  - case: \"hsc60/registers/*\"\n    reason: \"accepts values out of range (fault)\"\n"
-                                        "  - case: \"hsc60/no-such/*\"\n    reason: \"never happens\"\n";
+  std::ofstream(dir / "quirks.yaml") << "- case: \"hsc60/registers/*\"\n  reason: \"accepts values out of range (fault)\"\n"
+                                        "- case: \"hsc60/no-such/*\"\n  reason: \"never happens\"\n";
   Out ok = run({"run", "--quiet", "--target", target, "--quirks", dir / "quirks.yaml", "--out", dir / "ok"});
   EXPECT_EQ(ok.rc, 0) << ok.text;
   EXPECT_NE(ok.text.find("QUIRK hsc60/registers/"), std::string::npos) << ok.text;
@@ -103,10 +102,10 @@ TEST(RunCli, QuirksFileDeclaresKnownDeviations) {
   auto j = nlohmann::json::parse(slurp(dir / "ok/report.json"));
   EXPECT_GT(j["devices"][0]["counts"]["quirks"].get<int>(), 0);
   // Only part of the failures declared: the rest still fails the gate.
-  std::ofstream(dir / "some.yaml") << "mbconform_quirks: 1\nquirks:\n  - case: \"hsc60/registers/0x0000/*\"\n    reason: \"some\"\n";
+  std::ofstream(dir / "some.yaml") << "- case: \"hsc60/registers/0x0000/*\"\n  reason: \"some\"\n";
   EXPECT_EQ(run({"run", "--quiet", "--target", target, "--quirks", dir / "some.yaml", "--out", dir / "some"}).rc, 1);
   // A malformed file: file:line:col, exit 2.
-  std::ofstream(dir / "broken.yaml") << "mbconform_quirks: 1\nquirks:\n  - case: \"x\"\n";
+  std::ofstream(dir / "broken.yaml") << "# no reason\n\n- case: \"x\"\n";
   Out broken = run({"run", "--target", target, "--quirks", dir / "broken.yaml", "--out", dir / "b"});
   EXPECT_EQ(broken.rc, 2) << broken.text;
   EXPECT_NE(broken.text.find("broken.yaml:3:"), std::string::npos) << broken.text;
