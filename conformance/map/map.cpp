@@ -338,7 +338,7 @@ std::string skeleton_yaml(const Map& m, const std::string& id, uint8_t unit) {
       "  vendor: unknown\n"
       "  title: \"observed by mbconform spec discover\"\n"
       "  models: [unknown]\n"
-      "  manual: {{file: \"none: observed by a probe\", address_notation: hex}}\n"
+      "  manual: {{file: \"{}\", source: discover, address_notation: hex}}  # every fact observed\n"
       "serial:  # not observable over the probe; placeholders from MB-SL v1.02 2.2, 2.5.1, 3.2\n"
       "  slave_id: {{min: 1, max: 247, default: {}}}\n"
       "  broadcast: {{address: 0, writes: applied, reply: none}}\n"
@@ -348,7 +348,7 @@ std::string skeleton_yaml(const Map& m, const std::string& id, uint8_t unit) {
       "  function_codes:  # the reads that answered; writes were not probed\n",
       m.source, m.requests,
       m.partial ? fmt::format("# PARTIAL: the probe budget ran out at {}; nothing past it was probed.\n", m.partial_at) : "",
-      id, unit ? unit : 1);
+      id, "mbconform spec discover, " + m.source, unit ? unit : 1);
   bool any = false;
   for (const auto& ti : kTables) {
     bool present = std::any_of(m.blocks.begin(), m.blocks.end(), [&](const Block& b) { return b.table == ti.table; });
@@ -472,6 +472,17 @@ spec::Spec apply(const spec::Spec& base, const Map& m) {
       r.key = fmt::format("{}[{}]", info_of(b.table).name, a);
       r.name.en = fmt::format("{} 0x{:04X} ({})", info_of(b.table).name, a, m.source);
       r.section = "MBAP 4.3";
+      // A probed fact is observed, never stated (spec/README.md, "Where each
+      // fact comes from"); a given map states what it says, and a range
+      // without ':rw'/':ro' leaves writability assumed.
+      if (m.source.rfind("probe of ", 0) == 0) {
+        r.basis[spec::Fact::read] = {spec::Basis::observed, m.source + ": reads answered"};
+        r.basis[spec::Fact::write] = {spec::Basis::observed, m.source + ": not probed, a probe only reads"};
+      } else if (!b.access) {
+        spec::FactBasis assumed{spec::Basis::inferred, m.source + " gives no access: taken as the table allows"};
+        assumed.searched = m.source;
+        r.basis[spec::Fact::write] = assumed;
+      }
       s.registers.push_back(std::move(r));
     }
   }

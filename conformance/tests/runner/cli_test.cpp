@@ -90,19 +90,20 @@ TEST(RunCli, CommandsThatCannotRunExit2) {
 // A declared quirk keeps the gate green and is reported apart; anything new still fails.
 TEST(RunCli, QuirksFileDeclaresKnownDeviations) {
   TempDir dir;
-  std::string target = "ref:hsc60?fault=accept-out-of-range";
+  std::string target = "ref:sihong-57hs-r?fault=accept-out-of-range";  // its manual states the answer
   Out bad = run({"run", "--quiet", "--target", target, "--out", dir / "bad"});
   ASSERT_EQ(bad.rc, 1) << bad.text;
-  std::ofstream(dir / "quirks.yaml") << "- case: \"hsc60/registers/*\"\n  reason: \"accepts values out of range (fault)\"\n"
-                                        "- case: \"hsc60/no-such/*\"\n  reason: \"never happens\"\n";
+  std::ofstream(dir / "quirks.yaml") << "- case: \"sihong-57hs-r/registers/*\"\n  reason: \"accepts values out of range (fault)\"\n"
+                                        "- case: \"sihong-57hs-r/examples/6.2.4/*\"\n  reason: \"the same\"\n"
+                                        "- case: \"sihong-57hs-r/no-such/*\"\n  reason: \"never happens\"\n";
   Out ok = run({"run", "--quiet", "--target", target, "--quirks", dir / "quirks.yaml", "--out", dir / "ok"});
   EXPECT_EQ(ok.rc, 0) << ok.text;
-  EXPECT_NE(ok.text.find("QUIRK hsc60/registers/"), std::string::npos) << ok.text;
-  EXPECT_NE(ok.text.find("'hsc60/no-such/*' did not occur"), std::string::npos) << ok.text;
+  EXPECT_NE(ok.text.find("QUIRK sihong-57hs-r/registers/"), std::string::npos) << ok.text;
+  EXPECT_NE(ok.text.find("'sihong-57hs-r/no-such/*' did not occur"), std::string::npos) << ok.text;
   auto j = nlohmann::json::parse(slurp(dir / "ok/report.json"));
   EXPECT_GT(j["devices"][0]["counts"]["quirks"].get<int>(), 0);
   // Only part of the failures declared: the rest still fails the gate.
-  std::ofstream(dir / "some.yaml") << "- case: \"hsc60/registers/0x0000/*\"\n  reason: \"some\"\n";
+  std::ofstream(dir / "some.yaml") << "- case: \"sihong-57hs-r/registers/0x0020/*\"\n  reason: \"some\"\n";
   EXPECT_EQ(run({"run", "--quiet", "--target", target, "--quirks", dir / "some.yaml", "--out", dir / "some"}).rc, 1);
   // A malformed file: file:line:col, exit 2.
   std::ofstream(dir / "broken.yaml") << "# no reason\n\n- case: \"x\"\n";
