@@ -74,7 +74,7 @@ struct Step {
 
 struct Case {
   std::string id;           // "<device>/<family>/<section-or-register>/<n>"
-  std::string family;       // examples | registers | function-codes | framing | deviations
+  std::string family;       // examples | registers | function-codes | framing | standard | deviations
   std::string clause;       // "57HS-R §6.2.4", "MBAP v1.1b3 §6.3", "MB-SL v1.02 §2.4.1"
   Level level = Level::must;
   std::string title;
@@ -114,6 +114,7 @@ std::vector<Case> register_cases(const GenContext&);        // registers.cpp
 std::vector<Case> function_code_cases(const GenContext&);   // function_codes.cpp
 std::vector<Case> framing_cases(const GenContext&);         // framing.cpp
 std::vector<Case> deviation_cases(const GenContext&);       // deviations.cpp
+std::vector<Case> standard_cases(const GenContext&);        // standard.cpp: the standard's own checks, on any map
 
 // Every family, in report order, each case's level settled (cases/facts.h).
 std::vector<Case> all_cases(const GenContext&);

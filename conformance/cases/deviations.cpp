@@ -170,7 +170,7 @@ std::vector<Case> deviation_cases(const GenContext& g) {
 
 std::vector<Case> all_cases(const GenContext& g) {
   std::vector<Case> out;
-  for (auto gen : {examples_cases, register_cases, function_code_cases, framing_cases, deviation_cases}) {
+  for (auto gen : {examples_cases, register_cases, function_code_cases, framing_cases, standard_cases, deviation_cases}) {
     auto v = gen(g);
     for (auto& c : v) out.push_back(std::move(c));
   }
