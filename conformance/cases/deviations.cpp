@@ -178,6 +178,12 @@ std::vector<Case> all_cases(const GenContext& g) {
   std::map<std::string, int> seen;
   for (auto& c : out) {
     if (int n = ++seen[c.id]; n > 1) c.id += fmt::format("-{}", n);
+    // Every function code a case sends is one the profile supports (fact
+    // `supported`); a printed example relies on its frame instead, and a
+    // deviation compares with the standard.
+    if (c.family != "examples" && c.family != "deviations")
+      for (const auto& st : c.steps)
+        if (const auto* f = st.pdu.empty() ? nullptr : g.spec.profile.function(st.pdu[0])) facts::supported(c.relies, *f);
     facts::settle_level(c);
   }
   return out;

@@ -64,6 +64,10 @@ const spec::Persistence& persistence(Relies& into, const spec::Register& r) {
   return r.persistence;
 }
 
+void supported(Relies& into, const spec::FunctionCode& f) {
+  note(into, fmt::format("FC {} supported", f.code), f.basis_of("supported"));
+}
+
 std::optional<int> limit(Relies& into, const spec::FunctionCode& f, const char* which) {
   std::string w = which;
   std::optional<int> v = w == "max_read_quantity" ? f.max_read_quantity : w == "max_write_quantity" ? f.max_write_quantity : f.max_quantity;

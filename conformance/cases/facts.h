@@ -28,6 +28,9 @@ spec::DataType type(Relies&, const spec::Register&);
 spec::TakesEffect takes_effect(Relies&, const spec::Register&);
 const spec::Persistence& persistence(Relies&, const spec::Register&);
 
+// A function code the case sends, as one the device supports (fact `supported`).
+void supported(Relies&, const spec::FunctionCode&);
+
 // A function code's limit ("max_quantity", "max_read_quantity", "max_write_quantity").
 std::optional<int> limit(Relies&, const spec::FunctionCode&, const char* which);
 

@@ -134,7 +134,7 @@ int SpecView::quantity_limit(int fc) const {
 std::vector<int> SpecView::unsupported_functions() const {
   std::vector<int> out;
   for (int fc = 1; fc < 128; ++fc)
-    if (!supports(fc)) out.push_back(fc);
+    if (!in_profile(fc)) out.push_back(fc);
   return out;
 }
 

@@ -47,7 +47,14 @@ class SpecView {
   // only rw ones (measurements drift by themselves).
   const std::vector<const spec::Register*>& image_registers() const { return image_; }
 
-  bool supports(int fc) const { return spec_->profile.function(fc) != nullptr; }
+  // In the profile: the spec answers it as a supported function.
+  bool in_profile(int fc) const { return spec_->profile.function(fc) != nullptr; }
+  // In the profile and not only inferred to be (spec/README.md): what a
+  // property may send and hold the device to.
+  bool supports(int fc) const {
+    const spec::FunctionCode* f = spec_->profile.function(fc);
+    return f && !f->basis_of("supported").is_inferred();
+  }
   // Why broadcast writes may not be sent on this target (Modbus TCP, or a
   // live target without --allow-broadcast: safety.h), or empty.
   const std::string& broadcast_unavailable() const { return broadcast_unavailable_; }

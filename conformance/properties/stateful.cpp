@@ -142,7 +142,7 @@ Prediction predict_write(const Model& m, uint16_t start, std::span<const uint16_
 Prediction predict_pdu(const Model& m, std::span<const uint8_t> pdu) {
   const SpecView& v = *m.view;
   uint8_t fc = pdu[0];
-  if ((fc & 0x80) || !v.supports(fc))
+  if ((fc & 0x80) || !v.in_profile(fc))
     return refused(m, Violation::unsupported_function, fmt::format("FC {:02} is not in the profile", fc & 0x7F));
   switch (fc) {
     case 3:
@@ -366,7 +366,9 @@ void apply_power_cycle(Model& m) {
   }
   for (auto& [a, w] : m.words) {
     const Register* r = m.view->spec().register_covering(a);
-    if (r->persistence.store != spec::Store::none) {
+    if (r->basis_of(spec::Fact::persistence).basis != spec::Basis::stated) {
+      w = std::nullopt;  // an inferred persistence is not held against the device (spec/README.md)
+    } else if (r->persistence.store != spec::Store::none) {
       w = m.stored[a];
     } else {
       auto d = m.view->default_raw(*r);

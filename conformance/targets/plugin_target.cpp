@@ -69,8 +69,12 @@ class HostProcess {
       rlimit no_core{0, 0};  // a crashing vendor stack is a finding, not a core file
       setrlimit(RLIMIT_CORE, &no_core);
       if (getppid() != parent) _exit(127);
-      dup2(req[0], host::kRequestFd);
-      dup2(resp[1], host::kResponseFd);
+      // dup2 onto the descriptor a pipe end already is keeps its O_CLOEXEC, and
+      // one end may sit on the other's target: move both clear of 3 and 4 first.
+      int rq = fcntl(req[0], F_DUPFD, 10), rs = fcntl(resp[1], F_DUPFD, 10);
+      dup2(rq, host::kRequestFd);
+      dup2(rs, host::kResponseFd);
+      ::close(rq), ::close(rs);
       execl(exe.c_str(), exe.c_str(), library.c_str(), config.c_str(), static_cast<char*>(nullptr));
       _exit(127);
     }

@@ -158,6 +158,7 @@ json fact_bases(const Spec& d) {
       if (present) add(reg + " " + to_string(f), r.basis_of(f));
     }
   }
+  for (const auto& f : d.profile.function_codes) add("FC " + std::to_string(f.code) + " supported", f.basis_of("supported"));
   for (const auto& f : d.profile.function_codes)
     for (const char* k : {"max_quantity", "max_read_quantity", "max_write_quantity"}) {
       bool set = std::string(k) == "max_quantity" ? bool(f.max_quantity)

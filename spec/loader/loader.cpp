@@ -293,8 +293,8 @@ struct Builder {
           fc.basis[k] = b;
         }
       if (s.device.manual.source == "discover")
-        for (const char* k : {"max_quantity", "max_read_quantity", "max_write_quantity"})
-          if (f.contains(k) && !fc.basis.count(k)) fc.basis[k] = discovered(s, fc.section, fc.loc);
+        for (const char* k : {"supported", "max_quantity", "max_read_quantity", "max_write_quantity"})
+          if ((f.contains(k) || std::string(k) == "supported") && !fc.basis.count(k)) fc.basis[k] = discovered(s, fc.section, fc.loc);
       s.profile.function_codes.push_back(fc);
     }
     for (Violation v : kAllViolations) {

@@ -82,7 +82,6 @@ const std::vector<Tooth> kTeeth = {
     {"responses-well-formed", "rieding-dhe", "wrong-byte-count"},
     {"responses-well-formed", "modbus-standard", "refuse-limit"},
     {"persistence", "sihong-57hs-r", "forget-persistent"},
-    {"persistence", "hsc60", "forget-persistent"},
     {"persistence", "modbus-standard", "keep-volatile"},
     {"motion-position-exact", "sihong-57hs-r", "overshoot"},
     {"motion-position-exact", "hsc60", "overshoot"},
@@ -206,6 +205,12 @@ TEST(PropertyFacts, NothingInferredIsHeldAgainstTheDevice) {
     spec::Spec s = spec::load_spec_by_id(id);
     auto target = open_target("ref:" + id);
     SpecView view(s, target->info(), WritePolicy{});
+    for (const auto& f : s.profile.function_codes)
+      if (f.basis_of("supported").is_inferred()) {
+        EXPECT_FALSE(view.supports(f.code)) << "FC " << f.code;
+        EXPECT_TRUE(view.in_profile(f.code)) << "FC " << f.code;
+        ++inferred;
+      }
     for (const spec::Register* r : view.writable())
       for (spec::Fact f : {spec::Fact::read, spec::Fact::write, spec::Fact::range, spec::Fact::type, spec::Fact::word_order})
         EXPECT_FALSE(r->basis_of(f).is_inferred()) << "register " << r->address << " " << spec::to_string(f);

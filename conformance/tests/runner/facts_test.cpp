@@ -120,7 +120,24 @@ TEST(Facts, EveryFactMarkedInferredTakesItsCasesOffMust) {
       }
     EXPECT_TRUE(used) << "no case relies on " << name;
   }
+  // A function code's facts: that it is supported, and its limit.
+  size_t fc_used = 0;
+  for (size_t i = 0; i < base.profile.function_codes.size(); ++i)
+    for (const char* k : {"supported", "max_quantity"}) {
+      spec::Spec s = base;
+      s.profile.function_codes[i].basis[k] = inferred_basis();
+      std::string name = "FC " + std::to_string(s.profile.function_codes[i].code) + " " + k;
+      auto after = cases_of(s);
+      ASSERT_EQ(after.size(), before.size()) << name;
+      for (size_t n = 0; n < after.size(); ++n) {
+        if (!relies_on(after[n], name)) continue;
+        fc_used += 1;
+        EXPECT_NE(after[n].level, Level::must) << after[n].id << " relies on " << name << " marked inferred";
+        moved += before[n].level == Level::must;
+      }
+    }
   EXPECT_GT(facts_used, 10u);
+  EXPECT_GT(fc_used, 5u);
   EXPECT_GT(moved, 20u);  // the rule bites: MUST cases did move
 }
 
