@@ -191,6 +191,7 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   rc::detail::TestResult result = rc::detail::checkTestable(property, meta, params, quiet);
   if (!broadcasts.empty()) c.extra["broadcast_writes"] = broadcasts;
 
+  if (!probe_view.not_held().empty()) c.extra["not_held"] = probe_view.not_held();
   c.extra["seed"] = seed;
   c.extra["target"] = source.uri;
   rc::detail::SuccessResult ok;
@@ -201,6 +202,11 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
     c.outcome = Outcome::pass;
     c.extra["cases"] = ok.numSuccess;
     c.message = fmt::format("{} generated cases passed (seed {})", ok.numSuccess, seed);
+    // What the pass does not cover: facts the manual does not state.
+    if (const auto& nh = probe_view.not_held(); !nh.empty())
+      c.message += fmt::format("; {} fact{} the manual does not state (inferred, observed or printed two ways) not held "
+                               "against the device, first: {}",
+                               nh.size(), nh.size() == 1 ? "" : "s", nh.front());
   } else if (result.match(failed)) {
     c.outcome = Outcome::fail;
     c.extra["cases"] = failed.numSuccess + 1;

@@ -85,8 +85,20 @@ uint32_t to_raw(const Register& r, double v) {
 SpecView::SpecView(const spec::Spec& s, const TargetInfo& target, const WritePolicy& policy) : spec_(&s) {
   broadcast_unavailable_ = broadcast_not_applicable(target);
   if (broadcast_unavailable_.empty()) broadcast_unavailable_ = broadcast_forbidden(target, policy, 6);
+  auto note = [&](const std::string& fact, const spec::FactBasis& b) {
+    if (b.basis == spec::Basis::stated) return;
+    std::string why = b.basis == spec::Basis::either ? "printed two ways (erratum " + b.erratum + ")" : std::string(to_string(b.basis)) + " (" + b.why + ")";
+    not_held_.push_back(fact + ": " + why);
+  };
+  for (const auto& f : s.profile.function_codes)
+    if (f.basis_of("supported").is_inferred()) note(fmt::format("FC {} supported", f.code), f.basis_of("supported"));
+  for (Violation v : spec::kAllViolations)
+    if (auto p = s.profile.policy(v); p.kind != spec::PolicyEntry::Kind::unspecified || p.basis.basis == spec::Basis::either)
+      note(std::string("exception_policy.") + spec::to_string(v), p.basis);
   for (const auto& r : s.registers) {
     if (r.table != Table::holding) continue;
+    for (spec::Fact f : spec::kRegisterFacts)
+      if (r.basis.count(f)) note(fmt::format("register 0x{:04X} {}", r.address, spec::to_string(f)), r.basis_of(f));
     // A property never fails on an inferred fact (spec/README.md): registers
     // whose readability or writability is only inferred stay out of it.
     if (r.basis_of(spec::Fact::read).is_inferred() || r.basis_of(spec::Fact::write).is_inferred()) continue;

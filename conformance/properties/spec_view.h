@@ -63,6 +63,10 @@ class SpecView {
   int quantity_limit(int fc) const;
   // A function code the profile does not list (1..127), if any.
   std::vector<int> unsupported_functions() const;
+  // The inferred or observed facts the properties do not hold against the
+  // device (spec/README.md): "register 0x0024 range: inferred (...)". A run
+  // reports them with its outcome.
+  const std::vector<std::string>& not_held() const { return not_held_; }
 
   Expected expected(spec::Violation v) const;
 
@@ -88,6 +92,7 @@ class SpecView {
  private:
   const spec::Spec* spec_;
   std::vector<const spec::Register*> writable_, read_only_, image_;
+  std::vector<std::string> not_held_;
   std::vector<std::pair<uint16_t, uint16_t>> image_reads_;
   std::string broadcast_unavailable_;
 };

@@ -228,6 +228,14 @@ TEST(PropertyFacts, NothingInferredIsHeldAgainstTheDevice) {
     }
   }
   EXPECT_GT(inferred, 0) << "the specs infer a range or a persistence somewhere (57HS-R 0x0024, 0x0043)";
+  // A pass says what it did not hold against the device.
+  CaseResult c = run_invariant(*find_invariant("read-after-write"), source_for("ref:sihong-57hs-r"), ctest_options(5));
+  EXPECT_EQ(c.outcome, Outcome::pass) << result_text(c);
+  ASSERT_TRUE(c.extra.contains("not_held")) << result_text(c);
+  bool range = false;
+  for (const auto& x : c.extra["not_held"]) range |= x.get<std::string>().rfind("register 0x0024 range: inferred", 0) == 0;
+  EXPECT_TRUE(range) << c.extra["not_held"].dump();
+  EXPECT_NE(c.message.find("not held against the device"), std::string::npos) << c.message;
   EXPECT_GT(either, 0) << "the specs print a range two ways somewhere (HSC60 25, 57HS-R 0x004C)";
 }
 
