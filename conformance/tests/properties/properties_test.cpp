@@ -216,8 +216,9 @@ TEST(PropertyFacts, NothingInferredIsHeldAgainstTheDevice) {
         EXPECT_FALSE(r->basis_of(f).is_inferred()) << "register " << r->address << " " << spec::to_string(f);
     for (const auto& r : s.registers) {
       if (r.basis_of(spec::Fact::range).is_inferred() || r.basis_of(spec::Fact::persistence).is_inferred()) ++inferred;
-      if (r.basis_of(spec::Fact::default_value).basis != spec::Basis::stated)
+      if (r.basis_of(spec::Fact::default_value).basis != spec::Basis::stated) {
         EXPECT_FALSE(view.default_raw(r).has_value()) << "register " << r.address;
+      }
       if (r.range_readings.empty()) continue;
       ++either;
       for (uint32_t raw : view.boundary_values(r))
