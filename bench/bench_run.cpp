@@ -8,7 +8,13 @@
 // (the least a master can wait before it calls a silence). Targets: wall <=
 // 1.5 x the wire-time bound, and <= 1.1 x the bound with the silences.
 //
-//   build/bin/mbc_bench_run [path/to/mbconform] [--baud 115200] [--baud 9600] [--device ID]...
+// Then, for each third-party server of conformance/tests/peers/ (libmodbus,
+// pymodbus, modbus-serial when built), what `run --map auto --device
+// modbus-standard --allow-writes` costs over loopback TCP: the probe's time
+// and requests, the run's time, and the probe as a fraction of the whole.
+//
+//   build/bin/mbc_bench_run [path/to/mbconform] [--baud 115200] [--baud 9600] [--device ID]... [--no-peers]
+// (from the source root: the peers' scripts are read from conformance/tests/peers/)
 #include <fmt/core.h>
 #include <signal.h>
 #include <sys/wait.h>
@@ -23,25 +29,33 @@
 #include <thread>
 #include <vector>
 
+#include <netinet/in.h>
+#include <sys/socket.h>
+
 #include "cases/case.h"
 #include "loader.h"
+#include "map/map.h"
 #include "runner/runner.h"
 
 namespace {
 
-// `mbconform serve` in a child process, until the object goes away.
-class Serve {
+// A server in a child process (its own process group), ready when it prints
+// a line starting with `ready`; killed when the object goes away.
+class Child {
  public:
-  Serve(const std::string& exe, const std::string& device, const std::string& pty, int baud) {
+  Child(const std::vector<std::string>& argv, const std::string& ready, const std::vector<std::string>& env = {}) {
     int out[2];
     if (pipe(out) != 0) throw std::runtime_error("pipe");
     pid_ = fork();
     if (pid_ == 0) {
+      setpgid(0, 0);
       dup2(out[1], 1);
       close(out[0]);
-      std::string dev = device + "@1", rate = std::to_string(baud);
-      execl(exe.c_str(), exe.c_str(), "serve", "--device", dev.c_str(), "--pty", pty.c_str(), "--line-rate", rate.c_str(),
-            "--baud", rate.c_str(), (char*)nullptr);
+      for (const auto& e : env) putenv(const_cast<char*>(e.c_str()));
+      std::vector<char*> args;
+      for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+      args.push_back(nullptr);
+      execvp(args[0], args.data());
       _exit(127);
     }
     close(out[1]);
@@ -49,14 +63,15 @@ class Serve {
     char line[512];
     bool ok = false;
     while (f && fgets(line, sizeof line, f))
-      if (std::string(line).rfind("listening pty", 0) == 0) {
+      if (std::string(line).rfind(ready, 0) == 0) {
         ok = true;
         break;
       }
     out_ = f;
-    if (!ok) throw std::runtime_error("mbconform serve did not start: " + exe);
+    if (!ok) throw std::runtime_error("did not start: " + argv.front());
   }
-  ~Serve() {
+  ~Child() {
+    kill(-pid_, SIGTERM);
     kill(pid_, SIGTERM);
     int st = 0;
     waitpid(pid_, &st, 0);
@@ -68,15 +83,77 @@ class Serve {
   FILE* out_ = nullptr;
 };
 
+// A loopback port nothing listens on right now.
+int free_port() {
+  int fd = socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
+  socklen_t len = sizeof a;
+  getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len);
+  close(fd);
+  return ntohs(a.sin_port);
+}
+
+double since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// `run --map auto --device modbus-standard --allow-writes` against each
+// third-party server: the probe's and the run's time.
+void bench_peers(const std::string& exe, const mbc::spec::Spec& standard) {
+  namespace fs = std::filesystem;
+  fs::path bin = fs::path(exe).parent_path(), peers = "conformance/tests/peers";
+  struct Peer {
+    std::string name;
+    std::vector<std::string> argv, env;
+  };
+  std::vector<Peer> list = {{"libmodbus 3.1.6", {(bin / "libmodbus_peer_server").string()}, {}},
+                            {"pymodbus 3.0", {"/usr/bin/python3", (peers / "pymodbus_server.py").string()}, {}}};
+  if (fs::exists(bin / "../peers/node_modules/modbus-serial"))
+    list.push_back({"modbus-serial", {"node", (peers / "modbus_serial_server.js").string()},
+                    {"NODE_PATH=" + (bin / "../peers/node_modules").string()}});
+  fmt::print("\n{:<18} {:>9} {:>9} {:>6} {:>7} {:>9} {:>8} {:>10}\n", "server", "probe s", "requests", "cases", "fails",
+             "run s", "total s", "probe/total");
+  for (auto& p : list) {
+    int port = free_port();
+    p.argv.push_back(std::to_string(port));
+    try {
+      Child server(p.argv, "listening", p.env);
+      auto t0 = std::chrono::steady_clock::now();
+      auto target = mbc::conf::open_target(fmt::format("tcp://127.0.0.1:{}?unit=1", port));
+      auto map = mbc::conf::map::probe(*target);
+      double probe_s = since(t0);
+      auto spec = mbc::conf::map::apply(standard, map);
+      mbc::conf::GenContext g{spec, target->info(), {}, &standard};
+      auto cases = mbc::conf::all_cases(g);
+      mbc::conf::map::adapt_cases(cases, map, true);
+      auto t1 = std::chrono::steady_clock::now();
+      auto run = mbc::conf::run_cases(*target, spec, cases);
+      double run_s = since(t1), total = probe_s + run_s;
+      size_t fails = 0;
+      for (const auto& c : run.cases) fails += c.outcome == mbc::conf::Outcome::fail;
+      fmt::print("{:<18} {:>9.2f} {:>9} {:>6} {:>7} {:>9.2f} {:>8.2f} {:>10.2f}\n", p.name, probe_s, map.requests, run.cases.size(),
+                 fails, run_s, total, total > 0 ? probe_s / total : 0);
+    } catch (const std::exception& e) {
+      fmt::print("{:<18} not run: {}\n", p.name, e.what());
+    }
+    std::fflush(stdout);
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   std::string exe = "build/bin/mbconform";
   std::vector<int> bauds;
   std::vector<std::string> devices;
+  bool peers = true;
   for (int i = 1; i < argc; ++i) {
     std::string a = argv[i];
-    if (a == "--baud" && i + 1 < argc) bauds.push_back(std::atoi(argv[++i]));
+    if (a == "--no-peers") peers = false;
+    else if (a == "--baud" && i + 1 < argc) bauds.push_back(std::atoi(argv[++i]));
     else if (a == "--device" && i + 1 < argc) devices.push_back(argv[++i]);
     else exe = a;
   }
@@ -92,7 +169,8 @@ int main(int argc, char** argv) {
   for (int baud : bauds) {
     for (const auto& id : devices) {
       std::string pty = dir + "/tty-" + id;
-      Serve serve(exe, id, pty, baud);
+      std::string rate = std::to_string(baud);
+      Child serve({exe, "serve", "--device", id + "@1", "--pty", pty, "--line-rate", rate, "--baud", rate}, "listening pty");
       auto spec = mbc::spec::load_spec_by_id(id);
       auto target = mbc::conf::open_target(fmt::format("rtu://{}?baud={}&unit=1", pty, baud));
       mbc::conf::GenContext g{spec, target->info(), {}, &standard};
@@ -121,5 +199,6 @@ int main(int argc, char** argv) {
   fmt::print("serve holds each reply for the line time of the request and the reply plus t3.5, so the pty\n"
              "behaves like the wire: the bound is a true lower bound and the ratio is the runner's overhead.\n");
   std::filesystem::remove_all(dir);
+  if (peers) bench_peers(exe, standard);
   return over ? 1 : 0;
 }
