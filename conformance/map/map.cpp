@@ -298,13 +298,15 @@ Map load_file(const std::string& path) {
     for (size_t i = 0; i < ranges.size(); ++i) {
       const auto& r = ranges[i];
       std::string ra = fmt::format("{}/{}", at, i);
-      if (!r.is_object() || !r.contains("from") || !r["from"].is_number_unsigned())
+      // YAML integers arrive signed: an address is any integer >= 0.
+      auto address = [](const nlohmann::json& v) { return v.is_number_integer() && v.get<int64_t>() >= 0; };
+      if (!r.is_object() || !r.contains("from") || !address(r["from"]))
         throw fail(ra, "expected {from: N, to: N, access: rw|ro}");
       for (const auto& [k, v] : r.items())
         if (k != "from" && k != "to" && k != "access") throw fail(ra + "/" + k, fmt::format("unknown key '{}'", k));
       uint64_t first = r["from"].get<uint64_t>();
-      uint64_t last = r.contains("to") && r["to"].is_number_unsigned() ? r["to"].get<uint64_t>() : first;
-      if (r.contains("to") && !r["to"].is_number_unsigned()) throw fail(ra + "/to", "expected an address 0..65535");
+      if (r.contains("to") && !address(r["to"])) throw fail(ra + "/to", "expected an address 0..65535");
+      uint64_t last = r.contains("to") ? r["to"].get<uint64_t>() : first;
       if (first > 0xFFFF || last > 0xFFFF) throw fail(ra, "addresses are 0..65535");
       try {
         add_block(m, *t, uint32_t(first), uint32_t(last), access_named(r.value("access", std::string()), key),
@@ -442,6 +444,11 @@ bool example_inside(const spec::Example& ex, const Map& m) {
   auto be = [&](size_t at) { return uint32_t(pdu[at] << 8 | pdu[at + 1]); };
   uint8_t fc = pdu[0];
   if (adu[0] == 0) return false;  // broadcast: what it means depends on the transport
+  // An answer of exception 02 or 04 comes from the spec's own device's map
+  // and ranges (an unmapped or read-only address, an application range),
+  // which the server's map does not carry.
+  if (auto rsp = ex.resolved_response ? ex.resolved_response : ex.response)
+    if (auto r = parse_hex(*rsp); r && r->size() >= 3 && ((*r)[1] & 0x80) && ((*r)[2] == 2 || (*r)[2] == 4)) return false;
   switch (fc) {
     case 1: case 2: case 3: case 4: return inside(spec::table_for_function(fc), be(1), std::min<uint32_t>(be(3), 2000));
     case 5: return inside(Table::coil, be(1), 1);

@@ -75,8 +75,8 @@ Map parse_option(const std::string& text);
 // discrete inputs bits, input registers u16; access as the block states it,
 // else rw for holding/coils and ro for the read-only tables). Of the spec's
 // examples it keeps those of the data-model functions (FC 01-06, 15, 16, 22,
-// 23) that address only what the map covers, and not to the broadcast
-// address: the answers to FC 07, 08, 11, 12, 17, 20, 21, 24 and 43 are the
+// 23) that address only what the map covers, not to the broadcast address
+// and not answered with exception 02 or 04 (the spec's own map and ranges): the answers to FC 07, 08, 11, 12, 17, 20, 21, 24 and 43 are the
 // spec's own device's choices (exception status outputs, counters, server
 // id, identification objects: MBAP v1.1b3 §6.7-6.21 leave their contents to
 // the device; 07, 08, 11, 12 and 17 are serial line only), not the server's.
