@@ -37,6 +37,7 @@ using cases::hex16;
 using spec::Table;
 using spec::Violation;
 using Relies = facts::Relies;
+using Touches = std::vector<std::pair<uint16_t, int>>;
 
 // MBAP v1.1b3 Annex A: function codes reserved for legacy products, "not
 // available for public use".
@@ -92,15 +93,25 @@ struct Gen {
   }
 
   // The first item of `t` the map has (a place for a request whose answer
-  // does not depend on the item), preferring one this run may write.
+  // does not depend on the item).
   std::optional<uint16_t> first(Table t) const {
-    std::optional<uint16_t> any;
-    for (const auto& r : g.spec.registers) {
-      if (r.table != t) continue;
-      if (cases::write_forbidden(g, r).empty()) return r.address;
-      if (!any) any = r.address;
-    }
-    return any;
+    for (const auto& r : g.spec.registers)
+      if (r.table == t) return r.address;
+    return std::nullopt;
+  }
+
+  // Whether this run may write `r` (a request meant to be refused may be
+  // accepted by a server that deviates: it then writes; holding registers
+  // are restored through Case::touches).
+  bool may_write(const spec::Register* r) const {
+    return r && (r->access == spec::Access::rw || r->access == spec::Access::wo) && cases::write_forbidden(g, *r).empty();
+  }
+
+  // The first item of `t` this run may write.
+  std::optional<uint16_t> writable(Table t) const {
+    for (const auto& r : g.spec.registers)
+      if (r.table == t && may_write(&r)) return r.address;
+    return std::nullopt;
   }
 
   // The address after the map's last item of `t`, when there is one.
@@ -136,7 +147,7 @@ struct Gen {
   }
 
   void fc05() {
-    auto at = first(Table::coil);
+    auto at = writable(Table::coil);
     if (!cases::has_fc(g.spec, 5) || !at) return;
     for (uint16_t v : {0x00FF, 0x0001}) {
       Case c = base("fc05", fmt::format("value-{:04X}", v), "MBAP v1.1b3 §6.5, Figure 15", Level::must);
@@ -150,7 +161,7 @@ struct Gen {
   }
 
   void byte_counts() {
-    auto coil = first(Table::coil), reg = first(Table::holding);
+    auto coil = writable(Table::coil), reg = writable(Table::holding);
     Expect e;
     if (cases::has_fc(g.spec, 15) && coil) {
       Case c = policy_case("fc15", "byte-count-over", "MBAP v1.1b3 §6.11, Figure 21", Level::must, Violation::wrong_byte_count, e);
@@ -177,10 +188,13 @@ struct Gen {
   }
 
   // Quantity 0 and one over the limit; `pdu(n)` builds the request with quantity n.
+  // `touches`: the holding registers a server that deviates would write.
   template <class Build>
-  void quantities(int fc, const std::string& which, const char* limit_fact, const std::string& clause, Build pdu) {
+  void quantities(int fc, const std::string& which, const char* limit_fact, const std::string& clause, Build pdu,
+                  const Touches& touches = {}) {
     Expect e;
     Case z = policy_case(fmt::format("fc{:02}", fc), which + "-0", clause, Level::must, Violation::quantity_zero, e);
+    z.touches = touches;
     z.title = fmt::format("FC {:02} with {} 0", fc, which);
     z.requirement = fmt::format("{} 0 is outside 1..N ({}): {}.", which, clause, e.text);
     add(std::move(z), step(pdu(0), fmt::format("FC {:02}, {} 0", fc, which), e));
@@ -188,6 +202,7 @@ struct Gen {
     auto [n, level] = limit(relies, fc, limit_fact);
     if (n <= 0) return;
     Case o = policy_case(fmt::format("fc{:02}", fc), which + "-limit+1", clause, level, Violation::quantity_over_limit, e);
+    o.touches = touches;
     for (const auto& r : relies) o.relies.push_back(r);
     o.title = fmt::format("FC {:02} with {} {}, one over the limit", fc, which, n + 1);
     o.requirement = fmt::format("Over the limit of {} ({}): {}.", n, clause, e.text);
@@ -201,38 +216,47 @@ struct Gen {
   }
 
   void quantity_cases() {
-    if (auto coil = first(Table::coil); cases::has_fc(g.spec, 15) && coil)
+    if (auto coil = writable(Table::coil); cases::has_fc(g.spec, 15) && coil)
       quantities(15, "quantity", "max_quantity", "MBAP v1.1b3 §6.11, Figure 21",
                  [&](uint16_t n) { return coils_pdu(*coil, n, (n + 7u) / 8u); });
-    if (auto reg = first(Table::holding); cases::has_fc(g.spec, 23) && reg) {
+    if (auto reg = writable(Table::holding); cases::has_fc(g.spec, 23) && reg) {
       quantities(23, "read-quantity", "max_read_quantity", "MBAP v1.1b3 §6.17, Figure 27",
-                 [&](uint16_t n) { return rw_pdu(*reg, n, *reg, 1, 2); });
+                 [&](uint16_t n) { return rw_pdu(*reg, n, *reg, 1, 2); }, Touches{{*reg, 1}});
       quantities(23, "write-quantity", "max_write_quantity", "MBAP v1.1b3 §6.17, Figure 27",
-                 [&](uint16_t n) { return rw_pdu(*reg, 1, *reg, n, size_t(n) * 2); });
+                 [&](uint16_t n) { return rw_pdu(*reg, 1, *reg, n, size_t(n) * 2); }, Touches{{*reg, 1}});
     }
   }
 
   void past_map() {
-    auto one = [&](int fc, const std::string& what, const std::string& title, Bytes pdu) {
+    auto one = [&](int fc, const std::string& what, const std::string& title, Bytes pdu, const Touches& touches = {}) {
       Expect e;
       Case c = policy_case(fmt::format("fc{:02}", fc), what, "MBAP v1.1b3 §7", Level::must, Violation::address_past_map, e);
       c.title = title;
       c.requirement = std::string(kCode02) + " Expected: " + e.text + ".";
+      c.touches = touches;
       add(std::move(c), step(std::move(pdu), title, e));
     };
+    // A range that runs past the end starts on the last item: a server that
+    // deviates writes it, so it must be one this run may write.
+    auto last_writable = [&](Table t, std::optional<uint16_t> end) -> std::optional<uint16_t> {
+      if (!end || *end == 0 || !may_write(g.spec.register_covering(uint16_t(*end - 1), t))) return std::nullopt;
+      return uint16_t(*end - 1);
+    };
     auto coil_end = past(Table::coil), reg_end = past(Table::holding);
-    auto reg = first(Table::holding);
+    auto reg = writable(Table::holding);
     if (cases::has_fc(g.spec, 5) && coil_end)
       one(5, "past-map", fmt::format("FC 05 to coil {}, after the last mapped coil", hex16(*coil_end)), write_single_coil(*coil_end, false));
-    if (cases::has_fc(g.spec, 15) && coil_end && *coil_end > 0)
-      one(15, "runs-past-map", fmt::format("FC 15 from the last coil {} for 2 coils", hex16(*coil_end - 1)), coils_pdu(uint16_t(*coil_end - 1), 2, 1));
+    if (auto last = last_writable(Table::coil, coil_end); cases::has_fc(g.spec, 15) && last)
+      one(15, "runs-past-map", fmt::format("FC 15 from the last coil {} for 2 coils", hex16(*last)), coils_pdu(*last, 2, 1));
     if (cases::has_fc(g.spec, 22) && reg_end)
       one(22, "past-map", fmt::format("FC 22 to {}, after the last mapped register", hex16(*reg_end)), mask_write_register(*reg_end, 0xFFFF, 0));
-    if (cases::has_fc(g.spec, 23) && reg_end && reg && *reg_end > 0) {
-      uint16_t last = uint16_t(*reg_end - 1);
-      one(23, "read-runs-past-map", fmt::format("FC 23 reading 2 registers from the last one {}", hex16(last)), rw_pdu(last, 2, *reg, 1, 2));
-      one(23, "write-runs-past-map", fmt::format("FC 23 writing 2 registers from the last one {}", hex16(last)), rw_pdu(*reg, 1, last, 2, 4));
-    }
+    if (!cases::has_fc(g.spec, 23) || !reg_end || !reg) return;
+    uint16_t last = uint16_t(*reg_end - 1);
+    one(23, "read-runs-past-map", fmt::format("FC 23 reading 2 registers from the last one {}", hex16(last)), rw_pdu(last, 2, *reg, 1, 2),
+        Touches{{*reg, 1}});
+    if (auto w = last_writable(Table::holding, reg_end))
+      one(23, "write-runs-past-map", fmt::format("FC 23 writing 2 registers from the last one {}", hex16(*w)), rw_pdu(*reg, 1, *w, 2, 4),
+          Touches{{*w, 1}});
   }
 
   // FC 08 is serial line only (MBAP v1.1b3 §6.8).
@@ -395,7 +419,10 @@ struct Gen {
       c.requirement = fmt::format("MBAP v1.1b3 {} tests the quantity before the address: the quantity's answer ({}), not the "
                                   "address's ({}). A state diagram carries no MUST: SHOULD.", f.figure, e.text, pa.expect.text);
       uint16_t q = uint16_t(n + 1);
-      Bytes pdu = f.fc == 15 ? coils_pdu(*end, q, (q + 7u) / 8u) : f.fc == 23 ? rw_pdu(*end, q, *end, 1, 2) : read_request(uint8_t(f.fc), *end, q);
+      auto reg = writable(Table::holding);
+      if (f.fc == 23 && !reg) continue;
+      if (f.fc == 23) c.touches.push_back({*reg, 1});
+      Bytes pdu = f.fc == 15 ? coils_pdu(*end, q, (q + 7u) / 8u) : f.fc == 23 ? rw_pdu(*end, q, *reg, 1, 2) : read_request(uint8_t(f.fc), *end, q);
       if (pdu.size() > kMaxPdu) continue;
       add(std::move(c), step(pdu, fmt::format("FC {:02}, {} items at {}", f.fc, q, hex16(*end)), e));
     }
