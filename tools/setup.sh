@@ -11,6 +11,7 @@ packages=(
   clang libfuzzer-14-dev libclang-rt-14-dev
   socat mbpoll python3 python3-pymodbus python3-serial python3-serial-asyncio python3-yaml
   libjson-c-dev
+  golang-go golang-github-goburrow-modbus-dev  # the goburrow/modbus client adapter, built offline
   zip unzip
 )
 # Node for the npm peers (conformance/peers: npm ci into the build tree).
