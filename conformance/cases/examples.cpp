@@ -13,6 +13,7 @@
 #include "cases/common.h"
 #include "cases/facts.h"
 #include "modbus/crc16.h"
+#include "modbus/limits.h"
 #include "modbus/rtu.h"
 
 namespace mbc::conf {
@@ -34,8 +35,8 @@ std::vector<std::pair<uint16_t, int>> written_by(const Bytes& pdu) {
   if (pdu.size() < 5) return {};
   switch (pdu[0]) {
     case 6: case 22: return {{be16(pdu, 1), 1}};
-    case 16: return {{be16(pdu, 1), std::min<int>(be16(pdu, 3), 125)}};
-    case 23: return pdu.size() >= 9 ? std::vector<std::pair<uint16_t, int>>{{be16(pdu, 5), std::min<int>(be16(pdu, 7), 125)}}
+    case 16: return {{be16(pdu, 1), std::min<int>(be16(pdu, 3), standard_max_quantity(3))}};
+    case 23: return pdu.size() >= 9 ? std::vector<std::pair<uint16_t, int>>{{be16(pdu, 5), std::min<int>(be16(pdu, 7), standard_max_quantity(3))}}
                                     : std::vector<std::pair<uint16_t, int>>{};
     default: return {};
   }

@@ -236,7 +236,7 @@ struct Gen {
       auto pe = cases::policy_expect(g, Violation::quantity_zero);
       Case c = with_policy(base(16, "quantity-0", f.section), Violation::quantity_zero);
       c.title = "FC 16 with quantity 0 and byte count 0";
-      c.requirement = fmt::format("Quantity 0 is outside 1..123 (MBAP v1.1b3 §6.12): {}.", pe.expect.text);
+      c.requirement = fmt::format("Quantity 0 is outside 1..{} (MBAP v1.1b3 §6.12): {}.", standard_max_quantity(16), pe.expect.text);
       // The register only places the request: quantity 0 is refused before
       // the address is looked at (MBAP v1.1b3 §6.12 Figure 22), so the
       // verdict relies on no fact of it.

@@ -11,6 +11,7 @@
 
 #include "modbus/hex.h"
 #include "modbus/judge.h"
+#include "modbus/limits.h"
 #include "modbus/pdu.h"
 #include "yaml_json.h"
 
@@ -28,10 +29,10 @@ struct TableInfo {
 // Holding registers first: most servers map them, and a budget that runs out
 // should have spent itself on them.
 constexpr TableInfo kTables[] = {
-    {Table::holding, "holding", 3, 125},
-    {Table::coil, "coils", 1, 2000},
-    {Table::input, "input", 4, 125},
-    {Table::discrete_input, "discrete", 2, 2000},
+    {Table::holding, "holding", 3, uint16_t(standard_max_quantity(3))},
+    {Table::coil, "coils", 1, uint16_t(standard_max_quantity(1))},
+    {Table::input, "input", 4, uint16_t(standard_max_quantity(4))},
+    {Table::discrete_input, "discrete", 2, uint16_t(standard_max_quantity(2))},
 };
 
 const TableInfo& info_of(Table t) {
@@ -442,6 +443,8 @@ bool example_inside(const spec::Example& ex, const Map& m) {
   Bytes pdu(adu.begin() + 1, adu.end() - 2);
   if (pdu.size() < 5) return false;
   auto be = [&](size_t at) { return uint32_t(pdu[at] << 8 | pdu[at + 1]); };
+  // The most addresses one request can touch in a table: its read's limit.
+  auto most = [](Table t) { return uint32_t(info_of(t).max_read); };
   uint8_t fc = pdu[0];
   if (adu[0] == 0) return false;  // broadcast: what it means depends on the transport
   // An answer of exception 02 or 04 comes from the spec's own device's map
@@ -450,14 +453,17 @@ bool example_inside(const spec::Example& ex, const Map& m) {
   if (auto rsp = ex.resolved_response ? ex.resolved_response : ex.response)
     if (auto r = parse_hex(*rsp); r && r->size() >= 3 && ((*r)[1] & 0x80) && ((*r)[2] == 2 || (*r)[2] == 4)) return false;
   switch (fc) {
-    case 1: case 2: case 3: case 4: return inside(spec::table_for_function(fc), be(1), std::min<uint32_t>(be(3), 2000));
+    case 1: case 2: case 3: case 4: {
+      Table t = spec::table_for_function(fc);
+      return inside(t, be(1), std::min<uint32_t>(be(3), most(t)));
+    }
     case 5: return inside(Table::coil, be(1), 1);
     case 6: case 22: return inside(Table::holding, be(1), 1);
-    case 15: return inside(Table::coil, be(1), std::min<uint32_t>(be(3), 2000));
-    case 16: return inside(Table::holding, be(1), std::min<uint32_t>(be(3), 125));
+    case 15: return inside(Table::coil, be(1), std::min<uint32_t>(be(3), most(Table::coil)));
+    case 16: return inside(Table::holding, be(1), std::min<uint32_t>(be(3), most(Table::holding)));
     case 23:
-      return pdu.size() >= 9 && inside(Table::holding, be(1), std::min<uint32_t>(be(3), 125)) &&
-             inside(Table::holding, be(5), std::min<uint32_t>(be(7), 125));
+      return pdu.size() >= 9 && inside(Table::holding, be(1), std::min<uint32_t>(be(3), most(Table::holding))) &&
+             inside(Table::holding, be(5), std::min<uint32_t>(be(7), most(Table::holding)));
     default: return false;  // FC 07, 08, 11, 12, 17, 20, 21, 24, 43: the device's own contents
   }
 }

@@ -8,6 +8,7 @@
 #include <limits>
 
 #include "modbus/judge.h"
+#include "modbus/limits.h"
 #include "modbus/pdu.h"
 #include "modbus/words.h"
 
@@ -138,7 +139,7 @@ SpecView::SpecView(const spec::Spec& s, const TargetInfo& target, const WritePol
 }
 
 int SpecView::quantity_limit(int fc) const {
-  int standard = fc == 16 ? 123 : fc == 1 || fc == 2 ? 2000 : fc == 15 ? 1968 : 125;
+  int standard = standard_max_quantity(fc);
   const spec::FunctionCode* f = spec_->profile.function(fc);
   return f && f->max_quantity ? std::min(*f->max_quantity, standard) : standard;
 }

@@ -7,6 +7,7 @@
 #include <tuple>
 
 #include "modbus/judge.h"
+#include "modbus/limits.h"
 #include "modbus/pdu.h"
 
 namespace mbc::conf {
@@ -27,8 +28,9 @@ struct TableOps {
 };
 
 const TableOps& ops(Table t) {
-  static const TableOps holding{"holding", 3, 125, 6, 16}, coil{"coils", 1, 2000, 5, 15},
-      input{"input registers", 4, 125, 0, 0}, discrete{"discrete inputs", 2, 2000, 0, 0};
+  static const TableOps holding{"holding", 3, standard_max_quantity(3), 6, 16},
+      coil{"coils", 1, standard_max_quantity(1), 5, 15}, input{"input registers", 4, standard_max_quantity(4), 0, 0},
+      discrete{"discrete inputs", 2, standard_max_quantity(2), 0, 0};
   switch (t) {
     case Table::holding: return holding;
     case Table::coil: return coil;

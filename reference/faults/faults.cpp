@@ -118,7 +118,7 @@ Bytes with_crc(Bytes frame) {
 // The quantity limit the engine applies to FC 03/04/16: the spec's, capped by
 // the standard's (MBAP v1.1b3 §6.3, §6.4, §6.12).
 int quantity_limit(const ref::Device& d, uint8_t fc) {
-  int standard = fc == 16 ? 123 : 125;
+  int standard = standard_max_quantity(fc);
   const spec::FunctionCode* f = d.spec().profile.function(fc);
   return f && f->max_quantity ? std::min(*f->max_quantity, standard) : standard;
 }

@@ -7,6 +7,7 @@
 
 #include "modbus/bytes.h"
 #include "modbus/hex.h"
+#include "modbus/limits.h"
 
 namespace mbc::spec {
 namespace {
@@ -227,9 +228,9 @@ struct Checker {
         error(p + "/max_quantity", "function-limit",
               "FC " + std::to_string(f.code) + ": max_quantity " + std::to_string(*f.max_quantity) +
                   " exceeds what fits in one PDU (" + std::to_string(limit) + ", MBAP v1.1b3 §6)");
-      if (f.max_read_quantity && *f.max_read_quantity > 125)
+      if (f.max_read_quantity && *f.max_read_quantity > kMaxReadWriteReadQuantity)
         error(p + "/max_read_quantity", "function-limit", "FC 23: max_read_quantity exceeds 125 (MBAP v1.1b3 §6.17)");
-      if (f.max_write_quantity && *f.max_write_quantity > 121)
+      if (f.max_write_quantity && *f.max_write_quantity > kMaxReadWriteWriteQuantity)
         error(p + "/max_write_quantity", "function-limit", "FC 23: max_write_quantity exceeds 121 (MBAP v1.1b3 §6.17)");
       if (!f.erratum.empty() && !s.find_erratum(f.erratum))
         error(p + "/erratum", "unknown-reference", "erratum '" + f.erratum + "' is not in errata:");
@@ -366,19 +367,6 @@ struct Checker {
 };
 
 }  // namespace
-
-int standard_max_quantity(int fc) {
-  switch (fc) {
-    case 1:
-    case 2: return 2000;
-    case 3:
-    case 4: return 125;
-    case 15: return 1968;
-    case 16: return 123;
-    case 23: return 125;
-    default: return 0;
-  }
-}
 
 void check_semantics(const Spec& spec, const JsonDocument& doc, const std::string& expected_id, Diagnostics& out) {
   Checker c{spec, doc, out};

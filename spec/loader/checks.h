@@ -13,8 +13,4 @@ namespace mbc::spec {
 // `expected_id` is the file's stem, or empty when the text has no file name.
 void check_semantics(const Spec& spec, const JsonDocument& doc, const std::string& expected_id, Diagnostics& out);
 
-// The standard's per-request quantity limits (MBAP v1.1b3 §6), or 0 when the
-// function has no quantity field.
-int standard_max_quantity(int function_code);
-
 }  // namespace mbc::spec

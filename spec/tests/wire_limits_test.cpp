@@ -86,3 +86,14 @@ TEST(WireLimits, CoilLimitsAreTheRegisterLimitsByteBudget) {
   EXPECT_EQ(limit(s, 2), 8 * 2 * limit(s, 4));
   EXPECT_EQ(limit(s, 15), 8 * 2 * limit(s, 16));
 }
+
+// The spec language's statement of the standard and the wire floor's table
+// (which the loader's checks and the conformance side read) are the same limits.
+TEST(WireLimits, StandardSpecStatesTheWireTable) {
+  spec::Spec s = spec::load_spec_by_id("modbus-standard");
+  for (int code : {1, 2, 3, 4, 15, 16}) EXPECT_EQ(limit(s, code), standard_max_quantity(code)) << "FC " << code;
+  const spec::FunctionCode* rw = s.profile.function(23);
+  ASSERT_TRUE(rw && rw->max_read_quantity && rw->max_write_quantity);
+  EXPECT_EQ(*rw->max_read_quantity, standard_max_quantity(23));
+  EXPECT_EQ(*rw->max_write_quantity, kMaxReadWriteWriteQuantity);
+}
