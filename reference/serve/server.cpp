@@ -10,6 +10,7 @@
 #include <type_traits>
 #include <pty.h>
 #include <signal.h>
+#include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
@@ -332,12 +333,15 @@ struct Server::Impl {
   // The engine's reply leaves after the line time a real RS-485 bus would
   // take: a pty or socket delivers the request at once, where a line would
   // still be clocking it in, so both frames' characters count, plus the
-  // inter-frame gap after the reply (MB-SL §2.5.1.1). The gap that ends the
-  // request is already in `now` on a pty (frame end is found by silence).
+  // inter-frame gap after the reply (MB-SL §2.5.1.1). The time runs from the
+  // request's end (its last bytes plus the gap that ends it, found by
+  // silence), not from when this loop woke to see it: a late wake-up is not
+  // line time, and must not be paid twice.
   void send_reply(Link& l, size_t request_bytes, Bytes bytes, Clock::time_point now) {
     Clock::time_point at = now;
     if (l.rtu() && opt.line_rate)
-      at += wire_time(request_bytes + bytes.size(), *opt.line_rate) + frame_gap(*opt.line_rate);
+      at = std::min(now, l.last_rx + rtu_gap(l)) + wire_time(request_bytes + bytes.size(), *opt.line_rate) +
+           frame_gap(*opt.line_rate);
     l.out_bytes += bytes.size();
     l.out.push_back({std::move(bytes), at});
   }
@@ -569,15 +573,17 @@ struct Server::Impl {
     });
   }
 
-  // The next moment something is due: an RTU gap ending or a paced reply.
-  int poll_timeout_ms(Clock::time_point now) const {
+  // How long until something is due: an RTU gap ending or a paced reply. To
+  // the microsecond: a wait rounded up to whole milliseconds cost up to a
+  // millisecond twice per exchange, a third of the exchange at 115200 baud.
+  timespec poll_timeout(Clock::time_point now) const {
     Clock::time_point wake = now + kMaxSleep;
     for (const auto& l : links) {
       if (l.rtu() && (!l.in.empty() || l.overflow)) wake = std::min(wake, l.last_rx + rtu_gap(l));
       if (!l.out.empty()) wake = std::min(wake, l.out.front().not_before);
     }
-    auto us = duration_cast<microseconds>(wake - now).count();
-    return us <= 0 ? 0 : int((us + 999) / 1000);
+    auto us = std::max<int64_t>(0, duration_cast<microseconds>(wake - now).count());
+    return timespec{time_t(us / 1000000), long(us % 1000000) * 1000L};
   }
 
   void advance_clock(Clock::time_point now) {
@@ -590,6 +596,9 @@ struct Server::Impl {
   std::vector<pollfd> poll_fds;
 
   int run() {
+    // Paced replies and RTU gaps are timers of a few hundred microseconds; the
+    // default 50 us of timer slack would be added to each.
+    if (opt.line_rate) prctl(PR_SET_TIMERSLACK, 1000UL);
     clock_at = Clock::now();
     while (!g_stop) {
       Clock::time_point now = Clock::now();
@@ -609,8 +618,7 @@ struct Server::Impl {
         bool due = !l.out.empty() && l.out.front().not_before <= now;
         fds.push_back({l.fd, short((l.wants_input() ? POLLIN : 0) | (due ? POLLOUT : 0)), 0});
       }
-      int timeout = poll_timeout_ms(now);
-      timespec ts{timeout / 1000, long(timeout % 1000) * 1000000L};
+      timespec ts = poll_timeout(now);
       int rc = ppoll(fds.data(), fds.size(), &ts, &run_mask);
       if (rc < 0) {
         if (errno == EINTR) continue;
