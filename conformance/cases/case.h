@@ -70,6 +70,9 @@ struct Step {
   // A setup step (restoring a given state): its failure fails the case with
   // "setup:" but it is not the requirement itself.
   bool setup = false;
+  // The device's documentation says this request may go unanswered: a reply
+  // it expects is waited for the silence window, not the timeout.
+  bool may_go_unanswered = false;
 };
 
 struct Case {

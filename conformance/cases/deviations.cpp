@@ -6,6 +6,7 @@
 // code meanings) are recorded as documented.
 #include <fmt/core.h>
 
+#include <algorithm>
 #include <map>
 
 #include "cases/common.h"
@@ -139,6 +140,9 @@ std::vector<Case> deviation_cases(const GenContext& g) {
         else
           st->expect = cases::silence("the standard's silence");
         st->what = fmt::format("provoke {}", kind);
+        spec::PolicyEntry dp = g.spec.profile.policy(v);
+        st->may_go_unanswered = dp.kind == spec::PolicyEntry::Kind::silent ||
+                                std::any_of(dp.readings.begin(), dp.readings.end(), [](const auto& r) { return r.kind == spec::PolicyEntry::Kind::silent; });
         if (const auto* r = cases::plain_register(g); r && (v == Violation::value_out_of_range || v == Violation::wrong_byte_count)) {
           c.touches.push_back({r->address, v == Violation::wrong_byte_count ? 2 : 1});
           if (auto why = cases::write_forbidden(g, *r); !why.empty()) c.skip_reason = why;

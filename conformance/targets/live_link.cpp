@@ -36,8 +36,8 @@ void check_params(const Uri& u, const std::string& uri, std::initializer_list<co
 
 // ---- silence window ----
 
-SilenceWindow::SilenceWindow(milliseconds timeout, microseconds frame_gap, std::optional<milliseconds> fixed)
-    : timeout_(timeout), frame_gap_(frame_gap), fixed_(fixed) {}
+SilenceWindow::SilenceWindow(milliseconds timeout, bool line_model, std::optional<milliseconds> fixed)
+    : timeout_(timeout), line_model_(line_model), fixed_(fixed) {}
 
 void SilenceWindow::Estimate::record(microseconds latency) {
   ring[count % kMaxSamples] = latency.count();
@@ -50,7 +50,10 @@ void SilenceWindow::Estimate::record(microseconds latency) {
   p99 = microseconds(v[at]);
 }
 
-void SilenceWindow::record(microseconds latency, bool exception) { (exception ? exception_ : normal_).record(latency); }
+void SilenceWindow::record(microseconds latency, bool exception, microseconds line) {
+  // A reply faster than the line time (a pty or gateway that does not pace) has no excess.
+  (exception ? exception_ : normal_).record(std::max(latency - line, microseconds(0)));
+}
 
 std::optional<microseconds> SilenceWindow::p99() const {
   if (!normal_.p99) return exception_.p99;
@@ -64,12 +67,13 @@ void SilenceWindow::late_reply(std::optional<microseconds> seen) {
   else widen_ = std::min(widen_ * 2, 1 << 10);
 }
 
-microseconds SilenceWindow::window() const {
+microseconds SilenceWindow::window(microseconds line) const {
   if (fixed_) return *fixed_;
   auto p = p99();
   if (!p) return timeout_;
-  microseconds w = std::max<microseconds>(kLatencyMultiple * *p, frame_gap_ + kFloor) * widen_;
-  return std::min(std::max(w, late_floor_), timeout_);
+  microseconds w = line_model_ ? line + std::max<microseconds>(kExcessMultiple * *p, kLineFloor)
+                               : std::max<microseconds>(kLatencyMultiple * *p, kFloor);
+  return std::min(std::max(w * widen_, late_floor_), timeout_);
 }
 
 // ---- byte streams ----

@@ -29,27 +29,45 @@ int int_param(const Uri& u, const std::string& uri, const std::string& key, int 
 void check_params(const Uri& u, const std::string& uri, std::initializer_list<const char*> known);
 
 // How long to wait for a reply that may never come. Until enough replies were
-// timed this is the configured timeout (1 s by default); then it is a bounded
-// multiple of the observed p99 latency, never less than the line's frame gap
-// plus a floor for the host's scheduling, never more than the timeout.
+// timed this is the configured timeout (1 s by default); then it is the line
+// time of the exchange plus a margin over the observed latencies, never more
+// than the timeout. Only the first byte is waited for this long: a reply that
+// started is read to its end.
+// - With a line model (a serial line at a known baud), the line time of an
+//   exchange is known: the request's and the reply's characters plus t3.5
+//   before each (MB-SL v1.02 §2.5.1.1). Each latency is recorded as its
+//   excess over that line time, and the window for a request is its line time
+//   (with the longest reply the request can get) plus 2 x the p99 excess,
+//   at least kLineFloor: a margin over what varies, not a multiple of the
+//   characters' fixed wire time.
+// - Without one (Modbus TCP), the window is 4 x the p99 latency, at least
+//   kFloor.
 // Normal and exception replies are timed apart (a server may answer an
 // exception far later than a read: libmodbus 3.1.6 sleeps its response
 // timeout before an "illegal function" reply), and the window covers the
 // slower of the two. A reply that arrives after its window closed widens it:
-// to twice the latency it was seen with, when that is known, else doubled.
+// to twice the latency it was seen with, when that is known, else doubled;
+// the runner re-runs the cases judged silent since (runner.cpp).
 class SilenceWindow {
  public:
   // The floor covers scheduling jitter of the master's host (pty, loopback).
   static constexpr milliseconds kFloor{20};
   static constexpr int kLatencyMultiple = 4;
+  // With a line model: the samples already hold this host's jitter beyond
+  // the line time; the floor is for what few samples do not show.
+  static constexpr milliseconds kLineFloor{5};
+  static constexpr int kExcessMultiple = 2;
   static constexpr size_t kMinSamples = 5;
   static constexpr size_t kMaxSamples = 1024;
 
-  SilenceWindow(milliseconds timeout, microseconds frame_gap, std::optional<milliseconds> fixed);
-  void record(microseconds latency, bool exception = false);
+  // `line_model`: the caller passes each exchange's line time to record() and window().
+  SilenceWindow(milliseconds timeout, bool line_model, std::optional<milliseconds> fixed);
+  // `line`: the exchange's line time (with a line model).
+  void record(microseconds latency, bool exception = false, microseconds line = microseconds(0));
   // A late reply; `seen` is how long after its request it was found, when known.
   void late_reply(std::optional<microseconds> seen = std::nullopt);
-  microseconds window() const;
+  // `line`: the line time of the request about to wait, with its longest reply.
+  microseconds window(microseconds line = microseconds(0)) const;
   microseconds timeout() const { return timeout_; }
   std::optional<microseconds> p99() const;
   size_t samples() const { return normal_.count + exception_.count; }
@@ -63,7 +81,7 @@ class SilenceWindow {
     void record(microseconds latency);
   };
   microseconds timeout_;
-  microseconds frame_gap_;
+  bool line_model_ = false;
   std::optional<milliseconds> fixed_;
   Estimate normal_, exception_;
   microseconds late_floor_{0};

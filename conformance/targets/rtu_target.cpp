@@ -84,9 +84,26 @@ int connect_tcp(const std::string& host, uint16_t port, milliseconds timeout, co
   return fd;
 }
 
+// The longest reply an RTU request can get, in bytes (slave, PDU, CRC): a
+// read's reply for the quantity asked (MBAP v1.1b3 §6.1-6.4, §6.17), an echo
+// as long as the request (FC 05/06/08/22), an exception (5 bytes), whichever
+// is longest. A window for an expected silence waits this long for a reply a
+// non-conforming device might still send: a line delivers a frame's first
+// byte early, but a pty or a gateway may hand it over whole.
+size_t longest_reply(std::span<const uint8_t> adu) {
+  size_t n = std::max<size_t>(adu.size(), 5);
+  if (adu.size() >= 8) {
+    uint8_t fc = adu[1];
+    size_t q = size_t(adu[4]) << 8 | adu[5];
+    if (fc == 1 || fc == 2) n = std::max(n, 5 + (q + 7) / 8);
+    if (fc == 3 || fc == 4 || fc == 23) n = std::max(n, 5 + 2 * q);
+  }
+  return std::min(n, kMaxRtuAdu);
+}
+
 class RtuTarget final : public Target {
  public:
-  explicit RtuTarget(const Uri& u) : window_(kDefaultTimeout, microseconds(0), std::nullopt) {
+  explicit RtuTarget(const Uri& u) : window_(kDefaultTimeout, false, std::nullopt) {
     uri_text_ = u.scheme + "://" + (u.host.empty() ? u.path : u.host + ":" + std::to_string(u.port));
     serial_ = u.scheme == "rtu";
     if (serial_)
@@ -110,7 +127,7 @@ class RtuTarget final : public Target {
     end_silence_ = std::max<microseconds>(frame_gap_, kReplyEndSilenceFloor);
     split_gap_ = std::max<microseconds>(3 * frame_gap_, kSplitGapFloor);
     if (u.param("gap")) split_gap_ = milliseconds(int_param(u, uri_text_, "gap", 0, 1, 10000));
-    window_ = SilenceWindow(timeout, frame_gap_, fixed);
+    window_ = SilenceWindow(timeout, baud.has_value(), fixed);
     timeout_ = timeout;
 
     if (serial_) {
@@ -150,7 +167,7 @@ class RtuTarget final : public Target {
   }
 
   const TargetInfo& info() const override { return info_; }
-  microseconds silence_window() const override { return window_.window(); }
+  microseconds silence_window() const override { return window_.window(last_line_); }
   void set_wait(Wait w) override { wait_ = w; }
   uint64_t late_replies() const override { return window_.late_count(); }
   // RTU over TCP: a new socket to the gateway. A serial line has nothing to reopen.
@@ -232,7 +249,8 @@ class RtuTarget final : public Target {
     Reply r;
     r.request = adu;
     bool for_reply = wait_ == Wait::reply || (wait_ == Wait::automatic && addressed);
-    auto first_by = t0 + (for_reply ? window_.timeout() : window_.window());
+    last_line_ = line_time(adu.size(), longest_reply(adu));
+    auto first_by = t0 + (for_reply ? window_.timeout() : window_.window(last_line_));
     auto wire = info_.baud ? wire_time(kMaxRtuAdu, *info_.baud) : microseconds(0);
     auto hard = first_by + window_.timeout() + 2 * wire;
     ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, [](std::span<const uint8_t> b) {
@@ -246,8 +264,15 @@ class RtuTarget final : public Target {
       fd_ = -1;
     }
     decode_rtu_reply(r, slave);
-    if (r.pdu && timed) window_.record(r.latency, !r.pdu->empty() && ((*r.pdu)[0] & 0x80));
+    if (r.pdu && timed) window_.record(r.latency, !r.pdu->empty() && ((*r.pdu)[0] & 0x80), line_time(adu.size(), r.frame.size()));
     return r;
+  }
+
+  // The line time of an exchange at the line's baud: each frame's characters
+  // and the t3.5 before it (MB-SL v1.02 §2.5.1.1); zero without a baud.
+  microseconds line_time(size_t request, size_t reply) const {
+    if (!info_.baud) return microseconds(0);
+    return wire_time(request + reply, *info_.baud) + 2 * frame_gap_;
   }
 
   TargetInfo info_;
@@ -260,6 +285,7 @@ class RtuTarget final : public Target {
   SilenceWindow window_;
   milliseconds timeout_{kDefaultTimeout};
   microseconds frame_gap_{0}, end_silence_{0}, split_gap_{0};
+  microseconds last_line_{0};  // the line time the last window was computed for
   Wait wait_ = Wait::automatic;
 };
 

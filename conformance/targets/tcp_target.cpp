@@ -33,7 +33,7 @@ constexpr size_t kStaleMemory = 16;
 
 class TcpTarget final : public Target {
  public:
-  explicit TcpTarget(const Uri& u) : window_(kDefaultTimeout, microseconds(0), std::nullopt) {
+  explicit TcpTarget(const Uri& u) : window_(kDefaultTimeout, false, std::nullopt) {
     std::string base = fmt::format("tcp://{}:{}", u.host, u.port ? u.port : kDefaultPort);
     check_params(u, base, {"unit", "timeout", "silence"});
     if (u.host.empty()) throw std::invalid_argument(fmt::format("target 'tcp:{}': needs HOST[:PORT], e.g. tcp://192.168.1.20:502", u.path));
@@ -43,7 +43,7 @@ class TcpTarget final : public Target {
     timeout_ = milliseconds(int_param(u, base, "timeout", int(kDefaultTimeout.count()), 1, 60000));
     std::optional<milliseconds> fixed;
     if (u.param("silence")) fixed = milliseconds(int_param(u, base, "silence", 0, 1, 60000));
-    window_ = SilenceWindow(timeout_, microseconds(0), fixed);
+    window_ = SilenceWindow(timeout_, false, fixed);
     info_.uri = fmt::format("{}?unit={}", base, unit);
     info_.kind = "tcp";
     info_.framing = Framing::mbap;
