@@ -42,8 +42,11 @@ constexpr char kDefaultParity = 'E';
 // latency timer or a TCP gateway put inside one frame.
 constexpr milliseconds kReplyEndSilenceFloor{20};
 // A frame split by `gap_after` pauses this long, at least 3 x t3.5, so any
-// receiver (a serial device, a gateway, serve's 10 ms RTU-over-TCP gap) sees
-// two frames (MB-SL v1.02 §2.5.1.1).
+// receiver sees two frames (MB-SL v1.02 §2.5.1.1): on a serial line the first
+// part is out (tcdrain) before the pause, which leaves a USB adapter's few
+// 1 ms frames and the receiver's scheduling; a gateway (serve's 10 ms
+// RTU-over-TCP gap) gets more.
+constexpr milliseconds kSplitGapFloorSerial{20};
 constexpr milliseconds kSplitGapFloor{50};
 constexpr milliseconds kDefaultTimeout{1000};
 
@@ -125,7 +128,7 @@ class RtuTarget final : public Target {
     info_.baud = baud;
     frame_gap_ = baud ? frame_gap(*baud) : microseconds(0);
     end_silence_ = std::max<microseconds>(frame_gap_, kReplyEndSilenceFloor);
-    split_gap_ = std::max<microseconds>(3 * frame_gap_, kSplitGapFloor);
+    split_gap_ = std::max<microseconds>(3 * frame_gap_, serial_ ? kSplitGapFloorSerial : kSplitGapFloor);
     if (u.param("gap")) split_gap_ = milliseconds(int_param(u, uri_text_, "gap", 0, 1, 10000));
     window_ = SilenceWindow(timeout, baud.has_value(), fixed);
     timeout_ = timeout;
@@ -240,7 +243,11 @@ class RtuTarget final : public Target {
   // `addressed`: a well-formed request to the target's unit (Wait::automatic waits for its reply).
   template <class Send>
   Reply exchange(const Bytes& adu, uint8_t slave, bool timed, bool addressed, Send send) {
-    if (drain(fd()) > 0) window_.late_reply();  // a reply came after its window closed
+    // A reply came after its window closed: it belongs to the last exchange
+    // judged silent at the latest, so it took at most this long.
+    if (drain(fd()) > 0)
+      window_.late_reply(silent_at_ ? std::optional(std::chrono::duration_cast<microseconds>(Clock::now() - *silent_at_))
+                                    : std::nullopt);
     auto t0 = send();
     if (serial_) {
       tcdrain(fd_);
@@ -258,6 +265,7 @@ class RtuTarget final : public Target {
       return n && b.size() == *n && crc_ok(b);
     });
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
+    if (r.frame.empty()) silent_at_ = t0;
     if (rr.closed) {
       if (serial_) throw std::runtime_error(fmt::format("target '{}': the serial line closed", info_.uri));
       close(fd_);
@@ -286,6 +294,7 @@ class RtuTarget final : public Target {
   milliseconds timeout_{kDefaultTimeout};
   microseconds frame_gap_{0}, end_silence_{0}, split_gap_{0};
   microseconds last_line_{0};  // the line time the last window was computed for
+  std::optional<Clock::time_point> silent_at_;  // when the request of the last silent exchange went out
   Wait wait_ = Wait::automatic;
 };
 
