@@ -187,11 +187,17 @@ int main(int argc, char** argv) {
       double bound2 = run.wire_time_bound_seconds + double(run.silences) * p99;
       double ratio2 = bound2 > 0 ? run.wall_seconds / bound2 : 0;
       size_t must_failed = 0;
-      for (const auto& c : run.cases) must_failed += c.outcome == mbc::conf::Outcome::fail && c.level == mbc::conf::Level::must;
+      std::string failed;
+      for (const auto& c : run.cases)
+        if (c.outcome == mbc::conf::Outcome::fail && c.level == mbc::conf::Level::must) {
+          ++must_failed;
+          failed += fmt::format("    MUST failed: {}: {}\n", c.id, c.message);
+        }
       fmt::print("{:<20} {:>7} {:>6} {:>7} {:>9} {:>10.2f} {:>12.2f} {:>7.2f} {:>9.2f} {:>15.2f} {:>7.2f}  {}{}\n", id, baud,
                  run.cases.size(), run.frames_sent, run.silences, run.wall_seconds, run.wire_time_bound_seconds, ratio, p99 * 1e3,
                  bound2, ratio2, ratio <= 1.5 && ratio2 <= 1.1 ? "ok" : "OVER",
                  must_failed ? fmt::format(" ({} MUST failed)", must_failed) : "");
+      fmt::print("{}", failed);
       std::fflush(stdout);
       over += ratio > 1.5 || ratio2 > 1.1;
     }

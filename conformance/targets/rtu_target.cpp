@@ -42,11 +42,9 @@ constexpr char kDefaultParity = 'E';
 // latency timer or a TCP gateway put inside one frame.
 constexpr milliseconds kReplyEndSilenceFloor{20};
 // A frame split by `gap_after` pauses this long, at least 3 x t3.5, so any
-// receiver sees two frames (MB-SL v1.02 §2.5.1.1): on a serial line the first
-// part is out (tcdrain) before the pause, which leaves a USB adapter's few
-// 1 ms frames and the receiver's scheduling; a gateway (serve's 10 ms
-// RTU-over-TCP gap) gets more.
-constexpr milliseconds kSplitGapFloorSerial{20};
+// receiver (a serial device, a gateway, serve's 10 ms RTU-over-TCP gap) sees
+// two frames (MB-SL v1.02 §2.5.1.1). Not less on a pty either: a served drive
+// that a busy machine holds up must not read both parts at once.
 constexpr milliseconds kSplitGapFloor{50};
 constexpr milliseconds kDefaultTimeout{1000};
 
@@ -128,7 +126,7 @@ class RtuTarget final : public Target {
     info_.baud = baud;
     frame_gap_ = baud ? frame_gap(*baud) : microseconds(0);
     end_silence_ = std::max<microseconds>(frame_gap_, kReplyEndSilenceFloor);
-    split_gap_ = std::max<microseconds>(3 * frame_gap_, serial_ ? kSplitGapFloorSerial : kSplitGapFloor);
+    split_gap_ = std::max<microseconds>(3 * frame_gap_, kSplitGapFloor);
     if (u.param("gap")) split_gap_ = milliseconds(int_param(u, uri_text_, "gap", 0, 1, 10000));
     window_ = SilenceWindow(timeout, baud.has_value(), fixed);
     timeout_ = timeout;

@@ -460,6 +460,12 @@ struct Server::Impl {
       size_t room = l.rtu() ? sizeof buf : std::min(sizeof buf, kInputBound - l.in.size());
       ssize_t n = ::read(l.fd, buf, room);
       if (n > 0) {
+        // Bytes after a silence of t3.5 start a new frame (MB-SL v1.02
+        // §2.5.1.1): the one before is complete even if no wake-up saw the gap.
+        if (l.rtu() && rtu_frame_complete(l, now) && now - l.last_rx >= rtu_gap(l)) {
+          handle_rtu_frame(l, now);
+          save_changed_images();
+        }
         l.last_rx = now;
         for (ssize_t i = 0; i < n; ++i) {
           if (l.rtu() && l.in.size() >= kMaxRtuAdu)
