@@ -130,11 +130,18 @@ def load_quirks(path):
         return yaml.safe_load(f) or []
 
 
-def match(entries, case_id, key):
+def match(entries, case_id, key, transport=None):
+    """The first entry whose case glob matches (and whose `transports`, if it
+    names any, include this one)."""
     for e in entries:
-        if "case" in e and fnmatch.fnmatchcase(case_id, e["case"]):
+        if "case" in e and fnmatch.fnmatchcase(case_id, e["case"]) and transport in e.get("transports", [transport]):
             return e[key]
     return None
+
+
+def field_practice(lib, sets):
+    """A library's own field-practice entries, then those of the shared sets it names."""
+    return lib.get("field_practice", []) + [e for name in lib.get("field_practice_sets", []) for e in sets[name]]
 
 
 def summarize(report_path, row, declared, field_practice):
@@ -154,11 +161,24 @@ def summarize(report_path, row, declared, field_practice):
             failures.append({"case": c["id"], "outcome": outcome, "level": c.get("level", ""), "clause": c.get("clause", ""),
                              "message": c.get("message", "").split("\n")[0][:400],
                              "declared": match(declared, c["id"], "reason"),
-                             "field_practice": match(field_practice, c["id"], "why")})
+                             "field_practice": match(field_practice, c["id"], "why", row["transport"])})
     row["cells"] = cells
     row["failures"] = failures
     row["incomplete"] = bool(report.get("incomplete"))
     row["wall_seconds"] = round(dev.get("wall_seconds", 0), 2)
+
+
+def scrub_report(run_dir, replace):
+    """The committed report.html names no path of this machine and no port of this run."""
+    path = os.path.join(run_dir, "report.html")
+    if not os.path.exists(path):
+        return
+    with open(path, encoding="utf-8") as f:
+        text = f.read()
+    for old, new in replace + [(SOURCE + "/", "")]:
+        text = text.replace(old, new)
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(text)
 
 
 def run_server(lib, transport, cmd, ctx, args, row, run_dir):
@@ -192,7 +212,8 @@ def run_server(lib, transport, cmd, ctx, args, row, run_dir):
         row["server_restarts"] = server.restarts
         server.stop()
         row["server_died"] = server.died
-        summarize(os.path.join(run_dir, "report.json"), row, load_quirks(quirks), lib.get("field_practice", []))
+        summarize(os.path.join(run_dir, "report.json"), row, load_quirks(quirks), lib["field_practice_all"])
+        scrub_report(run_dir, [(tmp, "/tmp/matrix"), ("127.0.0.1:%d" % ctx["port"], "127.0.0.1:PORT")])
     finally:
         if server:
             server.stop()
@@ -213,7 +234,8 @@ def run_master(lib, transport, ctx, args, row, run_dir):
     with open(os.path.join(run_dir, "mbconform.log"), "w", encoding="utf-8") as f:
         f.write(p.stdout)
     row["exit"] = p.returncode
-    summarize(os.path.join(run_dir, "report.json"), row, load_quirks(deviations), lib.get("field_practice", []))
+    summarize(os.path.join(run_dir, "report.json"), row, load_quirks(deviations), lib["field_practice_all"])
+    scrub_report(run_dir, [])
 
 
 def make_rows(libs, args, ctx, out):
@@ -311,12 +333,14 @@ th{background:#f0f0f0}
 td.cell{text-align:center;white-space:nowrap}
 .ok{background:#c8efc8}.bad{background:#f6c2c2}.obs{background:#fff3bf}.na{background:#e4e4e4;color:#666}
 .num{font-variant-numeric:tabular-nums}
+td.cell a{color:inherit;text-decoration:none;display:block}
 code{font-size:13px}
 small{color:#555}
 """
 
 
-def cell_html(cell):
+def cell_html(cell, href):
+    """One family's counts, coloured, linking that run's report."""
     if not cell:
         return '<td class="cell na">&ndash;</td>'
     cls = "bad" if cell.get("fail") or cell.get("error") else ("ok" if cell.get("pass") else "obs")
@@ -325,7 +349,7 @@ def cell_html(cell):
         parts.append("%d unsup" % cell["unsupported"])
     if cell.get("error"):
         parts.append("%d not run" % cell["error"])
-    return '<td class="cell num %s">%s</td>' % (cls, " ".join(parts))
+    return '<td class="cell num %s"><a href="%s">%s</a></td>' % (cls, html.escape(href), " ".join(parts))
 
 
 def side_table(matrix, side):
@@ -340,8 +364,8 @@ def side_table(matrix, side):
             h.append('<td class="cell na" colspan="%d">%s: %s</td><td></td></tr>' % (
                 len(fams) + 1, "unsupported" if r["status"] == "unsupported" else "not run", html.escape(r.get("reason", ""))))
             continue
-        h.extend(cell_html(r["cells"].get(f)) for f in fams)
-        h.append(cell_html(totals(r)))
+        h.extend(cell_html(r["cells"].get(f), r["report"]) for f in fams)
+        h.append(cell_html(totals(r), r["report"]))
         extra = ""
         if r.get("server_died") is not None:
             extra = "<br><small>the server died (exit %s)</small>" % r["server_died"]
@@ -359,6 +383,13 @@ def deviations_html(matrix):
     for lib in matrix["libraries"]:
         rows = [r for r in matrix["rows"] if r["library"] == lib["name"] and r.get("failures")]
         h.append("<h3>%s %s</h3>" % (html.escape(lib["name"]), html.escape(lib["version"])))
+        h.append("<p><small>Declared: as a server, %s; as a master, %s.</small></p>" % (
+            "<code>conformance/peers/quirks/%s.yaml</code>" % html.escape(lib["server_quirks"]) if lib.get("server_quirks")
+            else "no quirks file (nothing in the library's documentation declares these deviations)" if any(
+                r["library"] == lib["name"] and r["side"] == "server" and r["status"] == "run" for r in matrix["rows"])
+            else "no server",
+            ", ".join("<code>conformance/client/deviations/%s.yaml</code> (%s)" % (html.escape(d), html.escape(t))
+                      for t, d in sorted(lib.get("master_deviations", {}).items())) or "no adapter"))
         for r in matrix["rows"]:
             if r["library"] == lib["name"] and totals(r)["error"]:
                 h.append("<p>%s / %s: %d cases not run: the run lost the server (%s; its report names the last request).</p>" % (
@@ -424,7 +455,10 @@ def main():
         print("matrix: no mbconform at %s (build it first)" % args.mbconform, file=sys.stderr)
         return 2
     with open(os.path.join(SOURCE, "conformance/peers/matrix.yaml"), encoding="utf-8") as f:
-        libs = yaml.safe_load(f)["libraries"]
+        config = yaml.safe_load(f)
+    libs = config["libraries"]
+    for lib in libs:
+        lib["field_practice_all"] = field_practice(lib, config.get("field_practice_set", {}))
     if args.only:
         names = args.only.split(",")
         libs = [l for l in libs if l["name"] in names]
@@ -438,7 +472,9 @@ def main():
     rows = make_rows(libs, args, ctx, args.out)
     families = {side: sorted({f for r in rows if r["side"] == side for f in r.get("cells", {})}) for side in SIDES}
     matrix = {"matrix": 1, "device": DEVICE, "pty_baud": BAUD,
-              "libraries": [{"name": l["name"], "version": l["version_found"], "language": l["language"], "from": l["from"]} for l in libs],
+              "libraries": [{"name": l["name"], "version": l["version_found"], "language": l["language"], "from": l["from"],
+                             "server_quirks": l.get("server", {}).get("quirks"),
+                             "master_deviations": l.get("master", {}).get("deviations", {})} for l in libs],
               "families": families, "rows": rows, "seconds": round(time.monotonic() - t0, 1)}
     with open(os.path.join(args.out, "matrix.json"), "w", encoding="utf-8") as f:
         json.dump(matrix, f, indent=1, sort_keys=True)

@@ -4,7 +4,11 @@
  * registers, a select() loop over modbus_receive + modbus_reply, default
  * options (500 ms response timeout). The peer tests run `mbconform run` on it.
  * Usage: libmodbus_server PORT [--die-on FC | --wedge-on FC]
- *   (127.0.0.1; prints "listening PORT" when ready). For the runner's tests
+ *        libmodbus_server --rtu DEVICE BAUD
+ *   (127.0.0.1; prints "listening PORT" when ready). --rtu serves Modbus RTU
+ *   as unit 1 on a serial line (a pty: 8N1 at BAUD) the way libmodbus
+ *   tests/unit-test-server.c does: modbus_new_rtu, modbus_connect, then
+ *   modbus_receive + modbus_reply for ever (prints "listening DEVICE"). For the runner's tests
  *   of a target that goes away: --die-on exits when a request with that
  *   function code comes; --wedge-on stops reading that connection (it stays
  *   open, nothing more is answered on it; new connections are served). */
@@ -21,12 +25,34 @@
 enum { kItems = 200 };
 enum { kMbapHeader = 7 }; /* MBAP: transaction, protocol, length, unit; the function code follows */
 
+/* RTU on a serial line, unit 1. A frame libmodbus refuses (bad CRC, another
+ * unit, too short) makes modbus_receive return -1 or 0: the library has
+ * already flushed or ignored it, and the loop waits for the next one. */
+static int serve_rtu(const char* device, int baud, modbus_mapping_t* map) {
+  modbus_t* ctx = modbus_new_rtu(device, baud, 'N', 8, 1);
+  if (!ctx || modbus_set_slave(ctx, 1) < 0 || modbus_connect(ctx) < 0) {
+    fprintf(stderr, "libmodbus: %s: %s\n", device, modbus_strerror(errno));
+    return 1;
+  }
+  printf("listening %s\n", device);
+  fflush(stdout);
+  uint8_t query[MODBUS_RTU_MAX_ADU_LENGTH];
+  for (;;) {
+    int rc = modbus_receive(ctx, query);
+    if (rc > 0) modbus_reply(ctx, query, rc, map);
+  }
+}
+
 int main(int argc, char** argv) {
   int die_on = -1, wedge_on = -1;
+  if (argc == 4 && strcmp(argv[1], "--rtu") == 0) {
+    modbus_mapping_t* map = modbus_mapping_new(kItems, kItems, kItems, kItems);
+    return map ? serve_rtu(argv[2], atoi(argv[3]), map) : 1;
+  }
   if (argc == 4 && strcmp(argv[2], "--die-on") == 0) die_on = atoi(argv[3]);
   else if (argc == 4 && strcmp(argv[2], "--wedge-on") == 0) wedge_on = atoi(argv[3]);
   else if (argc != 2) {
-    fprintf(stderr, "usage: %s PORT [--die-on FC | --wedge-on FC]\n", argv[0]);
+    fprintf(stderr, "usage: %s PORT [--die-on FC | --wedge-on FC] | --rtu DEVICE BAUD\n", argv[0]);
     return 2;
   }
   signal(SIGPIPE, SIG_IGN);

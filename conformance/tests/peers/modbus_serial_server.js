@@ -3,13 +3,16 @@
 // 200 coils, discrete inputs, input and holding registers; an address past
 // them throws { modbusErrorCode: 0x02 } (illegal data address), the
 // package's documented way to refuse. Prints "listening PORT" when ready.
+// With --rtu it serves the same vector with ServerSerial (RTU on a serial
+// line: a pty, 8N1 at BAUD, unit 1; the package's serialport), printing
+// "listening DEVICE" once the port is open.
 //
-// usage: node modbus_serial_server.js PORT   (NODE_PATH: the build tree's node_modules)
+// usage: node modbus_serial_server.js PORT               (NODE_PATH: the build tree's node_modules)
+//        node modbus_serial_server.js --rtu DEVICE BAUD
 "use strict";
 const ModbusRTU = require("modbus-serial");
 
 const ITEMS = 200;
-const port = parseInt(process.argv[2], 10);
 const coils = new Array(ITEMS).fill(false);
 const discrete = new Array(ITEMS).fill(false);
 const input = new Array(ITEMS).fill(0);
@@ -29,6 +32,17 @@ const vector = {
   setRegister: (addr, value) => { at(holding, addr); holding[addr] = value; },
 };
 
-const server = new ModbusRTU.ServerTCP(vector, { host: "127.0.0.1", port: port, debug: false, unitID: 1 });
-server.on("initialized", () => console.log("listening " + port));
-server.on("socketError", (err) => console.error("socket error: " + err));
+if (process.argv[2] === "--rtu") {
+  const device = process.argv[3];
+  const server = new ModbusRTU.ServerSerial(vector, { port: device, baudrate: parseInt(process.argv[4], 10), unitID: 1 });
+  server.getPort().on("open", () => console.log("listening " + device));
+  server.on("socketError", (err) => {
+    console.error("serial error: " + err);
+    process.exit(2);  // the port did not open: no "listening", the matrix says so
+  });
+} else {
+  const port = parseInt(process.argv[2], 10);
+  const server = new ModbusRTU.ServerTCP(vector, { host: "127.0.0.1", port: port, debug: false, unitID: 1 });
+  server.on("initialized", () => console.log("listening " + port));
+  server.on("socketError", (err) => console.error("socket error: " + err));
+}
