@@ -9,6 +9,7 @@
 
 #include "cases/common.h"
 #include "cases/facts.h"
+#include "modbus/function_codes.h"
 #include "modbus/limits.h"
 #include "modbus/pdu.h"
 
@@ -304,6 +305,35 @@ struct Gen {
     });
   }
 
+  // The request for a function code the profile does not list. A function
+  // with no side effect gets its standard request, whole (MBAP v1.1b3 §6.7,
+  // 6.9, 6.10, 6.13, 6.14, 6.18, 6.21). Many RTU servers find a frame's end
+  // by the length its function code implies rather than by the t3.5 silence
+  // of MB-SL v1.02 §2.5.1.1; extra bytes would make such a server wait, or
+  // drop the frame for its CRC, and the case would judge its framing rather
+  // than its answer to the function code (the framing cases do that). A
+  // write keeps address 0 and quantity 1, as before.
+  static std::pair<Bytes, std::string> unsupported_request(int code) {
+    Request r;
+    r.function = uint8_t(code);
+    switch (code) {
+      case fc::read_exception_status:
+      case fc::get_comm_event_counter:
+      case fc::get_comm_event_log:
+      case fc::report_server_id: return {build_request(r), fmt::format("FC {:02} (no data)", code)};
+      case fc::read_file_record:
+        r.files = {FileRecord{.reference_type = 6, .file = 1, .record = 0, .length = 1}};
+        r.byte_count = 7;  // §6.14: 7 bytes per sub-request
+        return {build_request(r), "FC 20 reading record 0 of file 1, 1 word"};
+      case fc::read_fifo_queue: return {build_request(r), "FC 24 with FIFO pointer address 0"};
+      case fc::encapsulated_interface:
+        r.mei_type = kMeiReadDeviceId;
+        r.read_device_id_code = 1;
+        return {build_request(r), "FC 43 / MEI 14, basic device identification"};
+    }
+    return {Bytes{uint8_t(code), 0, 0, 0, 1}, fmt::format("FC {:02} with address 0, quantity 1", code)};
+  }
+
   void unsupported() {
     auto pe = cases::policy_expect(g, Violation::unsupported_function);
     for (int fc : kPublicCodes) {
@@ -313,8 +343,7 @@ struct Gen {
       c.requirement = fmt::format("A function code the device does not support: {}.", pe.expect.text);
       Step s;
       s.unit = g.target.unit;
-      s.pdu = {uint8_t(fc), 0, 0, 0, 1};
-      s.what = fmt::format("FC {:02} with address 0, quantity 1", fc);
+      std::tie(s.pdu, s.what) = unsupported_request(fc);
       s.expect = pe.expect;
       add(std::move(c), s);
     }
