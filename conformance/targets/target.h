@@ -64,6 +64,13 @@ class Target {
   // many bytes). Only when info().raw; throws std::logic_error otherwise.
   virtual Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after = std::nullopt) = 0;
 
+  // The pause `send_raw` makes inside a split frame, where the target chose
+  // it (nullopt: no pause of its own, or one the user fixed with `gap=`). A
+  // receiver that a busy host holds up longer than that reads both parts as
+  // one frame; the runner then runs the case again with a longer pause.
+  virtual std::optional<std::chrono::microseconds> split_gap() const { return std::nullopt; }
+  virtual void set_split_gap(std::chrono::microseconds) {}
+
   // How long a negative case waits for silence. Live targets measure their
   // latency and keep this a bounded multiple of it.
   virtual std::chrono::microseconds silence_window() const { return std::chrono::microseconds(0); }

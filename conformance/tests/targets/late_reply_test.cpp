@@ -1,7 +1,10 @@
-// The rtu:// target against a slave played by this test on a real pty: a
-// reply that comes after the silence window closed is found before the next
-// request (drained, counted as late) and widens the window past the time it
-// took, so that a re-run waits for it (README: no verdict from a race).
+// The rtu:// target and the runner against a slave played by this test on a
+// real pty (README: no verdict from a race): a reply that comes after the
+// silence window closed is found before the next request (drained, counted
+// as late) and widens the window past the time it took, so that a re-run
+// waits for it; a split frame answered because the receiver was held up is
+// run again with a longer pause; exception 01 skips a case only for the
+// function code it sent.
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <poll.h>
@@ -50,6 +53,12 @@ class PtySlave {
   std::atomic<int64_t> delay_us{0};
   std::atomic<int> answered{0};
   std::atomic<bool> merge{false};
+  // With `gap_us`, a frame also ends when the line is silent that long after
+  // the receiver looks again, which it does `held_us` after it read the first
+  // bytes (a receiver a busy host held up). Without, frames end by length.
+  std::atomic<int64_t> gap_us{0}, held_us{0};
+  // Nonzero: every answer is exception 01 (illegal function) for this code.
+  std::atomic<int> illegal_fc{0};
 
  private:
   void serve() {
@@ -61,6 +70,12 @@ class PtySlave {
       ssize_t n = read(master_, buf, sizeof buf);
       if (n <= 0) continue;
       in.insert(in.end(), buf, buf + n);
+      if (in.size() < 8 && gap_us.load() > 0) {
+        std::this_thread::sleep_for(std::chrono::microseconds(held_us.load()));
+        pollfd more{master_, POLLIN, 0};
+        if (poll(&more, 1, int(gap_us.load() / 1000)) == 0) in.clear();  // a silence ended an incomplete frame
+        continue;
+      }
       if (in.size() < 8) continue;
       // Not addressed to unit 1: no reply; with `merge`, the next request is
       // taken as the rest of that frame and dropped too (a receiver held up
@@ -71,7 +86,8 @@ class PtySlave {
         continue;
       }
       std::this_thread::sleep_for(std::chrono::microseconds(delay_us.load()));
-      Bytes reply = rtu_frame(in[0], Bytes{3, 2, 0x12, 0x34});
+      Bytes reply = illegal_fc.load() ? rtu_frame(in[0], Bytes{uint8_t(illegal_fc.load() | 0x80), 1})
+                                      : rtu_frame(in[0], Bytes{3, 2, 0x12, 0x34});
       in.clear();
       if (write(master_, reply.data(), reply.size()) == ssize_t(reply.size())) ++answered;
     }
@@ -138,6 +154,81 @@ TEST(RtuLateReply, AnUnansweredRequestAfterASilenceIsRunAgain) {
   EXPECT_EQ(run.cases[0].outcome, Outcome::pass) << run.cases[0].message;
   EXPECT_EQ(run.cases[1].outcome, Outcome::pass) << run.cases[1].message;
   EXPECT_NE(run.cases[1].message.find("re-run"), std::string::npos) << run.cases[1].message;
+}
+
+// A request split by a pause inside it (framing/rtu/split-by-gap).
+Case split_request_case() {
+  Case c;
+  c.id = "t/split-by-gap";
+  Step st;
+  st.kind = Step::Kind::raw;
+  st.adu = rtu_frame(1, read_request(3, 0, 1));
+  st.gap_after = 3;
+  st.what = "a request split by a pause";
+  st.expect.kind = Expect::Kind::silence;
+  c.steps = {st};
+  return c;
+}
+
+// A receiver that detects the pause, but that the host held up longer than
+// the target's own pause, reads both parts at once and answers: the case
+// runs again with a longer pause, and that verdict stands (no verdict from a
+// race).
+TEST(RtuSplitFrame, AnsweredBecauseTheReceiverWasHeldUpIsRunAgainWithALongerPause) {
+  PtySlave slave;
+  slave.gap_us = 5000;
+  slave.held_us = 100000;  // past the target's 20 ms, short of the re-run's 250 ms
+  auto target = open_target("rtu://" + slave.path() + "?baud=115200&parity=N&unit=1&timeout=300");
+  DeviceRun run = run_cases(*target, spec::load_spec_by_id("modbus-standard"), {split_request_case()});
+  ASSERT_EQ(run.cases.size(), 1u);
+  EXPECT_GE(slave.answered.load(), 1) << "the slave did not join the parts: the test shows nothing";
+  EXPECT_EQ(run.cases[0].outcome, Outcome::pass) << run.cases[0].message;
+  EXPECT_NE(run.cases[0].message.find("re-run with 250 ms"), std::string::npos) << run.cases[0].message;
+  EXPECT_EQ(target->split_gap(), std::optional<std::chrono::microseconds>(20ms)) << "the pause was not put back";
+}
+
+// A receiver that joins the parts whatever the pause (frames by length) fails
+// the re-run too; and a pause the user fixed with `gap=` is kept as given.
+TEST(RtuSplitFrame, JoinedWhateverThePauseFailsAndAFixedGapIsKept) {
+  PtySlave slave;
+  auto target = open_target("rtu://" + slave.path() + "?baud=115200&parity=N&unit=1&timeout=300");
+  DeviceRun run = run_cases(*target, spec::load_spec_by_id("modbus-standard"), {split_request_case()});
+  ASSERT_EQ(run.cases.size(), 1u);
+  EXPECT_EQ(run.cases[0].outcome, Outcome::fail) << run.cases[0].message;
+  EXPECT_NE(run.cases[0].message.find("re-run with 250 ms"), std::string::npos) << run.cases[0].message;
+
+  auto fixed = open_target("rtu://" + slave.path() + "?baud=115200&parity=N&unit=1&timeout=300&gap=30");
+  EXPECT_EQ(fixed->split_gap(), std::nullopt);
+  int before = slave.answered.load();
+  run = run_cases(*fixed, spec::load_spec_by_id("modbus-standard"), {split_request_case()});
+  EXPECT_EQ(run.cases[0].outcome, Outcome::fail) << run.cases[0].message;
+  EXPECT_EQ(run.cases[0].message.find("re-run with"), std::string::npos) << run.cases[0].message;
+  EXPECT_EQ(slave.answered.load(), before + 1) << "sent more than once with a fixed gap";
+}
+
+// Every function but the standard's is optional (MBAP v1.1b3 §5.1): a case
+// whose request is refused with exception 01 for its own function code is
+// skipped, but exception 01 for a code it did not send answers nothing it
+// asked, and fails.
+TEST(RtuOptionalFunction, SkippedOnlyForTheCodeTheStepSent) {
+  PtySlave slave;
+  auto target = open_target("rtu://" + slave.path() + "?baud=115200&parity=N&unit=1&timeout=300");
+  Case c;
+  c.id = "t/read";
+  c.functions_optional = true;
+  Step st;
+  st.unit = 1;
+  st.pdu = read_request(3, 0, 1);
+  st.what = "read 0x0000";
+  st.expect.kind = Expect::Kind::normal;
+  c.steps = {st};
+  auto spec = spec::load_spec_by_id("modbus-standard");
+  slave.illegal_fc = 3;
+  DeviceRun run = run_cases(*target, spec, {c});
+  EXPECT_EQ(run.cases.at(0).outcome, Outcome::skip) << run.cases[0].message;
+  slave.illegal_fc = 0x7E;
+  run = run_cases(*target, spec, {c});
+  EXPECT_EQ(run.cases.at(0).outcome, Outcome::fail) << run.cases[0].message;
 }
 
 }  // namespace
