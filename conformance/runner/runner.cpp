@@ -454,6 +454,25 @@ DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Ca
       target.reconnect();
     }
   };
+  // Runs case k; one whose split frame was answered runs again with a
+  // longer pause inside the frame, and that verdict stands (kSplitGapRecheck).
+  auto run_case = [&](size_t k) {
+    CaseResult r = runner.run(cases[k]);
+    auto gap = target.split_gap();
+    if (!live || !gap || r.outcome != Outcome::fail || !answered_a_split_frame(cases[k], r)) return r;
+    auto longer = std::max<std::chrono::microseconds>(10 * *gap, kSplitGapRecheck);
+    target.set_split_gap(longer);
+    try {
+      r = runner.run(cases[k]);
+    } catch (...) {
+      target.set_split_gap(*gap);
+      throw;
+    }
+    target.set_split_gap(*gap);
+    r.message += fmt::format("{}(re-run with {} ms inside the split frame: a {} ms pause was answered)",
+                             r.message.empty() ? "" : " ", longer.count() / 1000, gap->count() / 1000);
+    return r;
+  };
   auto report = [&](size_t i) {
     if (opt.on_case) opt.on_case(run.cases[i], i + 1, cases.size());
   };
@@ -466,7 +485,7 @@ DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Ca
     CaseResult res;
     bool transport_error = false;
     try {
-      res = runner.run(cases[i]);
+      res = run_case(i);
       if (!live) errors = 0;
     } catch (const std::exception& e) {
       // The target threw (connection refused or reset, a device that cannot go on).
@@ -491,7 +510,7 @@ DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Ca
         // have taken both as one frame. The target answers: run it again.
         ++reruns[i];
         try {
-          CaseResult again = runner.run(cases[i]);
+          CaseResult again = run_case(i);
           again.message += std::string(again.message.empty() ? "" : " ") +
                            "(re-run: a request that followed a silence went unanswered)";
           res = std::move(again);
@@ -508,21 +527,6 @@ DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Ca
                                  "; it answered again after a reconnect" + detail;
       }
     }
-    if (live && !lost && !transport_error && res.outcome == Outcome::fail && answered_a_split_frame(cases[i], res))
-      if (auto gap = target.split_gap(); gap && reruns[i] < kMaxReruns) {
-        ++reruns[i];
-        auto longer = std::max<std::chrono::microseconds>(10 * *gap, kSplitGapRecheck);
-        target.set_split_gap(longer);
-        try {
-          CaseResult again = runner.run(cases[i]);
-          again.message += fmt::format("{}(re-run with {} ms inside the split frame: a {} ms pause was answered)",
-                                       again.message.empty() ? "" : " ", longer.count() / 1000, gap->count() / 1000);
-          res = std::move(again);
-          saw_silence[i] = runner.line.silence;
-        } catch (const std::exception&) {
-        }
-        target.set_split_gap(*gap);
-      }
     run.cases.push_back(std::move(res));
     report(i);
     if (lost) {
@@ -548,7 +552,7 @@ DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Ca
         if (reruns[k] >= kMaxReruns) continue;
         ++reruns[k];
         try {
-          CaseResult again = runner.run(cases[k]);
+          CaseResult again = run_case(k);
           again.message = again.message.empty() ? "re-run after a late reply" : again.message + " (re-run after a late reply)";
           saw_silence[k] = runner.line.silence;
           run.cases[k] = std::move(again);
