@@ -218,21 +218,17 @@ class CaseRunner {
   // step sent counts: an exception 01 for another code (a raw frame the
   // server misread) answers nothing the step asked.
   static std::optional<int> not_implemented(const Case& c, const CaseResult& r, Framing framing) {
+    const size_t fc_at = framing == Framing::rtu ? 1 : kMbapHeader;  // in the request as framed on the wire
     for (size_t i = 0; i < c.steps.size() && i < r.frames.size(); ++i) {
       const auto& f = r.frames[i];
-      const Step& st = c.steps[i];
-      if (st.expect.kind == Expect::Kind::exception && st.expect.code == 1) continue;
-      if (!f.actual || f.actual_decoded.empty()) continue;
+      if (c.steps[i].expect.kind == Expect::Kind::exception && c.steps[i].expect.code == 1) continue;
+      if (!f.actual || f.actual_decoded.empty() || f.request.size() <= fc_at) continue;
       const Bytes& a = *f.actual;
       // The PDU's last two bytes of an exception reply: FC | 0x80, 01 (RTU: before the CRC).
       size_t at = a.size() >= 4 && (a[a.size() - 4] & 0x80) && a[a.size() - 3] == 1 ? a.size() - 4
                   : a.size() >= 2 && (a[a.size() - 2] & 0x80) && a.back() == 1 ? a.size() - 2
                                                                                   : a.size();
-      size_t fc_at = framing == Framing::rtu ? 1 : kMbapHeader;  // a raw step's bytes are an ADU
-      std::optional<int> sent = st.kind == Step::Kind::pdu && !st.pdu.empty()      ? std::optional<int>(st.pdu[0])
-                                : st.kind == Step::Kind::raw && st.adu.size() > fc_at ? std::optional<int>(st.adu[fc_at])
-                                                                                      : std::nullopt;
-      if (at < a.size() && sent == (a[at] & 0x7F)) return *sent;
+      if (at < a.size() && f.request[fc_at] == (a[at] & 0x7F)) return f.request[fc_at];
     }
     return std::nullopt;
   }
