@@ -1,0 +1,88 @@
+// The seam between the checks and the thing under test (agreed between the
+// guarded-session work and the one-check work; conformance/README.md).
+//
+//   check/ (one Step, one Expect, one judge, one exchange)
+//      |  hands every frame to a Link
+//   session/ (the gate, the journal, restore, signals, deadlines, progress)
+//      |  owns the Target
+//   targets/ (ref, tcp, rtu-tcp, rtu, plugin, tls)
+//
+// Every command that touches a target (run, props, fuzz, replay, spec
+// discover, the --map auto probe) reaches it through a Link and never through
+// a Target directly. The session's Link checks each frame at the gate before
+// it goes out and journals the original value of anything it writes; a frame
+// the gate refuses is not sent and comes back as a Reply with `refused` set
+// (the check records it as skipped with that reason, never as a verdict).
+// DirectLink passes frames straight to a Target: for in-process reference
+// targets in unit tests only.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <string>
+
+#include "targets/target.h"
+
+namespace mbc::conf {
+
+// Why the gate held a frame back; empty when it went out.
+struct Refusal {
+  std::string reason;  // one line: "write to unit 2 (not the target's unit 1): needs --allow-units 2"
+  std::string opt_in;  // the flag that would let it go ("--allow-motion"), empty when none does
+};
+
+struct Sent {
+  Reply reply;                   // what came back (empty frame on silence or refusal)
+  std::optional<Refusal> refused;  // set: nothing was sent
+  bool lost = false;             // the target is gone (transport failed past a bounded reconnect)
+};
+
+class Link {
+ public:
+  virtual ~Link() = default;
+  virtual const TargetInfo& info() const = 0;
+
+  // A well-formed request `pdu` to `unit` (0 = broadcast).
+  virtual Sent transact(uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait) = 0;
+  // Bytes exactly as given (a whole ADU in the target's framing, possibly
+  // malformed); the gate judges what a receiver could take from them.
+  virtual Sent send_raw(std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait) = 0;
+
+  // Pass-throughs to the Target (see targets/target.h).
+  virtual std::chrono::microseconds silence_window() const = 0;
+  virtual uint64_t late_replies() const = 0;
+  virtual std::optional<std::chrono::microseconds> split_gap() const = 0;
+  virtual void set_split_gap(std::chrono::microseconds) = 0;
+  virtual bool reconnect() = 0;
+  virtual void advance(std::chrono::microseconds dt) = 0;
+  virtual void power_cycle() = 0;
+};
+
+// No gate, no journal: a Target as a Link (reference targets in tests).
+class DirectLink final : public Link {
+ public:
+  explicit DirectLink(Target& t) : t_(t) {}
+  const TargetInfo& info() const override { return t_.info(); }
+  Sent transact(uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait) override {
+    t_.set_wait(wait);
+    return Sent{t_.transact(unit, pdu), std::nullopt, false};
+  }
+  Sent send_raw(std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait) override {
+    t_.set_wait(wait);
+    return Sent{t_.send_raw(adu, gap_after), std::nullopt, false};
+  }
+  std::chrono::microseconds silence_window() const override { return t_.silence_window(); }
+  uint64_t late_replies() const override { return t_.late_replies(); }
+  std::optional<std::chrono::microseconds> split_gap() const override { return t_.split_gap(); }
+  void set_split_gap(std::chrono::microseconds g) override { t_.set_split_gap(g); }
+  bool reconnect() override { return t_.reconnect(); }
+  void advance(std::chrono::microseconds dt) override { t_.advance(dt); }
+  void power_cycle() override { t_.power_cycle(); }
+
+ private:
+  Target& t_;
+};
+
+}  // namespace mbc::conf
