@@ -2,7 +2,8 @@
 # Configures and builds into build/ (or $BUILD_DIR). Extra args go to cmake.
 # One line when it worked; the compiler's errors when it did not. The whole
 # output is kept in $BUILD_DIR/build.log (MBCONFORM_VERBOSE=1 prints it as it comes).
-# MBCONFORM_WERROR=ON makes a warning an error (.ci/run).
+# MBCONFORM_WERROR=ON makes a warning an error (.ci/run). BUILD_TYPE: Release
+# (-O2, no debug info) unless given; BUILD_TYPE=RelWithDebInfo for a debugger.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BUILD_DIR=${BUILD_DIR:-build}
@@ -10,7 +11,7 @@ mkdir -p "$BUILD_DIR"
 log="$BUILD_DIR/build.log"
 start=$SECONDS
 build() {
-  cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE="${BUILD_TYPE:-RelWithDebInfo}" \
+  cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE="${BUILD_TYPE:-Release}" \
     -DMBCONFORM_WERROR="${MBCONFORM_WERROR:-OFF}" "$@" &&
     cmake --build "$BUILD_DIR" -j "$(nproc)"
 }
