@@ -134,6 +134,25 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
   }
 
   facts::example(e.relies, ex);
+  if (ex.exercises && !g.spec.profile.policy(*ex.exercises).readings.empty()) {
+    // An example inherits the `either` of the policy it exercises: each of
+    // the policy's other readings is accepted too.
+    spec::PolicyEntry p = facts::policy(e.relies, g.spec, *ex.exercises);
+    for (const auto& r : p.readings) {
+      bool same = (r.kind == spec::PolicyEntry::Kind::silent && e.kind == Expect::Kind::silence) ||
+                  (r.kind == spec::PolicyEntry::Kind::exception && e.kind == Expect::Kind::exact && e.pdu.size() == 2 &&
+                   (e.pdu[0] & 0x80) && e.pdu[1] == r.code);
+      if (same || r.kind == spec::PolicyEntry::Kind::unspecified) continue;
+      if (e.reading.empty()) e.reading = e.text;
+      Expect alt = r.kind == spec::PolicyEntry::Kind::silent
+                       ? cases::silence(fmt::format("silence (the other reading of exception_policy.{})", spec::to_string(*ex.exercises)))
+                       : cases::exception(uint8_t(r.code), fmt::format("exception {:02X} (the other reading of exception_policy.{})", r.code,
+                                                                      spec::to_string(*ex.exercises)));
+      alt.reading = alt.text;
+      e.text += " or " + alt.text;
+      e.either.push_back(std::move(alt));
+    }
+  }
   if (ex.basis.basis == spec::Basis::either && ex.response && ex.has_resolution()) {
     // The manual prints two readings: the resolved one above, or the frame as printed.
     if (auto printed = parse_hex(*ex.response); printed && printed->size() >= 4) {

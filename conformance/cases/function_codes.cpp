@@ -153,7 +153,20 @@ struct Gen {
       o.relies = lim;
       o.title = fmt::format("FC {:02} reads {} items, one over the limit", f.code, limit + 1);
       o.requirement = fmt::format("Over the limit of {}: {}.", limit, pe.expect.text);
-      add(std::move(o), cases::read_range_step(g, t, at.value_or(*first), uint16_t(limit + 1), pe.expect));
+      // Over readable registers only, where the map has such a run; else the
+      // range also covers addresses the map leaves out, and the answer
+      // depends on the order of the checks, which only the standard's state
+      // diagram gives (MBAP v1.1b3 Figure 13: quantity first; SHOULD, as
+      // standard/order/* rates it).
+      std::optional<uint16_t> over = readable_run(t, limit + 1, &o.relies);
+      if (!over && o.level == Level::must) {
+        o.level = Level::should;
+        o.clause += "; MBAP v1.1b3 §6.3 Figure 13 (the order of the checks)";
+        o.requirement += fmt::format(" The {} items from {} also cover addresses the map leaves out, so this relies on the "
+                                     "quantity being checked before the addresses (MBAP v1.1b3 Figure 13), which the manual does "
+                                     "not state: SHOULD.", limit + 1, hex16(at.value_or(*first)));
+      }
+      add(std::move(o), cases::read_range_step(g, t, over.value_or(at.value_or(*first)), uint16_t(limit + 1), pe.expect));
     }
     address_cases(f.code, t, [&](uint16_t a, uint16_t n, Expect e) { return cases::read_range_step(g, t, a, n, e); });
   }

@@ -265,6 +265,8 @@ void persistence(Session& s) {
       continue;  // whether a save stores what the do-not-persist switch held back is not stated (57HS-R §6.1)
     } else if (r.basis_of(spec::Fact::persistence).basis != spec::Basis::stated) {
       continue;  // an inferred persistence is not held against the device (spec/README.md)
+    } else if (held_back.count(a) && r.basis_of(spec::Fact::persistence_unless).basis != spec::Basis::stated) {
+      continue;  // that the switch held the write back is inferred (57HS-R 0x00E0, erratum pv-autosave)
     } else if (r.persistence.store == spec::Store::none) {
       want = v.default_raw(r), why = "volatile: its default";
     } else if (stored.count(a)) {

@@ -336,6 +336,9 @@ void apply_frame(Model& m, const Prediction& p, const Reply* rep) {
       auto it = m.words.find(*r->persistence.unless_register);
       if (it == m.words.end() || !it->second) suppressed = std::nullopt;
       else suppressed = int64_t(*it->second) == r->persistence.unless_value;
+      // Whether the switch holds the write back may itself be inferred (57HS-R
+      // 0x00E0, erratum pv-autosave): then what is stored is not known.
+      if (suppressed == true && r->basis_of(spec::Fact::persistence_unless).basis != spec::Basis::stated) suppressed = std::nullopt;
     }
     if (suppressed == false) m.stored[a] = w;
     else if (!suppressed) m.stored[a] = std::nullopt;

@@ -9,6 +9,8 @@
 #include "commands.h"
 #include "dump.h"
 #include "errata.h"
+#include "cases/case.h"
+#include "cases/facts.h"
 #include "exchange.h"
 #include "loader.h"
 #include "map/map.h"
@@ -64,6 +66,31 @@ bool write_file(const fs::path& p, const std::string& text) {
   return bool(out);
 }
 
+// The cases of a spec, as a reference target runs them, that are OBSERVED
+// only because a fact they rely on is inferred (cases/facts.h), with the facts.
+nlohmann::json observed_by_inference(const spec::Spec& s, const spec::Spec& standard) {
+  conf::TargetInfo info;
+  info.kind = "ref";
+  info.uri = "ref:" + s.device.id;
+  info.unit = uint8_t(s.serial.slave_default.value_or(s.serial.slave_min));
+  info.virtual_clock = info.power_cycle = info.raw = true;
+  info.device_id = s.device.id;
+  conf::GenContext g{s, info, {}, &standard};
+  nlohmann::json out = nlohmann::json::array();
+  for (const auto& c : conf::all_cases(g)) {
+    if (!c.level_if_stated) continue;
+    nlohmann::json facts = nlohmann::json::array();
+    for (const auto& r : conf::facts::all_relies(c)) {
+      if (!r.basis.is_inferred()) continue;
+      nlohmann::json f{{"fact", r.fact}, {"basis", spec::to_string(r.basis.basis)}, {"why", r.basis.why}, {"section", r.basis.section}};
+      if (!r.basis.searched.empty()) f["searched"] = r.basis.searched;
+      facts.push_back(std::move(f));
+    }
+    out.push_back({{"case", c.id}, {"level_if_stated", conf::to_string(*c.level_if_stated)}, {"facts", facts}});
+  }
+  return out;
+}
+
 int run_errata(std::vector<std::string> ids, const std::string& out_dir) {
   if (ids.empty()) ids = spec::spec_ids();
   spec::Spec standard = load_id_or_path("modbus-standard");
@@ -72,7 +99,7 @@ int run_errata(std::vector<std::string> ids, const std::string& out_dir) {
   if (ec) throw std::runtime_error("cannot create " + out_dir + ": " + ec.message());
   for (const auto& id : ids) {
     spec::Spec s = load_id_or_path(id);
-    auto report = spec::errata_report(s, standard);
+    auto report = spec::errata_report(s, standard, observed_by_inference(s, standard));
     fs::path base = fs::path(out_dir) / s.device.id;
     if (!write_file(base.string() + ".json", report.dump(2) + "\n") ||
         !write_file(base.string() + ".md", spec::errata_markdown(report)))
