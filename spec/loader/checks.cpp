@@ -416,6 +416,10 @@ struct Checker {
         error(x.origin, "erratum-contested",
               "example '" + x.id + "' exercises exception_policy." + to_string(*x.exercises) +
                   ", which is printed two ways: it inherits that either (basis: {either: [printed, policy], erratum: " + pe.basis.erratum + "})");
+      else if (pe.basis.is_inferred() && !open(x.basis))
+        error(x.origin, "erratum-contested",
+              "example '" + x.id + "' exercises exception_policy." + to_string(*x.exercises) +
+                  ", which is inferred: it inherits the inference (basis: {inferred: ..., searched: ...})");
     }
     // Which errata anything cites: every `erratum:` of the document, and the
     // bases' own erratum references.

@@ -37,8 +37,8 @@ std::optional<std::string> flip(Register& r, Fact f, const FactBasis& b) {
       r.access = Access::wo;  // a read gets the policy's read_write_only answer
       return "not readable (reads refused)";
     case Fact::write:
-      if (r.access != Access::rw) return std::nullopt;
-      r.access = Access::ro;
+      if (r.access != Access::rw && r.access != Access::command) return std::nullopt;
+      r.access = Access::ro;  // a write gets the policy's write_read_only answer
       return "not writable (read-only)";
     case Fact::range: {
       if (!r.range) return std::nullopt;
@@ -145,6 +145,9 @@ std::optional<Bytes> pdu_of(const std::optional<std::string>& hex) {
 std::optional<std::pair<Bytes, std::optional<Bytes>>> other_answer(const Spec& s, const Example& x, std::string& words) {
   auto req = pdu_of(x.resolved_request ? x.resolved_request : std::optional<std::string>(x.request));
   if (!req || req->empty()) return std::nullopt;
+  // A frame sent with a deliberately wrong CRC is a crc_error: the policy's
+  // variant takes its other reading (a PDU match would catch good frames too).
+  if (auto raw = parse_hex(x.resolved_request.value_or(x.request)); !raw || !crc_ok(*raw)) return std::nullopt;
   if (x.basis.basis == Basis::either) {
     // [printed, resolved]: the cases expect the resolved reading first; this
     // device answers as printed.
