@@ -44,14 +44,17 @@ TEST_P(OtherReading, EveryMustCasePassesAgainstEveryVariant) {
     bool differs = false;
     for (size_t i = 0; i < run.cases.size(); ++i) {
       const auto& c = run.cases[i];
-      if (c.level == Level::must)
+      if (c.level == Level::must) {
         EXPECT_NE(c.outcome, Outcome::fail) << c.id << " [" << c.clause << "] fails against a drive that reads " << rd.fact
                                             << " as " << rd.other << ": " << c.message;
+      }
       differs = differs || c.outcome != base.cases[i].outcome || c.message != base.cases[i].message;
     }
     changed += differs;
   }
-  if (!readings.empty()) EXPECT_GT(changed, 0u) << "no variant changed any case: the variants do not take another reading";
+  if (!readings.empty()) {
+    EXPECT_GT(changed, 0u) << "no variant changed any case: the variants do not take another reading";
+  }
   std::cout << fmt::format("{}: {} contested facts, {} MUST cases, {} variants change some case\n", GetParam(),
                            readings.size(), must, changed);
 }
