@@ -110,6 +110,13 @@ constexpr size_t kOutputBound = 64 * 1024;
 // After accept fails for want of descriptors (EMFILE, ENFILE), listeners rest
 // this long instead of waking the loop for the same failure again.
 constexpr milliseconds kAcceptBackoff{100};
+// Bytes read from one connection in one poll round, on every transport: a
+// client that streams cannot keep the loop from the others (nor from a stop
+// signal).
+constexpr size_t kReadPerRound = 16 * 1024;
+// Descriptors kept free beside the connections: listeners, ptys, stdio, the
+// EEPROM files written while serving.
+constexpr size_t kSpareDescriptors = 16;
 
 volatile sig_atomic_t g_stop = 0;
 extern "C" void on_stop_signal(int) { g_stop = 1; }
@@ -151,17 +158,24 @@ struct Link {
   Bytes in;
   size_t overflow = 0;  // bytes past kMaxRtuAdu in the current RTU frame
   Clock::time_point last_rx;
+  // An RTU frame past kMaxRtuAdu is noise until the line falls silent (MB-SL
+  // v1.02 §2.5.1.1): such a stream is read once per frame gap, so a client
+  // flooding bytes costs bounded time, not the loop's every round.
+  Clock::time_point rest_until{};
   std::deque<Outgoing> out;
   size_t out_offset = 0;  // bytes of out.front() already sent
   size_t out_bytes = 0;   // queued, not yet sent
   bool closed = false;
   bool eof = false;       // the peer shut its side: answer what came, then close
+  bool write_blocked = false;  // the last send said EAGAIN: wait for POLLOUT, never retry in a loop
 
   bool rtu() const { return transport != Transport::tcp; }
   bool socket() const { return transport != Transport::pty; }
   // Its replies pile up unread: consume and read nothing more for now.
   bool backed_up() const { return out_bytes >= kOutputBound; }
-  bool wants_input() const { return !eof && !backed_up() && (rtu() || in.size() < kInputBound); }
+  bool wants_input(Clock::time_point now) const {
+    return !eof && !backed_up() && now >= rest_until && (rtu() || in.size() < kInputBound);
+  }
 };
 
 struct Listener {
@@ -188,6 +202,7 @@ struct Server::Impl {
   Clock::time_point clock_at;          // the bus clock stands at this real time
   sigset_t run_mask;                   // the mask ppoll waits with (stop signals open)
   Clock::time_point accept_resume;     // listeners rest until then after EMFILE
+  size_t max_links = 0;                // opt.max_connections, lowered to what RLIMIT_NOFILE leaves room for
 
   Impl(ref::Bus b, Options o) : bus(std::move(b), o.faults), opt(std::move(o)) {}
 
@@ -231,6 +246,15 @@ struct Server::Impl {
   }
 
   // ---- endpoints ----
+
+  static size_t open_descriptors() {
+    std::error_code ec;
+    size_t n = 0;
+    for (auto it = std::filesystem::directory_iterator("/proc/self/fd", ec); !ec && it != std::filesystem::directory_iterator();
+         it.increment(ec))
+      ++n;
+    return n ? n : 64;  // no /proc: assume a few dozen
+  }
 
   void open_socket(const Endpoint& e) {
     addrinfo hints{}, *res = nullptr;
@@ -310,6 +334,15 @@ struct Server::Impl {
         open_pty(e);
       else
         open_socket(e);
+    }
+    // The cap the descriptors allow: eviction of the connection unused the
+    // longest must happen before accept runs out of descriptors, or no
+    // newcomer is ever served once idle connections fill the table.
+    max_links = opt.max_connections;
+    if (getrlimit(RLIMIT_NOFILE, &nofile) == 0 && nofile.rlim_cur != RLIM_INFINITY) {
+      size_t in_use = open_descriptors();
+      size_t room = nofile.rlim_cur > in_use + kSpareDescriptors ? size_t(nofile.rlim_cur) - in_use - kSpareDescriptors : 1;
+      if (!max_links || room < max_links) max_links = room;
     }
     for (const auto& line : listening) std::fputs((line + "\n").c_str(), stdout);
     std::fflush(stdout);
@@ -456,8 +489,8 @@ struct Server::Impl {
 
   void read_link(Link& l, Clock::time_point now) {
     uint8_t buf[4096];
-    while (l.wants_input()) {
-      size_t room = l.rtu() ? sizeof buf : std::min(sizeof buf, kInputBound - l.in.size());
+    for (size_t budget = kReadPerRound; budget > 0 && l.wants_input(now);) {
+      size_t room = std::min(budget, l.rtu() ? sizeof buf : std::min(sizeof buf, kInputBound - l.in.size()));
       ssize_t n = ::read(l.fd, buf, room);
       if (n > 0) {
         // Bytes after a silence of t3.5 start a new frame (MB-SL v1.02
@@ -467,11 +500,16 @@ struct Server::Impl {
           save_changed_images();
         }
         l.last_rx = now;
+        budget -= size_t(n);
         for (ssize_t i = 0; i < n; ++i) {
           if (l.rtu() && l.in.size() >= kMaxRtuAdu)
             ++l.overflow;
           else
             l.in.push_back(buf[i]);
+        }
+        if (l.overflow) {
+          l.rest_until = now + rtu_gap(l);
+          return;
         }
         // A short read drained what the kernel held; poll is level-triggered
         // and reports anything newer, so skip the read that would say EAGAIN
@@ -492,13 +530,17 @@ struct Server::Impl {
   }
 
   void write_link(Link& l, Clock::time_point now) {
+    if (l.write_blocked) return;  // until poll says POLLOUT
     while (!l.out.empty() && l.out.front().not_before <= now) {
       const Bytes& b = l.out.front().bytes;
       ssize_t n = l.socket() ? ::send(l.fd, b.data() + l.out_offset, b.size() - l.out_offset, MSG_NOSIGNAL)
                              : ::write(l.fd, b.data() + l.out_offset, b.size() - l.out_offset);
       if (n < 0) {
         if (errno == EINTR) continue;
-        if (errno == EAGAIN || errno == EWOULDBLOCK) return;
+        if (errno == EAGAIN || errno == EWOULDBLOCK) {
+          l.write_blocked = true;
+          return;
+        }
         if (l.socket()) l.closed = true;
         l.out.clear();  // pty without a reader: the reply is lost, as on a bus nobody listens to
         l.out_offset = 0;
@@ -529,6 +571,9 @@ struct Server::Impl {
     if (!oldest) return;
     if (opt.trace) std::fputs((oldest->name + " closed: connection cap, unused the longest\n").c_str(), stderr);
     oldest->closed = true;
+    // Its descriptor comes free now, for the newcomer of this same burst of accepts.
+    ::close(oldest->fd);
+    oldest->fd = -1;
   }
 
   void accept_all(const Listener& s, Clock::time_point now) {
@@ -546,7 +591,7 @@ struct Server::Impl {
         }
         return;  // EAGAIN, or an aborted connection
       }
-      if (opt.max_connections && socket_links() >= opt.max_connections) make_room();
+      if (max_links && socket_links() >= max_links) make_room();
       int one = 1;
       setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);  // replies are small and wanted now
       setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &one, sizeof one);  // Guide §4.3.2: find peers that vanished
@@ -574,7 +619,7 @@ struct Server::Impl {
     std::erase_if(links, [&](Link& l) {
       if (!l.closed) return false;
       if (opt.trace) std::fputs((l.name + " closed\n").c_str(), stderr);
-      ::close(l.fd);
+      if (l.fd >= 0) ::close(l.fd);
       return true;
     });
   }
@@ -586,7 +631,10 @@ struct Server::Impl {
     Clock::time_point wake = now + kMaxSleep;
     for (const auto& l : links) {
       if (l.rtu() && (!l.in.empty() || l.overflow)) wake = std::min(wake, l.last_rx + rtu_gap(l));
-      if (!l.out.empty()) wake = std::min(wake, l.out.front().not_before);
+      if (l.rest_until > now) wake = std::min(wake, l.rest_until);
+      // A reply already due waits for POLLOUT, not for a timer: a client that
+      // does not read must not turn the loop into a busy one.
+      if (!l.out.empty() && l.out.front().not_before > now) wake = std::min(wake, l.out.front().not_before);
     }
     auto us = std::max<int64_t>(0, duration_cast<microseconds>(wake - now).count());
     return timespec{time_t(us / 1000000), long(us % 1000000) * 1000L};
@@ -626,7 +674,7 @@ struct Server::Impl {
       for (const auto& s : listeners) fds.push_back({accepting ? s.fd : -1, POLLIN, 0});
       for (const auto& l : links) {
         bool due = !l.out.empty() && l.out.front().not_before <= now;
-        fds.push_back({l.fd, short((l.wants_input() ? POLLIN : 0) | (due ? POLLOUT : 0)), 0});
+        fds.push_back({l.fd, short((l.wants_input(now) ? POLLIN : 0) | (due ? POLLOUT : 0)), 0});
       }
       timespec ts = poll_timeout(now);
       int rc = ppoll(fds.data(), fds.size(), &ts, &run_mask);
@@ -641,8 +689,10 @@ struct Server::Impl {
       // accept_all appended new links after the polled ones; index only those polled.
       for (size_t k = 0; i < fds.size(); ++k, ++i) {
         Link& l = links[k];
+        if (l.closed) continue;  // closed for a newcomer by accept_all above
         if (fds[i].revents & (POLLIN | POLLHUP | POLLERR)) read_link(l, now);
         if ((fds[i].revents & POLLERR) && l.socket()) l.closed = true;
+        if (fds[i].revents & POLLOUT) l.write_blocked = false;
         if (!l.closed && (fds[i].revents & POLLOUT)) write_link(l, now);
       }
     }
