@@ -5,11 +5,11 @@
 #include <netdb.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
-#include <poll.h>
 
 #include <type_traits>
 #include <pty.h>
 #include <signal.h>
+#include <sys/epoll.h>
 #include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/socket.h>
@@ -167,7 +167,9 @@ struct Link {
   size_t out_bytes = 0;   // queued, not yet sent
   bool closed = false;
   bool eof = false;       // the peer shut its side: answer what came, then close
-  bool write_blocked = false;  // the last send said EAGAIN: wait for POLLOUT, never retry in a loop
+  bool write_blocked = false;  // the last send said EAGAIN: wait for EPOLLOUT, never retry in a loop
+  bool registered = false;     // with the loop's epoll set
+  uint32_t armed = 0;          // the events it is registered for
 
   bool rtu() const { return transport != Transport::tcp; }
   bool socket() const { return transport != Transport::pty; }
@@ -200,13 +202,14 @@ struct Server::Impl {
   std::vector<std::string> listening;  // "listening ..." lines, in endpoint order
   std::vector<StoredImage> saved;      // per device: the image last written to disk
   Clock::time_point clock_at;          // the bus clock stands at this real time
-  sigset_t run_mask;                   // the mask ppoll waits with (stop signals open)
+  sigset_t run_mask;                   // the mask the loop waits with (stop signals open)
   Clock::time_point accept_resume;     // listeners rest until then after EMFILE
   size_t max_links = 0;                // opt.max_connections, lowered to what RLIMIT_NOFILE leaves room for
 
   Impl(ref::Bus b, Options o) : bus(std::move(b), o.faults), opt(std::move(o)) {}
 
   ~Impl() {
+    if (epfd >= 0) ::close(epfd);
     for (auto& l : listeners) ::close(l.fd);
     for (auto& l : links)
       if (!l.closed) ::close(l.fd);
@@ -303,7 +306,7 @@ struct Server::Impl {
   }
 
   void open() {
-    // Stop signals are held until ppoll opens them, so one that arrives
+    // Stop signals are held until the wait opens them, so one that arrives
     // between two polls is never lost; a peer that closed must not kill us.
     sigset_t stop;
     sigemptyset(&stop);
@@ -530,7 +533,7 @@ struct Server::Impl {
   }
 
   void write_link(Link& l, Clock::time_point now) {
-    if (l.write_blocked) return;  // until poll says POLLOUT
+    if (l.write_blocked) return;  // until the loop sees EPOLLOUT
     while (!l.out.empty() && l.out.front().not_before <= now) {
       const Bytes& b = l.out.front().bytes;
       ssize_t n = l.socket() ? ::send(l.fd, b.data() + l.out_offset, b.size() - l.out_offset, MSG_NOSIGNAL)
@@ -632,7 +635,7 @@ struct Server::Impl {
     for (const auto& l : links) {
       if (l.rtu() && (!l.in.empty() || l.overflow)) wake = std::min(wake, l.last_rx + rtu_gap(l));
       if (l.rest_until > now) wake = std::min(wake, l.rest_until);
-      // A reply already due waits for POLLOUT, not for a timer: a client that
+      // A reply already due waits for EPOLLOUT, not for a timer: a client that
       // does not read must not turn the loop into a busy one.
       if (!l.out.empty() && l.out.front().not_before > now) wake = std::min(wake, l.out.front().not_before);
     }
@@ -647,7 +650,61 @@ struct Server::Impl {
     clock_at += dt;
   }
 
-  std::vector<pollfd> poll_fds;
+  // ---- readiness ----
+  // epoll, level-triggered: a round costs the connections that are ready,
+  // not every connection (1000 idle ones made each poll() round scan them
+  // all). A listener's key is kListenerKey | its index; a link's, its fd,
+  // mapped to its index by `slot` (rebuilt as interest is updated).
+  static constexpr uint64_t kListenerKey = uint64_t(1) << 32;
+  int epfd = -1;
+  std::vector<epoll_event> ready = std::vector<epoll_event>(256);
+  std::vector<size_t> slot;  // fd -> index in links
+  bool listeners_armed = false;
+
+  void watch(int fd, uint64_t key, uint32_t events, bool add) {
+    epoll_event e{};
+    e.events = events;
+    e.data.u64 = key;
+    if (epoll_ctl(epfd, add ? EPOLL_CTL_ADD : EPOLL_CTL_MOD, fd, &e) != 0) fail("epoll_ctl");
+  }
+
+  // Registers each link for what it wants now (input while it may read, the
+  // socket's room while a reply is due), listeners unless they rest.
+  void update_interest(Clock::time_point now) {
+    if (epfd < 0) {
+      epfd = epoll_create1(EPOLL_CLOEXEC);
+      if (epfd < 0) fail("epoll_create1");
+      for (size_t i = 0; i < listeners.size(); ++i) watch(listeners[i].fd, kListenerKey | i, 0, true);
+    }
+    bool accepting = now >= accept_resume;
+    if (accepting != listeners_armed) {
+      for (size_t i = 0; i < listeners.size(); ++i) watch(listeners[i].fd, kListenerKey | i, accepting ? uint32_t(EPOLLIN) : 0u, false);
+      listeners_armed = accepting;
+    }
+    for (size_t k = 0; k < links.size(); ++k) {
+      Link& l = links[k];
+      bool due = !l.out.empty() && l.out.front().not_before <= now;
+      uint32_t want = (l.wants_input(now) ? uint32_t(EPOLLIN) : 0u) | (due ? uint32_t(EPOLLOUT) : 0u);
+      if (!l.registered || want != l.armed) {
+        watch(l.fd, uint64_t(l.fd), want, !l.registered);
+        l.registered = true;
+        l.armed = want;
+      }
+      if (size_t(l.fd) >= slot.size()) slot.resize(size_t(l.fd) + 1);
+      slot[size_t(l.fd)] = k;
+    }
+  }
+
+  // Waits until something is ready, a timer is due or a stop signal came.
+  int wait_ready(Clock::time_point now) {
+    timespec ts = poll_timeout(now);
+    int rc = epoll_pwait2(epfd, ready.data(), int(ready.size()), &ts, &run_mask);
+    if (rc < 0 && errno == ENOSYS) {  // a kernel before 5.11: whole milliseconds, rounded up
+      long ms = long(ts.tv_sec) * 1000 + (ts.tv_nsec + 999999) / 1000000;
+      rc = epoll_pwait(epfd, ready.data(), int(ready.size()), int(ms), &run_mask);
+    }
+    return rc;
+  }
 
   int run() {
     // Paced replies and RTU gaps are timers of a few hundred microseconds; the
@@ -667,33 +724,33 @@ struct Server::Impl {
       retire_links(now);
       drop_closed_links();
 
-      std::vector<pollfd>& fds = poll_fds;  // kept between rounds: no allocation per request
-      fds.clear();
-      // Resting listeners are polled for nothing (fd -1 is skipped) so the indexes stay.
-      bool accepting = now >= accept_resume;
-      for (const auto& s : listeners) fds.push_back({accepting ? s.fd : -1, POLLIN, 0});
-      for (const auto& l : links) {
-        bool due = !l.out.empty() && l.out.front().not_before <= now;
-        fds.push_back({l.fd, short((l.wants_input(now) ? POLLIN : 0) | (due ? POLLOUT : 0)), 0});
-      }
-      timespec ts = poll_timeout(now);
-      int rc = ppoll(fds.data(), fds.size(), &ts, &run_mask);
+      update_interest(now);
+      int rc = wait_ready(now);
       if (rc < 0) {
         if (errno == EINTR) continue;
-        fail("poll");
+        fail("epoll_wait");
       }
       now = Clock::now();
-      size_t i = 0;
-      for (const auto& s : listeners)
-        if (fds[i++].revents & POLLIN) accept_all(s, now);
-      // accept_all appended new links after the polled ones; index only those polled.
-      for (size_t k = 0; i < fds.size(); ++k, ++i) {
+      // accept_all appends links (registered next round) and may close one
+      // for a newcomer, whose descriptor a newcomer may reuse at once: a
+      // ready link is the one `slot` named when interest was updated.
+      const size_t polled = links.size();
+      for (int e = 0; e < rc; ++e) {
+        const uint64_t key = ready[size_t(e)].data.u64;
+        const uint32_t ev = ready[size_t(e)].events;
+        if (key & kListenerKey) {
+          if (ev & EPOLLIN) accept_all(listeners[size_t(key & 0xFFFFFFFF)], now);
+          continue;
+        }
+        size_t k = size_t(key) < slot.size() ? slot[size_t(key)] : polled;
+        if (k >= polled) continue;
         Link& l = links[k];
-        if (l.closed) continue;  // closed for a newcomer by accept_all above
-        if (fds[i].revents & (POLLIN | POLLHUP | POLLERR)) read_link(l, now);
-        if ((fds[i].revents & POLLERR) && l.socket()) l.closed = true;
-        if (fds[i].revents & POLLOUT) l.write_blocked = false;
-        if (!l.closed && (fds[i].revents & POLLOUT)) write_link(l, now);
+        if (l.closed || l.fd != int(key)) continue;  // closed for a newcomer by accept_all above
+        if (ev & (EPOLLIN | EPOLLHUP | EPOLLERR)) read_link(l, now);
+        if ((ev & EPOLLERR) && l.socket()) l.closed = true;
+        // A hang-up or error: the next send says what happened (EPIPE closes it).
+        if (ev & (EPOLLOUT | EPOLLHUP | EPOLLERR)) l.write_blocked = false;
+        if (!l.closed && (ev & EPOLLOUT)) write_link(l, now);
       }
     }
     save_eeprom_images(true);
