@@ -297,8 +297,9 @@ TEST_F(Hostile, DescriptorLimitCapsConnectionsAndNewcomersAreServed) {
 
 // An RTU-over-TCP client that streams bytes without a pause, and a Modbus TCP
 // client that sends requests and never reads: another client is answered
-// all the while, and SIGTERM still ends serve (the stop waits 5 s at most: a
-// bound for a hang, not a timing target; bench/ measures the times).
+// all the while, and SIGTERM still ends serve (the stop waits 30 s at most: a
+// bound for a hang on a loaded machine, not a timing target; bench/ measures
+// the times: mbc_bench --hostile).
 TEST_F(Hostile, AStreamerAndANonReaderDoNotStarveAPoller) {
   auto p = std::make_unique<ServeProcess>(
       std::vector<std::string>{"--device", "sihong-57hs-r@1", "--tcp", "127.0.0.1:0", "--rtu-tcp", "127.0.0.1:0"});
@@ -330,7 +331,7 @@ TEST_F(Hostile, AStreamerAndANonReaderDoNotStarveAPoller) {
   int ok = 0;
   for (int i = 0; i < 20; ++i) ok += answered(good.get());
   EXPECT_EQ(ok, 20) << "the poller was starved";
-  EXPECT_EQ(p->stop(SIGTERM).value_or(-1), 0) << "serve did not exit on SIGTERM under load\n" << p->log();
+  EXPECT_EQ(p->stop(SIGTERM, 30s).value_or(-1), 0) << "serve did not exit on SIGTERM under load\n" << p->log();
   stop = true;
   streamer.join();
   non_reader.join();
