@@ -4,6 +4,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -22,6 +23,9 @@ namespace mbc::conf::blackbox {
 namespace {
 
 constexpr const char* kProbeNote = "liveness probe: a read of a register the spec maps";
+// Probes a round starts with on a live target: as many replies as a silence
+// window needs timed before it is learnt (live::SilenceWindow::kMinSamples).
+constexpr int kWarmupProbes = 5;
 
 // After these the target may be gone: nothing more is learnt from it.
 bool target_may_be_gone(const Finding& f) { return f.kind == "no-answer" || f.kind == "target-error" || f.kind == "crash"; }
@@ -183,7 +187,25 @@ std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r) {
   return Finding{kind, msg};
 }
 
-std::optional<Finding> execute(Target& t, const Plan& p, const Step& s) {
+std::optional<Finding> execute(Target& t, const Plan& p, const Step& s) { return execute(t, p, s, nullptr); }
+
+namespace {
+// What an exchange adds to the fuzzing's counts and, on a serial line, to the
+// wire-time bound: each frame's characters plus the t3.5 before it (MB-SL
+// v1.02 §2.5.1.1), a split frame's pause, the reply when one came.
+void account(Outcome& out, const Plan& p, const Step& s, const Reply& r) {
+  ++out.exchanges;
+  out.silences += r.silent();
+  if (!p.info.baud) return;
+  const int baud = *p.info.baud;
+  auto b = wire_time(r.request.size(), baud) + frame_gap(baud);
+  if (s.gap) b += frame_gap(baud);
+  if (!r.silent()) b += wire_time(r.frame.size(), baud) + frame_gap(baud);
+  out.wire_time_bound_seconds += std::chrono::duration<double>(b).count();
+}
+}  // namespace
+
+std::optional<Finding> execute(Target& t, const Plan& p, const Step& s, Outcome* out) {
   try {
     Reply r;
     switch (s.kind) {
@@ -193,6 +215,7 @@ std::optional<Finding> execute(Target& t, const Plan& p, const Step& s) {
       case Step::Kind::raw: r = t.send_raw(s.bytes, s.gap); break;
       case Step::Kind::frame: r = t.transact(s.unit, s.pdu); break;
     }
+    if (out) account(*out, p, s, r);
     return judge(p, s, r);
   } catch (const std::exception& e) {
     return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), script::line(s))};
@@ -412,24 +435,63 @@ using Clock = std::chrono::steady_clock;
 using Known = std::function<bool(const Finding&, const Step&)>;
 
 
-std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch, Clock::time_point deadline,
+// How long each exchange waits: a generated frame may be dropped (its
+// expectation allows silence), so it waits the target's silence window,
+// learnt from its latency as the runner's is (targets/live_link.h); the
+// probe must be answered, so it waits for the reply.
+std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch, size_t depth, Clock::time_point deadline,
                              const std::function<void(const Step&)>& journal, const Known& known, Outcome& out) {
   Generator gen(p, seed);
   const Step probe = probe_step(p);
-  auto send = [&](const Step& st) -> std::optional<Finding> {
-    journal(st);
-    auto f = execute(t, p, st);
+  auto keep = [&](std::optional<Finding> f, const Step& st) -> std::optional<Finding> {
     if (f && !target_may_be_gone(*f) && known(*f, st)) return std::nullopt;
     return f;
   };
-  if (auto f = send(probe)) return f;
+  auto send = [&](const Step& st) -> std::optional<Finding> {
+    journal(st);
+    return keep(execute(t, p, st, &out), st);
+  };
+  const bool pipelined = depth > 1 && t.pipelines();
+  auto send_probe = [&]() {
+    t.set_wait(Target::Wait::reply);
+    auto f = send(probe);
+    t.set_wait(Target::Wait::window);
+    return f;
+  };
+  // A live target's silence window is its timeout until a few replies were
+  // timed (targets/live_link.h): the probe, answered, teaches it before the
+  // first fuzzed frame that may go unanswered has to wait for it.
+  for (int i = 0; i < (t.info().live ? kWarmupProbes : 1); ++i)
+    if (auto f = send_probe()) return f;
+  std::vector<Step> steps;
+  std::vector<Target::Request> requests;
   while (Clock::now() < deadline) {
-    for (int i = 0; i < batch; ++i) {
-      ++out.frames;
-      if (auto f = send(gen.next())) return f;
+    steps.clear();
+    for (int i = 0; i < batch; ++i) steps.push_back(gen.next());
+    out.frames += batch;
+    bool all_frames = std::all_of(steps.begin(), steps.end(), [](const Step& s) { return s.kind == Step::Kind::frame; });
+    if (pipelined && all_frames) {
+      // Modbus TCP: the batch goes out pipelined, every reply is judged in order.
+      requests.clear();
+      for (const auto& st : steps) {
+        journal(st);
+        requests.push_back({st.unit, st.pdu});
+      }
+      std::vector<Reply> replies;
+      try {
+        replies = t.transact_all(requests, depth);
+      } catch (const std::exception& e) {
+        return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), script::line(steps.back()))};
+      }
+      for (size_t i = 0; i < steps.size(); ++i) account(out, p, steps[i], replies[i]);
+      for (size_t i = 0; i < steps.size(); ++i)
+        if (auto f = keep(judge(p, steps[i], replies[i]), steps[i])) return f;
+    } else {
+      for (const auto& st : steps)
+        if (auto f = send(st)) return f;
     }
     ++out.batches;
-    if (auto f = send(probe)) return f;
+    if (auto f = send_probe()) return f;
   }
   return std::nullopt;
 }
@@ -484,6 +546,7 @@ Reported reduce(const Open& open, const Plan& p, const Options& o, const Finding
 Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, const Options& o,
              const std::function<void(const Reported&)>& on_finding) {
   Outcome out;
+  const auto started = Clock::now();
   std::set<std::string> seen;
   auto declared = [&](const std::string& sig) { return o.declared && o.declared(sig); };
   Known known = [&](const Finding& f, const Step& st) {
@@ -497,6 +560,7 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
     return true;
   };
   const auto deadline = Clock::now() + o.duration;
+  Clock::duration reducing{};
   std::unique_ptr<Target> target = std::move(first);
   for (uint64_t r = 0; r == 0 || Clock::now() < deadline; ++r) {
     ++out.rounds;
@@ -519,7 +583,7 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
       f = isolated([&]() -> std::optional<Finding> {
         std::ofstream j(o.journal, std::ios::trunc);
         j << script::kHeader << "\n";
-        return round(*target, p, seed, o.batch, deadline, [&](const Step& s) { j << script::line(s) << std::endl; },
+        return round(*target, p, seed, o.batch, o.depth, deadline, [&](const Step& s) { j << script::line(s) << std::endl; },
                      known, child_counts);
       });
       try {
@@ -529,7 +593,7 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
       std::remove(o.journal.c_str());
       for (const auto& s : history) out.frames += !is_probe(s);
     } else {
-      f = round(*target, p, seed, o.batch, deadline, [&](const Step& s) {
+      f = round(*target, p, seed, o.batch, o.depth, deadline, [&](const Step& s) {
         // A bounded history: findings that need state older than this are
         // reported with what is kept (and said not to reproduce, if so).
         if (history.size() > o.history_cap) history.erase(history.begin(), history.end() - long(o.history_cap / 2));
@@ -551,9 +615,13 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
       ++out.repeats;  // one that may have taken the target with it: on a fresh one
       continue;
     }
+    // Reduction is not fuzzing: its time is left out of the frames/s.
+    auto reduce_from = Clock::now();
     out.findings.push_back(reduce(open, p, o, *f, history));
+    reducing += Clock::now() - reduce_from;
     if (on_finding) on_finding(out.findings.back());
   }
+  out.seconds = std::chrono::duration<double>(Clock::now() - started - reducing).count();
   return out;
 }
 

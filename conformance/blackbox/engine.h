@@ -72,6 +72,9 @@ script::Expect expect_for(const Plan& p, const Step& s);
 std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r);
 // Runs one step; a target that throws (connection lost, plugin error) is a finding too.
 std::optional<Finding> execute(Target& t, const Plan& p, const Step& s);
+struct Outcome;
+// The same, counting the exchange in `out` (frames, silences, wire time).
+std::optional<Finding> execute(Target& t, const Plan& p, const Step& s, Outcome* out);
 
 class Generator {
  public:
@@ -137,6 +140,9 @@ struct Options {
   std::chrono::milliseconds duration{10'000};
   uint64_t seed = 0;
   int batch = 50;          // frames between two liveness probes
+  // Requests out at once where the target pairs replies by itself (Modbus
+  // TCP transaction ids; Target::transact_all); 1: one exchange at a time.
+  size_t depth = 16;
   bool isolate = false;    // each round in a child process (plugin targets)
   std::string journal;     // isolate: the file the child writes each step to before sending it
   int reduce_budget = 400; // fresh-target runs per reduction; each costs a connection on live targets
@@ -157,6 +163,12 @@ struct Reported {
 
 struct Outcome {
   long frames = 0, batches = 0, rounds = 0;
+  double seconds = 0;  // time spent fuzzing (reductions left out)
+  long exchanges = 0, silences = 0;  // probes included
+  // Serial line at a known baud: the least the exchanges could take on the
+  // wire (characters + t3.5 per frame, MB-SL v1.02 §2.5.1.1); 0 otherwise.
+  double wire_time_bound_seconds = 0;
+  double frames_per_second() const { return seconds > 0 ? double(frames) / seconds : 0; }
   std::vector<Reported> findings;  // each distinct finding once, in the order found
   long repeats = 0;                // findings of a signature already reported
   long declared = 0;               // findings Options::declared left aside

@@ -11,6 +11,13 @@
 
 namespace mbc::conf {
 
+std::vector<Reply> Target::transact_all(std::span<const Request> requests, size_t) {
+  std::vector<Reply> out;
+  out.reserve(requests.size());
+  for (const auto& r : requests) out.push_back(transact(r.unit, r.pdu));
+  return out;
+}
+
 std::optional<std::string> Uri::param(const std::string& key) const {
   for (const auto& [k, v] : query)
     if (k == key) return v;

@@ -64,6 +64,20 @@ class Target {
   // many bytes). Only when info().raw; throws std::logic_error otherwise.
   virtual Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after = std::nullopt) = 0;
 
+  // Several well-formed requests, one Reply each, in order. Where the
+  // transport pairs replies with requests by itself (Modbus TCP transaction
+  // ids, MB Messaging on TCP/IP v1.0b §3.1.3 and Implementation Guide §4.2)
+  // up to `depth` requests are out before their replies come, and a silence
+  // costs one wait at the end of the batch instead of one per request;
+  // elsewhere one transact after another (the default). Waits as set_wait.
+  struct Request {
+    uint8_t unit = 0;
+    std::span<const uint8_t> pdu;
+  };
+  virtual std::vector<Reply> transact_all(std::span<const Request> requests, size_t depth = 16);
+  // Whether transact_all has requests out at once on this target.
+  virtual bool pipelines() const { return false; }
+
   // The pause `send_raw` makes inside a split frame, where the target chose
   // it (nullopt: no pause of its own, or one the user fixed with `gap=`). A
   // receiver that a busy host holds up longer than that reads both parts as

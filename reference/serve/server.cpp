@@ -5,11 +5,11 @@
 #include <netdb.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
-#include <poll.h>
 
 #include <type_traits>
 #include <pty.h>
 #include <signal.h>
+#include <sys/epoll.h>
 #include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/socket.h>
@@ -110,6 +110,13 @@ constexpr size_t kOutputBound = 64 * 1024;
 // After accept fails for want of descriptors (EMFILE, ENFILE), listeners rest
 // this long instead of waking the loop for the same failure again.
 constexpr milliseconds kAcceptBackoff{100};
+// Bytes read from one connection in one poll round, on every transport: a
+// client that streams cannot keep the loop from the others (nor from a stop
+// signal).
+constexpr size_t kReadPerRound = 16 * 1024;
+// Descriptors kept free beside the connections: listeners, ptys, stdio, the
+// EEPROM files written while serving.
+constexpr size_t kSpareDescriptors = 16;
 
 volatile sig_atomic_t g_stop = 0;
 extern "C" void on_stop_signal(int) { g_stop = 1; }
@@ -151,17 +158,26 @@ struct Link {
   Bytes in;
   size_t overflow = 0;  // bytes past kMaxRtuAdu in the current RTU frame
   Clock::time_point last_rx;
+  // An RTU frame past kMaxRtuAdu is noise until the line falls silent (MB-SL
+  // v1.02 §2.5.1.1): such a stream is read once per frame gap, so a client
+  // flooding bytes costs bounded time, not the loop's every round.
+  Clock::time_point rest_until{};
   std::deque<Outgoing> out;
   size_t out_offset = 0;  // bytes of out.front() already sent
   size_t out_bytes = 0;   // queued, not yet sent
   bool closed = false;
   bool eof = false;       // the peer shut its side: answer what came, then close
+  bool write_blocked = false;  // the last send said EAGAIN: wait for EPOLLOUT, never retry in a loop
+  bool registered = false;     // with the loop's epoll set
+  uint32_t armed = 0;          // the events it is registered for
 
   bool rtu() const { return transport != Transport::tcp; }
   bool socket() const { return transport != Transport::pty; }
   // Its replies pile up unread: consume and read nothing more for now.
   bool backed_up() const { return out_bytes >= kOutputBound; }
-  bool wants_input() const { return !eof && !backed_up() && (rtu() || in.size() < kInputBound); }
+  bool wants_input(Clock::time_point now) const {
+    return !eof && !backed_up() && now >= rest_until && (rtu() || in.size() < kInputBound);
+  }
 };
 
 struct Listener {
@@ -186,12 +202,14 @@ struct Server::Impl {
   std::vector<std::string> listening;  // "listening ..." lines, in endpoint order
   std::vector<StoredImage> saved;      // per device: the image last written to disk
   Clock::time_point clock_at;          // the bus clock stands at this real time
-  sigset_t run_mask;                   // the mask ppoll waits with (stop signals open)
+  sigset_t run_mask;                   // the mask the loop waits with (stop signals open)
   Clock::time_point accept_resume;     // listeners rest until then after EMFILE
+  size_t max_links = 0;                // opt.max_connections, lowered to what RLIMIT_NOFILE leaves room for
 
   Impl(ref::Bus b, Options o) : bus(std::move(b), o.faults), opt(std::move(o)) {}
 
   ~Impl() {
+    if (epfd >= 0) ::close(epfd);
     for (auto& l : listeners) ::close(l.fd);
     for (auto& l : links)
       if (!l.closed) ::close(l.fd);
@@ -231,6 +249,15 @@ struct Server::Impl {
   }
 
   // ---- endpoints ----
+
+  static size_t open_descriptors() {
+    std::error_code ec;
+    size_t n = 0;
+    for (auto it = std::filesystem::directory_iterator("/proc/self/fd", ec); !ec && it != std::filesystem::directory_iterator();
+         it.increment(ec))
+      ++n;
+    return n ? n : 64;  // no /proc: assume a few dozen
+  }
 
   void open_socket(const Endpoint& e) {
     addrinfo hints{}, *res = nullptr;
@@ -279,7 +306,7 @@ struct Server::Impl {
   }
 
   void open() {
-    // Stop signals are held until ppoll opens them, so one that arrives
+    // Stop signals are held until the wait opens them, so one that arrives
     // between two polls is never lost; a peer that closed must not kill us.
     sigset_t stop;
     sigemptyset(&stop);
@@ -310,6 +337,15 @@ struct Server::Impl {
         open_pty(e);
       else
         open_socket(e);
+    }
+    // The cap the descriptors allow: eviction of the connection unused the
+    // longest must happen before accept runs out of descriptors, or no
+    // newcomer is ever served once idle connections fill the table.
+    max_links = opt.max_connections;
+    if (getrlimit(RLIMIT_NOFILE, &nofile) == 0 && nofile.rlim_cur != RLIM_INFINITY) {
+      size_t in_use = open_descriptors();
+      size_t room = nofile.rlim_cur > in_use + kSpareDescriptors ? size_t(nofile.rlim_cur) - in_use - kSpareDescriptors : 1;
+      if (!max_links || room < max_links) max_links = room;
     }
     for (const auto& line : listening) std::fputs((line + "\n").c_str(), stdout);
     std::fflush(stdout);
@@ -456,8 +492,8 @@ struct Server::Impl {
 
   void read_link(Link& l, Clock::time_point now) {
     uint8_t buf[4096];
-    while (l.wants_input()) {
-      size_t room = l.rtu() ? sizeof buf : std::min(sizeof buf, kInputBound - l.in.size());
+    for (size_t budget = kReadPerRound; budget > 0 && l.wants_input(now);) {
+      size_t room = std::min(budget, l.rtu() ? sizeof buf : std::min(sizeof buf, kInputBound - l.in.size()));
       ssize_t n = ::read(l.fd, buf, room);
       if (n > 0) {
         // Bytes after a silence of t3.5 start a new frame (MB-SL v1.02
@@ -467,11 +503,16 @@ struct Server::Impl {
           save_changed_images();
         }
         l.last_rx = now;
+        budget -= size_t(n);
         for (ssize_t i = 0; i < n; ++i) {
           if (l.rtu() && l.in.size() >= kMaxRtuAdu)
             ++l.overflow;
           else
             l.in.push_back(buf[i]);
+        }
+        if (l.overflow) {
+          l.rest_until = now + rtu_gap(l);
+          return;
         }
         // A short read drained what the kernel held; poll is level-triggered
         // and reports anything newer, so skip the read that would say EAGAIN
@@ -492,13 +533,17 @@ struct Server::Impl {
   }
 
   void write_link(Link& l, Clock::time_point now) {
+    if (l.write_blocked) return;  // until the loop sees EPOLLOUT
     while (!l.out.empty() && l.out.front().not_before <= now) {
       const Bytes& b = l.out.front().bytes;
       ssize_t n = l.socket() ? ::send(l.fd, b.data() + l.out_offset, b.size() - l.out_offset, MSG_NOSIGNAL)
                              : ::write(l.fd, b.data() + l.out_offset, b.size() - l.out_offset);
       if (n < 0) {
         if (errno == EINTR) continue;
-        if (errno == EAGAIN || errno == EWOULDBLOCK) return;
+        if (errno == EAGAIN || errno == EWOULDBLOCK) {
+          l.write_blocked = true;
+          return;
+        }
         if (l.socket()) l.closed = true;
         l.out.clear();  // pty without a reader: the reply is lost, as on a bus nobody listens to
         l.out_offset = 0;
@@ -529,6 +574,9 @@ struct Server::Impl {
     if (!oldest) return;
     if (opt.trace) std::fputs((oldest->name + " closed: connection cap, unused the longest\n").c_str(), stderr);
     oldest->closed = true;
+    // Its descriptor comes free now, for the newcomer of this same burst of accepts.
+    ::close(oldest->fd);
+    oldest->fd = -1;
   }
 
   void accept_all(const Listener& s, Clock::time_point now) {
@@ -546,7 +594,7 @@ struct Server::Impl {
         }
         return;  // EAGAIN, or an aborted connection
       }
-      if (opt.max_connections && socket_links() >= opt.max_connections) make_room();
+      if (max_links && socket_links() >= max_links) make_room();
       int one = 1;
       setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);  // replies are small and wanted now
       setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &one, sizeof one);  // Guide §4.3.2: find peers that vanished
@@ -574,7 +622,7 @@ struct Server::Impl {
     std::erase_if(links, [&](Link& l) {
       if (!l.closed) return false;
       if (opt.trace) std::fputs((l.name + " closed\n").c_str(), stderr);
-      ::close(l.fd);
+      if (l.fd >= 0) ::close(l.fd);
       return true;
     });
   }
@@ -586,7 +634,10 @@ struct Server::Impl {
     Clock::time_point wake = now + kMaxSleep;
     for (const auto& l : links) {
       if (l.rtu() && (!l.in.empty() || l.overflow)) wake = std::min(wake, l.last_rx + rtu_gap(l));
-      if (!l.out.empty()) wake = std::min(wake, l.out.front().not_before);
+      if (l.rest_until > now) wake = std::min(wake, l.rest_until);
+      // A reply already due waits for EPOLLOUT, not for a timer: a client that
+      // does not read must not turn the loop into a busy one.
+      if (!l.out.empty() && l.out.front().not_before > now) wake = std::min(wake, l.out.front().not_before);
     }
     auto us = std::max<int64_t>(0, duration_cast<microseconds>(wake - now).count());
     return timespec{time_t(us / 1000000), long(us % 1000000) * 1000L};
@@ -599,7 +650,61 @@ struct Server::Impl {
     clock_at += dt;
   }
 
-  std::vector<pollfd> poll_fds;
+  // ---- readiness ----
+  // epoll, level-triggered: a round costs the connections that are ready,
+  // not every connection (1000 idle ones made each poll() round scan them
+  // all). A listener's key is kListenerKey | its index; a link's, its fd,
+  // mapped to its index by `slot` (rebuilt as interest is updated).
+  static constexpr uint64_t kListenerKey = uint64_t(1) << 32;
+  int epfd = -1;
+  std::vector<epoll_event> ready = std::vector<epoll_event>(256);
+  std::vector<size_t> slot;  // fd -> index in links
+  bool listeners_armed = false;
+
+  void watch(int fd, uint64_t key, uint32_t events, bool add) {
+    epoll_event e{};
+    e.events = events;
+    e.data.u64 = key;
+    if (epoll_ctl(epfd, add ? EPOLL_CTL_ADD : EPOLL_CTL_MOD, fd, &e) != 0) fail("epoll_ctl");
+  }
+
+  // Registers each link for what it wants now (input while it may read, the
+  // socket's room while a reply is due), listeners unless they rest.
+  void update_interest(Clock::time_point now) {
+    if (epfd < 0) {
+      epfd = epoll_create1(EPOLL_CLOEXEC);
+      if (epfd < 0) fail("epoll_create1");
+      for (size_t i = 0; i < listeners.size(); ++i) watch(listeners[i].fd, kListenerKey | i, 0, true);
+    }
+    bool accepting = now >= accept_resume;
+    if (accepting != listeners_armed) {
+      for (size_t i = 0; i < listeners.size(); ++i) watch(listeners[i].fd, kListenerKey | i, accepting ? uint32_t(EPOLLIN) : 0u, false);
+      listeners_armed = accepting;
+    }
+    for (size_t k = 0; k < links.size(); ++k) {
+      Link& l = links[k];
+      bool due = !l.out.empty() && l.out.front().not_before <= now;
+      uint32_t want = (l.wants_input(now) ? uint32_t(EPOLLIN) : 0u) | (due ? uint32_t(EPOLLOUT) : 0u);
+      if (!l.registered || want != l.armed) {
+        watch(l.fd, uint64_t(l.fd), want, !l.registered);
+        l.registered = true;
+        l.armed = want;
+      }
+      if (size_t(l.fd) >= slot.size()) slot.resize(size_t(l.fd) + 1);
+      slot[size_t(l.fd)] = k;
+    }
+  }
+
+  // Waits until something is ready, a timer is due or a stop signal came.
+  int wait_ready(Clock::time_point now) {
+    timespec ts = poll_timeout(now);
+    int rc = epoll_pwait2(epfd, ready.data(), int(ready.size()), &ts, &run_mask);
+    if (rc < 0 && errno == ENOSYS) {  // a kernel before 5.11: whole milliseconds, rounded up
+      long ms = long(ts.tv_sec) * 1000 + (ts.tv_nsec + 999999) / 1000000;
+      rc = epoll_pwait(epfd, ready.data(), int(ready.size()), int(ms), &run_mask);
+    }
+    return rc;
+  }
 
   int run() {
     // Paced replies and RTU gaps are timers of a few hundred microseconds; the
@@ -619,31 +724,33 @@ struct Server::Impl {
       retire_links(now);
       drop_closed_links();
 
-      std::vector<pollfd>& fds = poll_fds;  // kept between rounds: no allocation per request
-      fds.clear();
-      // Resting listeners are polled for nothing (fd -1 is skipped) so the indexes stay.
-      bool accepting = now >= accept_resume;
-      for (const auto& s : listeners) fds.push_back({accepting ? s.fd : -1, POLLIN, 0});
-      for (const auto& l : links) {
-        bool due = !l.out.empty() && l.out.front().not_before <= now;
-        fds.push_back({l.fd, short((l.wants_input() ? POLLIN : 0) | (due ? POLLOUT : 0)), 0});
-      }
-      timespec ts = poll_timeout(now);
-      int rc = ppoll(fds.data(), fds.size(), &ts, &run_mask);
+      update_interest(now);
+      int rc = wait_ready(now);
       if (rc < 0) {
         if (errno == EINTR) continue;
-        fail("poll");
+        fail("epoll_wait");
       }
       now = Clock::now();
-      size_t i = 0;
-      for (const auto& s : listeners)
-        if (fds[i++].revents & POLLIN) accept_all(s, now);
-      // accept_all appended new links after the polled ones; index only those polled.
-      for (size_t k = 0; i < fds.size(); ++k, ++i) {
+      // accept_all appends links (registered next round) and may close one
+      // for a newcomer, whose descriptor a newcomer may reuse at once: a
+      // ready link is the one `slot` named when interest was updated.
+      const size_t polled = links.size();
+      for (int e = 0; e < rc; ++e) {
+        const uint64_t key = ready[size_t(e)].data.u64;
+        const uint32_t ev = ready[size_t(e)].events;
+        if (key & kListenerKey) {
+          if (ev & EPOLLIN) accept_all(listeners[size_t(key & 0xFFFFFFFF)], now);
+          continue;
+        }
+        size_t k = size_t(key) < slot.size() ? slot[size_t(key)] : polled;
+        if (k >= polled) continue;
         Link& l = links[k];
-        if (fds[i].revents & (POLLIN | POLLHUP | POLLERR)) read_link(l, now);
-        if ((fds[i].revents & POLLERR) && l.socket()) l.closed = true;
-        if (!l.closed && (fds[i].revents & POLLOUT)) write_link(l, now);
+        if (l.closed || l.fd != int(key)) continue;  // closed for a newcomer by accept_all above
+        if (ev & (EPOLLIN | EPOLLHUP | EPOLLERR)) read_link(l, now);
+        if ((ev & EPOLLERR) && l.socket()) l.closed = true;
+        // A hang-up or error: the next send says what happened (EPIPE closes it).
+        if (ev & (EPOLLOUT | EPOLLHUP | EPOLLERR)) l.write_blocked = false;
+        if (!l.closed && (ev & EPOLLOUT)) write_link(l, now);
       }
     }
     save_eeprom_images(true);

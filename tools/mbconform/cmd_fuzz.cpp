@@ -2,7 +2,7 @@
 // engine is conformance/blackbox/engine.h; this file wires its options).
 //
 //   mbconform fuzz --target URI [--device ID | --spec FILE] --duration 30s [--out DIR] [--seed S]
-//                  [--batch N] [--quirks FILE] [--allow-motion] [--allow-eeprom-writes]
+//                  [--batch N] [--pipeline N] [--quirks FILE] [--allow-motion] [--allow-eeprom-writes]
 //   mbconform fuzz --replay FILE --target URI          (the same as mbconform replay)
 //
 // Fuzzing goes on until --duration runs out. Each distinct finding (its kind
@@ -37,6 +37,7 @@ struct FuzzArgs {
   std::string duration = "10s", replay, quirks_file;
   std::optional<uint64_t> seed;
   int batch = 50;
+  int pipeline = int(conf::blackbox::Options{}.depth);
 };
 
 std::optional<std::chrono::milliseconds> parse_duration(const std::string& text) {
@@ -99,6 +100,7 @@ int run_fuzz(FuzzArgs& a) {
   o.duration = *duration;
   o.seed = a.seed.value_or(uint64_t(std::chrono::steady_clock::now().time_since_epoch().count()));
   o.batch = a.batch;
+  o.depth = size_t(a.pipeline);
   o.isolate = info.kind == "plugin";
   o.journal = (fs::path(a.t.out) / ".journal").string();
   if (!quirks.empty()) o.declared = [&](const std::string& sig) { return quirks.for_kind(sig) != nullptr; };
@@ -127,12 +129,18 @@ int run_fuzz(FuzzArgs& a) {
   }
   if (out.declared) fmt::print("{} finding(s) of a kind {} declares left aside\n", out.declared, a.quirks_file);
   if (out.target_lost) fmt::print("the target could not be opened again: fuzzing stopped before --duration ran out\n");
+  if (out.wire_time_bound_seconds > 0)
+    fmt::print("{} exchanges ({} silent) in {:.2f} s against a wire-time bound of {:.2f} s at {} baud: {:.2f}x\n",
+               out.exchanges, out.silences, out.seconds, out.wire_time_bound_seconds, *info.baud,
+               out.seconds / out.wire_time_bound_seconds);
   if (out.findings.empty()) {
-    fmt::print("no finding: {} frames in {} batches, every probe answered\n", out.frames, out.batches);
+    fmt::print("no finding: {} frames in {} batches, every probe answered ({:.0f} frames/s)\n", out.frames, out.batches,
+               out.frames_per_second());
     return out.target_lost ? kExitUsage : kExitOk;
   }
-  fmt::print("{} distinct finding(s), {} repeat(s) not saved again, {} frames in {} round(s); reproducers in {}\n",
-             out.findings.size(), out.repeats, out.frames, out.rounds, a.t.out);
+  fmt::print("{} distinct finding(s), {} repeat(s) not saved again, {} frames in {} round(s) ({:.0f} frames/s, reductions "
+             "left out); reproducers in {}\n",
+             out.findings.size(), out.repeats, out.frames, out.rounds, out.frames_per_second(), a.t.out);
   return kExitFailed;
 }
 
@@ -146,6 +154,8 @@ void add_fuzz_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--duration", args->duration, "How long to fuzz: 500ms, 20s, 5m, 1h (default 10s)");
   cmd->add_option("--seed", args->seed, "Random seed (default: from the clock, printed)");
   cmd->add_option("--batch", args->batch, "Frames between two liveness probes (default 50)")->check(CLI::Range(1, 100000));
+  cmd->add_option("--pipeline", args->pipeline, "Modbus TCP: requests out at once, paired by transaction id (default 16; "
+                  "1: one exchange at a time)")->check(CLI::Range(1, 256));
   cmd->add_option("--quirks", args->quirks_file, "a quirks file (conformance/README.md): findings of the kinds it declares "
                   "('kind: KIND' or 'KIND fcNN', globs) are left aside");
   cmd->add_option("--replay", args->replay, "Replay a reproducer FILE instead of fuzzing (as mbconform replay)");
