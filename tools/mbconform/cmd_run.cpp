@@ -30,6 +30,7 @@
 #include "runner/runner.h"
 #include "script/script.h"
 #include "safety/safety.h"
+#include "security/security.h"
 #include "targets/target.h"
 
 namespace mbc::cli {
@@ -67,8 +68,8 @@ conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   conf::Uri u = conf::parse_uri(uri);
   conf::TargetInfo i;
   i.uri = uri;
-  i.kind = u.scheme;
-  i.framing = u.scheme == "tcp" ? conf::Framing::mbap : conf::Framing::rtu;
+  i.kind = u.scheme == "mbtls" ? "tls" : u.scheme;
+  i.framing = u.scheme == "tcp" || u.scheme == "mbtls" ? conf::Framing::mbap : conf::Framing::rtu;
   i.live = u.scheme != "ref" && u.scheme != "plugin";
   i.raw = u.scheme != "tcp";
   i.unit = uint8_t(std::stoi(u.param("unit").value_or(std::to_string(s.serial.slave_default.value_or(1)))));
@@ -240,6 +241,11 @@ int run(RunArgs& a) {
       }
     }
     conf::DeviceRun dr = conf::run_cases(*target, s, cases, opt);
+    // Modbus/TCP Security: what the server does around the TLS handshake
+    // (conformance/security/), beside the standard cases run inside TLS.
+    if (info.kind == "tls" && !g_stop.load())
+      for (auto& r : conf::security::check_server(conf::security::from_uri(uri), s.device.id))
+        if (keep(r.id)) dr.cases.push_back(std::move(r));
     if (tty) fmt::print("\r\033[K");
     if (snap) {
       try {
