@@ -163,7 +163,7 @@ def test_roles():
         nr = sec.get("no-role", {})
         check(word(nr) == "refused" if nr else False, f"{client}: a certificate without a role is not let in ({nr.get('message')})")
     # The operator may write 0-99 (roles.yaml): the write the check chose was outside it.
-    check("0006006400" in res["operator"].get("role-authorization", {}).get("message", "").replace(" ", ""),
+    check("0600640000" in res["operator"].get("role-authorization", {}).get("message", "").replace(" ", ""),
           "operator: the refused write is FC 06 at 100, the first address outside 0-99")
 
 
@@ -247,10 +247,47 @@ def test_openssl_server():
         p.wait()
 
 
-def s_client(port, *args, data=b""):
-    argv = ["openssl", "s_client", "-connect", f"127.0.0.1:{port}", "-CAfile", pki("ca.crt"), "-quiet",
-            "-verify_return_error", *args]
-    return subprocess.run(argv, input=data, capture_output=True, timeout=30)
+class SClient:
+    """`openssl s_client` kept open: what it printed so far is `out`."""
+
+    def __init__(self, port, *args):
+        argv = ["openssl", "s_client", "-connect", f"127.0.0.1:{port}", "-CAfile", pki("ca.crt"), "-quiet",
+                "-no_ign_eof", "-verify_return_error", *args]
+        self.p = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        self.out = b""
+
+    def send(self, data):
+        try:
+            self.p.stdin.write(data)
+            self.p.stdin.flush()
+        except BrokenPipeError:
+            pass
+
+    def read(self, want, seconds=10):
+        """Until `want` bytes came, s_client ended, or `seconds` passed."""
+        import select
+        deadline = time.time() + seconds
+        while len(self.out) < want and time.time() < deadline:
+            r, _, _ = select.select([self.p.stdout], [], [], max(0, deadline - time.time()))
+            if not r:
+                break
+            chunk = os.read(self.p.stdout.fileno(), 4096)
+            if not chunk:
+                break
+            self.out += chunk
+        return self.out
+
+    def close(self):
+        try:
+            self.p.stdin.close()
+        except BrokenPipeError:
+            pass
+        try:
+            self.p.wait(10)
+        except subprocess.TimeoutExpired:
+            self.p.kill()
+            self.p.wait()
+        return self.p.returncode, self.p.stderr.read()
 
 
 def test_openssl_client():
@@ -261,17 +298,29 @@ def test_openssl_client():
         # MBAP v1.1b3 §6.3 inside TLS: read 1 holding register at 0; the MBAP
         # header comes back with the same transaction id and unit (MB TCP §3.1.3).
         req = bytes.fromhex("12340000000601" + "0300000001")
-        p = s_client(port, "-cert", pki("operator.crt"), "-key", pki("operator.key"), data=req)
-        check(p.stdout[:7] == bytes.fromhex("12340000000501") and p.stdout[7:9] == b"\x03\x02",
-              f"s_client with a certificate: an MBAP reply inside TLS ({p.stdout.hex()})")
-        p = s_client(port, data=req)
-        check(p.stdout == b"", f"s_client without a certificate: no reply ({p.stdout.hex()}, {p.stderr[-200:]!r})")
-        p = s_client(port, "-tls1_1", "-cipher", "DEFAULT:@SECLEVEL=0", "-cert", pki("operator.crt"), "-key",
-                     pki("operator.key"), data=req)
-        check(p.returncode != 0 and p.stdout == b"", f"s_client -tls1_1: refused ({p.stderr[-200:]!r})")
-        # close_notify: s_client sends it at the end of its input and must not lose the reply before it.
-        p = s_client(port, "-cert", pki("operator.crt"), "-key", pki("operator.key"), data=req + req)
-        check(len(p.stdout) == 2 * 11, f"two requests then close_notify: both answered ({p.stdout.hex()})")
+        c = SClient(port, "-cert", pki("operator.crt"), "-key", pki("operator.key"))
+        c.send(req)
+        out = c.read(11)
+        c.close()
+        check(out[:7] == bytes.fromhex("12340000000501") and out[7:9] == b"\x03\x02",
+              f"s_client with a certificate: an MBAP reply inside TLS ({out.hex()})")
+        c = SClient(port)
+        c.send(req)
+        out = c.read(11)
+        rc, err = c.close()
+        check(out == b"", f"s_client without a certificate: no reply ({out.hex()}, {err[-200:]!r})")
+        c = SClient(port, "-tls1_1", "-cipher", "DEFAULT:@SECLEVEL=0", "-cert", pki("operator.crt"), "-key", pki("operator.key"))
+        c.send(req)
+        out = c.read(11)
+        rc, err = c.close()
+        check(rc != 0 and out == b"", f"s_client -tls1_1: refused (exit {rc}, {err[-200:]!r})")
+        # Two requests in one write: both answered, in order (MBAP framing inside TLS).
+        c = SClient(port, "-cert", pki("operator.crt"), "-key", pki("operator.key"))
+        c.send(req + bytes.fromhex("12350000000601" + "0300010001"))
+        out = c.read(22)
+        c.close()
+        check(len(out) == 22 and out[:2] == b"\x12\x34" and out[11:13] == b"\x12\x35",
+              f"two pipelined requests: both answered, in order ({out.hex()})")
     finally:
         s.stop()
 
