@@ -76,6 +76,7 @@ void on_message(int write_p, int, int content_type, const void* buf, size_t len,
 // One connection as `c` says. The server is not verified here: the checks
 // are about what the server accepts, not whether this client trusts it.
 Attempt attempt(const ServerUnderTest& s, const Client& c) {
+  tls::NoSigpipe no_sigpipe;  // a server that refused us may have closed already
   Attempt a;
   std::string why;
   int fd = tls::connect_tcp(s.host, s.port, s.timeout_ms, why);
@@ -94,7 +95,9 @@ Attempt attempt(const ServerUnderTest& s, const Client& c) {
     SSL_CTX_set_cipher_list(ctx.get(), "DEFAULT:@SECLEVEL=0");
   }
   SSL_CTX_set_verify(ctx.get(), SSL_VERIFY_NONE, nullptr);
-  SSL_CTX_set_session_cache_mode(ctx.get(), SSL_SESS_CACHE_CLIENT);
+  // No client session cache: freeing the context would flush it, and a
+  // session flushed from a cache is marked not resumable (the session kept
+  // for the resumption check outlives this context).
   if (!c.cert.empty()) {
     if (SSL_CTX_use_certificate_chain_file(ctx.get(), c.cert.c_str()) != 1 ||
         SSL_CTX_use_PrivateKey_file(ctx.get(), c.key.c_str(), SSL_FILETYPE_PEM) != 1) {
@@ -180,7 +183,10 @@ Attempt attempt(const ServerUnderTest& s, const Client& c) {
 }
 
 std::string alert_text(const Attempt& a) {
-  return a.alert ? fmt::format(" (alert: {})", SSL_alert_desc_string_long(*a.alert)) : "";
+  if (!a.alert) return "";
+  // TLS 1.3's certificate_required (RFC 8446 §6.2) is newer than OpenSSL 3.0's names.
+  std::string name = *a.alert == 116 ? "certificate required" : SSL_alert_desc_string_long(*a.alert);
+  return fmt::format(" (alert {}: {})", *a.alert, name);
 }
 
 // "refused" when the handshake failed or the connection ended before a reply;
@@ -355,6 +361,12 @@ ServerUnderTest from_uri(const std::string& text) {
   if (auto unit = u.param("unit")) s.unit = uint8_t(std::stoi(*unit));
   if (auto t = u.param("timeout")) s.timeout_ms = std::stoi(*t);
   return s;
+}
+
+std::vector<std::string> check_names() {
+  std::vector<std::string> out;
+  for (const auto& c : checks()) out.push_back(c.id);
+  return out;
 }
 
 std::vector<CaseResult> check_server(const ServerUnderTest& s, const std::string& device_id) {

@@ -37,6 +37,9 @@ struct ServerUnderTest {
 // From an mbtls:// URI (targets/tls_target.cpp); throws std::invalid_argument.
 ServerUnderTest from_uri(const std::string& uri);
 
+// The checks' ids under "<device>/security/" (for --filter and --list).
+std::vector<std::string> check_names();
+
 // Runs every check; ids are "<device>/security/<what>".
 std::vector<CaseResult> check_server(const ServerUnderTest& s, const std::string& device_id);
 

@@ -11,6 +11,8 @@
 #include <openssl/ssl.h>
 #include <openssl/x509v3.h>
 #include <poll.h>
+#include <pthread.h>
+#include <signal.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -47,6 +49,25 @@ std::string ssl_errors() {
     if (out.find(s) == std::string::npos) out += (out.empty() ? "" : "; ") + s;
   }
   return out;
+}
+
+static_assert(sizeof(sigset_t) <= 128);
+
+NoSigpipe::NoSigpipe() {
+  sigset_t pipe;
+  sigemptyset(&pipe);
+  sigaddset(&pipe, SIGPIPE);
+  pthread_sigmask(SIG_BLOCK, &pipe, reinterpret_cast<sigset_t*>(old_));
+}
+
+NoSigpipe::~NoSigpipe() {
+  sigset_t pipe;
+  sigemptyset(&pipe);
+  sigaddset(&pipe, SIGPIPE);
+  timespec zero{0, 0};
+  while (sigtimedwait(&pipe, nullptr, &zero) > 0) {
+  }
+  pthread_sigmask(SIG_SETMASK, reinterpret_cast<sigset_t*>(old_), nullptr);
 }
 
 namespace {
@@ -609,7 +630,14 @@ struct Relay::Impl {
           return;
         }
         ERR_clear_error();
-        p.done = true;  // refused: the alert went out with the failure
+        // Refused: the alert went out with the failure. Close the write side
+        // and read what the client already sent, so that closing does not
+        // reset the connection and drop the alert before the client reads it.
+        ::shutdown(p.net, SHUT_WR);
+        char sink[4096];
+        while (::recv(p.net, sink, sizeof sink, 0) > 0) {
+        }
+        p.done = true;
         return;
       }
       p.handshaking = false;
@@ -697,6 +725,7 @@ struct Relay::Impl {
   }
 
   void run() {
+    NoSigpipe no_sigpipe;  // a peer that closed must not kill the process
     std::vector<pollfd> fds;
     while (!stop) {
       fds.clear();

@@ -144,6 +144,20 @@ class Relay {
 // iPAddress SAN); also sends HOST as SNI when it is a name.
 void expect_host(SSL* ssl, const std::string& host);
 
+// While alive, a write on a socket whose peer has gone (OpenSSL writes with
+// write(2), not send(MSG_NOSIGNAL)) fails with EPIPE in this thread instead
+// of killing the process with SIGPIPE; a SIGPIPE raised meanwhile is taken.
+class NoSigpipe {
+ public:
+  NoSigpipe();
+  ~NoSigpipe();
+  NoSigpipe(const NoSigpipe&) = delete;
+  NoSigpipe& operator=(const NoSigpipe&) = delete;
+
+ private:
+  unsigned char old_[128];  // the thread's signal mask (a sigset_t)
+};
+
 // One line about what OpenSSL's error queue holds, and clears it.
 std::string ssl_errors();
 

@@ -185,7 +185,10 @@ int run(RunArgs& a) {
       if (keep(c.id)) cases.push_back(std::move(c));
 
     if (map) conf::map::adapt_cases(cases, *map, a.allow_writes);
-    if (cases.empty() && !a.filter.empty()) {
+    bool security_kept = false;  // an mbtls:// target also runs conformance/security/'s checks
+    if (info.kind == "tls")
+      for (const auto& n : conf::security::check_names()) security_kept = security_kept || keep(s.device.id + "/security/" + n);
+    if (cases.empty() && !a.filter.empty() && !security_kept) {
       fmt::print(stderr, "mbconform run: error: --filter '{}' matches none of the {} cases for {}\n", a.filter,
                  conf::all_cases(g).size(), uri);
       return kExitUsage;
