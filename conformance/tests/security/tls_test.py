@@ -360,6 +360,16 @@ def test_pymodbus_server():
     check(report is not None, f"MBAP framer: the run wrote a report ({p.returncode}: {p.stderr.strip()!r})")
     if not report:
         return
+    # Inside TLS with the MBAP framer the cases fail as they fail over plain
+    # TCP: exactly pymodbus's deviations of conformance/README.md ("pymodbus
+    # 3.0"), each explained there by its source line.
+    failed = sorted(i.split("/", 1)[1] for i, c in cases(report).items() if c["outcome"] == "fail")
+    known = sorted(["examples/MBAP_6.5_Figure_15/write-coil-bad-value",
+                    "examples/MBAP_6.11_Figure_21/write-coils-wrong-byte-count",
+                    "examples/MBAP_6.12_Figure_22/write-registers-wrong-byte-count",
+                    "standard/fc05/value-00FF", "standard/fc05/value-0001", "standard/fc23/byte-count-over",
+                    "standard/fc43/individual-unknown-object"])
+    check(failed == known, f"MBAP framer: the failing cases are pymodbus's TCP deviations (got {failed})")
     sec = security(report)
     want = {
         "tls-1.0-refused": "refused",        # async_io.py:62 OP_NO_TLSv1 (the user context: minimum_version TLSv1_2)
