@@ -27,6 +27,7 @@ packages=(
   clang libfuzzer-14-dev libclang-rt-14-dev
   socat mbpoll python3 python3-pymodbus python3-serial python3-serial-asyncio python3-yaml
   libjson-c-dev
+  libssl-dev openssl  # Modbus/TCP Security: serve --tls, mbtls://, the test PKI (Debian)
   golang-go golang-github-goburrow-modbus-dev  # the goburrow/modbus client adapter, built offline
   zip unzip
 )

@@ -79,8 +79,9 @@ std::unique_ptr<Target> open_target(const std::string& text) {
   if (u.scheme == "ref") return make_ref_target(u);
   if (u.scheme == "tcp" || u.scheme == "rtu-tcp" || u.scheme == "rtu") return make_modbus_target(u);
   if (u.scheme == "plugin") return make_plugin_target(u);
+  if (u.scheme == "mbtls") return make_tls_target(u);
   throw std::invalid_argument(
-      fmt::format("target '{}': unknown scheme '{}' (ref, tcp, rtu-tcp, rtu, plugin)", text, u.scheme));
+      fmt::format("target '{}': unknown scheme '{}' (ref, tcp, rtu-tcp, rtu, plugin, mbtls)", text, u.scheme));
 }
 
 void decode_rtu_reply(Reply& r, uint8_t slave) {

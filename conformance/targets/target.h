@@ -123,6 +123,7 @@ class Target {
 //   tcp://HOST:PORT?unit=N   rtu-tcp://HOST:PORT?unit=N
 //   rtu:///dev/ttyUSB0?baud=115200&parity=N&data=8&stop=1&unit=N
 //   plugin:PATH.so[?device=ID&unit=N&config=TEXT]
+//   mbtls://HOST[:802]?cert=FILE&key=FILE&ca=FILE[&unit=N]  (tls_target.cpp)
 // Live kinds also take timeout=MS (the longest wait for a reply and for the
 // connection, default 1000), silence=MS (a fixed silence window instead of
 // the measured one) and gap=MS (the pause of a split frame, RTU kinds).

@@ -46,6 +46,7 @@ const char* to_string(Transport t) {
     case Transport::tcp: return "tcp";
     case Transport::rtu_tcp: return "rtu-tcp";
     case Transport::pty: return "pty";
+    case Transport::tls: return "tls";
   }
   return "?";
 }
@@ -170,6 +171,7 @@ struct Link {
   bool write_blocked = false;  // the last send said EAGAIN: wait for EPOLLOUT, never retry in a loop
   bool registered = false;     // with the loop's epoll set
   uint32_t armed = 0;          // the events it is registered for
+  std::optional<std::string> role;  // a TLS client's role, when a roles file decides (tls_door.h)
 
   bool rtu() const { return transport != Transport::tcp; }
   bool socket() const { return transport != Transport::pty; }
@@ -197,6 +199,7 @@ struct Server::Impl {
   faults::FaultyBus bus;  // the correct devices when opt.faults is empty
   Options opt;
   std::vector<Listener> listeners;
+  std::unique_ptr<TlsDoor> tls_door;  // --tls: its wake_fd() is polled as a listener
   std::vector<PtyEndpoint> ptys;
   std::vector<Link> links;
   std::vector<std::string> listening;  // "listening ..." lines, in endpoint order
@@ -305,6 +308,25 @@ struct Server::Impl {
     listening.push_back(fmt::format("listening pty {}", e.path));
   }
 
+  void open_tls(const Endpoint& e) {
+    if (!tls_door) {
+      tls_door = std::make_unique<TlsDoor>(opt.tls);
+      listeners.push_back({tls_door->wake_fd(), Transport::tls});
+    }
+    listening.push_back(tls_door->listen(e.host, e.port));
+  }
+
+  // TLS connections the door let in become Modbus TCP links.
+  void adopt_tls(Clock::time_point now) {
+    for (auto& a : tls_door->take()) {
+      Link l(a.fd, Transport::tcp, a.name);
+      l.role = a.role;
+      l.last_rx = now;
+      if (opt.trace) std::fputs((l.name + " connected\n").c_str(), stderr);
+      links.push_back(std::move(l));
+    }
+  }
+
   void open() {
     // Stop signals are held until the wait opens them, so one that arrives
     // between two polls is never lost; a peer that closed must not kill us.
@@ -335,6 +357,8 @@ struct Server::Impl {
     for (const auto& e : opt.endpoints) {
       if (e.transport == Transport::pty)
         open_pty(e);
+      else if (e.transport == Transport::tls)
+        open_tls(e);
       else
         open_socket(e);
     }
@@ -347,6 +371,7 @@ struct Server::Impl {
       size_t room = nofile.rlim_cur > in_use + kSpareDescriptors ? size_t(nofile.rlim_cur) - in_use - kSpareDescriptors : 1;
       if (!max_links || room < max_links) max_links = room;
     }
+    if (tls_door) tls_door->start();  // its thread inherits the blocked stop signals
     for (const auto& line : listening) std::fputs((line + "\n").c_str(), stdout);
     std::fflush(stdout);
   }
@@ -434,7 +459,12 @@ struct Server::Impl {
         trace(l, "rx", adu, [&] { return fmt::format("{}protocol {}: not Modbus, ignored", head(), h->protocol); });
       } else {
         trace(l, "rx", adu, [&] { return head() + describe_pdu(pdu, Direction::request); });
-        auto reply = guarded(l, [&] { return bus.handle_pdu(h->unit, pdu); });
+        std::string refused = l.role && tls_door ? tls_door->refusal(*l.role, pdu) : "";
+        if (!refused.empty()) trace(l, "!!", {}, [&] { return refused; });
+        // MB-TCP-Security v2.1 §8.3: a request the role may not make is
+        // refused with exception 01 (Illegal Function).
+        auto reply = !refused.empty() ? std::optional<Bytes>(Bytes{uint8_t(pdu[0] | 0x80), 0x01})
+                                      : guarded(l, [&] { return bus.handle_pdu(h->unit, pdu); });
         if (reply) {
           Bytes out = mbap_reply(*h, *reply);
           trace(l, "tx", out, [&] { return head() + describe_pdu(*reply, Direction::reply); });
@@ -580,6 +610,7 @@ struct Server::Impl {
   }
 
   void accept_all(const Listener& s, Clock::time_point now) {
+    if (s.transport == Transport::tls) return adopt_tls(now);
     for (;;) {
       sockaddr_storage ss{};
       socklen_t len = sizeof ss;

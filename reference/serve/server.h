@@ -13,11 +13,13 @@
 
 #include "engine/device.h"
 #include "faults/faults.h"
+#include "serve/tls_door.h"
 
 namespace mbc::serve {
 
-enum class Transport { tcp, rtu_tcp, pty };
-const char* to_string(Transport t);  // "tcp", "rtu-tcp", "pty"
+// tls: Modbus/TCP Security (MBAP inside TLS, tls_door.h).
+enum class Transport { tcp, rtu_tcp, pty, tls };
+const char* to_string(Transport t);  // "tcp", "rtu-tcp", "pty", "tls"
 
 struct Endpoint {
   Transport transport = Transport::tcp;
@@ -51,6 +53,7 @@ struct Options {
   // closed for the newcomer (Modbus Messaging on TCP/IP Implementation Guide
   // V1.0b §4.2.1.2).
   size_t max_connections = 4096;
+  TlsOptions tls;  // for Transport::tls endpoints
 };
 
 class Server {

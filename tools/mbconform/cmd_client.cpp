@@ -25,7 +25,7 @@ namespace mbc::cli {
 namespace {
 
 struct ClientArgs {
-  std::string adapter, transport = "tcp", filter, out, quirks, pty;
+  std::string adapter, transport = "tcp", filter, out, quirks, pty, pki;
   int baud = 19200, timeout_ms = 500;
   bool list = false, plan = false, junit_only = false, quiet = false;
 };
@@ -48,10 +48,16 @@ int run(const ClientArgs& a) {
   if (a.transport == "tcp") o.transport = client::Transport::tcp;
   else if (a.transport == "rtu-tcp") o.transport = client::Transport::rtu_tcp;
   else if (a.transport == "pty") o.transport = client::Transport::pty;
+  else if (a.transport == "tls") o.transport = client::Transport::tcp;  // MBAP inside TLS (client/tls_front.h)
   else {
-    fmt::print(stderr, "mbconform client: error: --transport {}: expected tcp, rtu-tcp or pty\n", a.transport);
+    fmt::print(stderr, "mbconform client: error: --transport {}: expected tcp, rtu-tcp, pty or tls\n", a.transport);
     return kExitUsage;
   }
+  if ((a.transport == "tls") != !a.pki.empty()) {
+    fmt::print(stderr, "mbconform client: error: --transport tls and --pki DIR go together\n");
+    return kExitUsage;
+  }
+  o.tls_pki = a.pki;
   o.adapter = a.adapter;
   o.baud = a.baud;
   o.timeout = std::chrono::milliseconds(a.timeout_ms);
@@ -145,7 +151,8 @@ void add_client_command(CLI::App& app, int& exit_code) {
   auto a = std::make_shared<ClientArgs>();
   auto* cmd = app.add_subcommand("client", "Test a Modbus master library, through its adapter, against scenario servers");
   cmd->add_option("--adapter", a->adapter, "the adapter's command line (conformance/client/README.md), run with /bin/sh -c");
-  cmd->add_option("--transport", a->transport, "tcp (default) | rtu-tcp | pty");
+  cmd->add_option("--transport", a->transport, "tcp (default) | rtu-tcp | pty | tls");
+  cmd->add_option("--pki", a->pki, "DIR: --transport tls: ca.crt, server.crt/.key, operator.crt/.key (conformance/tests/security/make_pki.sh)");
   cmd->add_option("--baud", a->baud, "pty: the nominal baud rate (t1.5, t3.5, wire-time bound); default 19200");
   cmd->add_option("--timeout-ms", a->timeout_ms, "the master's response time-out sent to the adapter; default 500");
   cmd->add_option("--pty", a->pty, "pty: where to link the pty the adapter opens (default: a temporary directory)");

@@ -30,6 +30,7 @@
 #include "runner/runner.h"
 #include "script/script.h"
 #include "safety/safety.h"
+#include "security/security.h"
 #include "targets/target.h"
 
 namespace mbc::cli {
@@ -67,8 +68,8 @@ conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   conf::Uri u = conf::parse_uri(uri);
   conf::TargetInfo i;
   i.uri = uri;
-  i.kind = u.scheme;
-  i.framing = u.scheme == "tcp" ? conf::Framing::mbap : conf::Framing::rtu;
+  i.kind = u.scheme == "mbtls" ? "tls" : u.scheme;
+  i.framing = u.scheme == "tcp" || u.scheme == "mbtls" ? conf::Framing::mbap : conf::Framing::rtu;
   i.live = u.scheme != "ref" && u.scheme != "plugin";
   i.raw = u.scheme != "tcp";
   i.unit = uint8_t(std::stoi(u.param("unit").value_or(std::to_string(s.serial.slave_default.value_or(1)))));
@@ -184,7 +185,10 @@ int run(RunArgs& a) {
       if (keep(c.id)) cases.push_back(std::move(c));
 
     if (map) conf::map::adapt_cases(cases, *map, a.allow_writes);
-    if (cases.empty() && !a.filter.empty()) {
+    bool security_kept = false;  // an mbtls:// target also runs conformance/security/'s checks
+    if (info.kind == "tls")
+      for (const auto& n : conf::security::check_names()) security_kept = security_kept || keep(s.device.id + "/security/" + n);
+    if (cases.empty() && !a.filter.empty() && !security_kept) {
       fmt::print(stderr, "mbconform run: error: --filter '{}' matches none of the {} cases for {}\n", a.filter,
                  conf::all_cases(g).size(), uri);
       return kExitUsage;
@@ -240,6 +244,11 @@ int run(RunArgs& a) {
       }
     }
     conf::DeviceRun dr = conf::run_cases(*target, s, cases, opt);
+    // Modbus/TCP Security: what the server does around the TLS handshake
+    // (conformance/security/), beside the standard cases run inside TLS.
+    if (info.kind == "tls" && !g_stop.load())
+      for (auto& r : conf::security::check_server(conf::security::from_uri(uri), s.device.id))
+        if (keep(r.id)) dr.cases.push_back(std::move(r));
     if (tty) fmt::print("\r\033[K");
     if (snap) {
       try {
