@@ -45,7 +45,6 @@ class Checker : public FrameSink {
  public:
   Checker(const spec::Spec& s, const Options& o, Result& r) : spec_(s), opt_(o), r_(r) {
     for (const auto& k : catalogue(s)) order_.push_back(k.packed()), tallies_[k.packed()], keys_[k.packed()] = k;
-    baud_us_ = o.judge.baud;
   }
 
   void frame(const Frame& f) override {
@@ -298,7 +297,6 @@ class Checker : public FrameSink {
   const spec::Spec& spec_;
   const Options& opt_;
   Result& r_;
-  int baud_us_ = 0;
   uint64_t stride_ = 1;
   std::vector<uint64_t> order_;
   std::unordered_map<uint64_t, Tally> tallies_;

@@ -156,8 +156,6 @@ TEST(CaptureRead, TruncatedAndMalformedCapturesGiveOneLineNotACrash) {
   auto c = b.conv(40005);
   b.put(c.data(true, mbap_frame(5, 1, read_request(3, 0, 1))));
   // A classic pcap cut in the middle of its last packet: libpcap says so.
-  std::string dir = testing::TempDir();
-  std::string pcap = dir + "/cut.pcapng";
   Bytes cut(b.file.begin(), b.file.end() - 10);
   Result r = check(cut);
   EXPECT_NE(r.stats.error, "");
