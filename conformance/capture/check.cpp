@@ -154,6 +154,7 @@ class Checker : public FrameSink {
       c.pending.pop_front();
     }
     c.pending.push_back({f, gap});
+    c.pending.back().frame.conversation = {};  // the reader's name outlives only the call
   }
 
   void reply(Conv& c, const Frame& f, std::optional<int64_t> gap) {

@@ -46,7 +46,6 @@ Pdu unframe(Carrier c, std::span<const uint8_t> adu) {
 }
 
 bool is_write(uint8_t fc) { return fc == 5 || fc == 6 || fc == 15 || fc == 16 || fc == 22; }
-bool is_read(uint8_t fc) { return fc >= 1 && fc <= 4; }
 
 const char* table_word(spec::Table t) {
   switch (t) {

@@ -3,6 +3,7 @@
 #include <cerrno>
 #include <chrono>
 #include <cstring>
+#include <algorithm>
 #include <map>
 #include <optional>
 #include <stdexcept>
@@ -43,11 +44,11 @@ void PcapFile::packet(uint32_t interface_id, uint64_t time_us, std::span<const u
   write(pcapng::enhanced_packet(interface_id, time_us, data, direction));
 }
 
-namespace {
-
-constexpr uint32_t kClientIp = 0x0A000001;  // 10.0.0.1: mbconform
-constexpr uint32_t kServerIp = 0x0A000002;  // 10.0.0.2: the target
+constexpr uint32_t kClientIp = 0x0A000001;  // 10.0.0.1: mbconform (or the master under test)
+constexpr uint32_t kServerIp = 0x0A000002;  // 10.0.0.2: the target (or the scenario server)
 constexpr uint16_t kModbusPort = 502;       // what Wireshark's Modbus/TCP dissector listens on
+
+namespace {
 
 class TapTarget : public Target {
  public:
@@ -148,6 +149,42 @@ std::unique_ptr<Target> tap_pcap(std::unique_ptr<Target> inner, const std::strin
     f = slot;
   }
   return tap(std::move(inner), f);
+}
+
+std::function<void(std::vector<ClientFrame>)> client_pcap(const std::string& path, bool mbap, const std::string& name) {
+  auto file = std::make_shared<PcapFile>(path);
+  uint32_t iface = file->add_interface(mbap ? pcapng::kLinkEthernet : pcapng::kLinkUser0, name,
+                                       mbap ? "Modbus TCP, drawn as 10.0.0.1 -> 10.0.0.2:502 (the master under test -> the scenario server)"
+                                            : "RTU ADUs; first byte: 0 from the master, 1 from the scenario server");
+  auto scenarios = std::make_shared<uint32_t>(0);
+  return [file, iface, mbap, scenarios](std::vector<ClientFrame> frames) {
+    std::stable_sort(frames.begin(), frames.end(),
+                     [](const ClientFrame& a, const ClientFrame& b) { return std::get<0>(a) < std::get<0>(b); });
+    // steady_clock to the wall clock: both read now.
+    auto steady_now = std::chrono::steady_clock::now();
+    uint64_t wall_now = wall_clock_us();
+    auto wall = [&](std::chrono::steady_clock::time_point t) {
+      auto back = std::chrono::duration_cast<std::chrono::microseconds>(steady_now - t).count();
+      return wall_now - uint64_t(std::max<int64_t>(0, back));
+    };
+    if (frames.empty()) return;
+    if (mbap) {
+      pcapng::TcpConversation c(kClientIp, uint16_t(40000 + (*scenarios)++ % 20000), kServerIp, kModbusPort);
+      uint64_t t0 = wall(std::get<0>(frames.front()));
+      for (int step = 0; step < 3; ++step) file->packet(iface, t0, c.handshake(step), step == 1 ? 2 : 1);
+      for (const auto& [t, from_master, bytes] : frames) file->packet(iface, wall(t), c.data(from_master, bytes), from_master ? 1 : 2);
+      uint64_t t1 = wall(std::get<0>(frames.back()));
+      file->packet(iface, t1, c.fin(true), 1);
+      file->packet(iface, t1, c.fin(false), 2);
+    } else {
+      for (const auto& [t, from_master, bytes] : frames) {
+        Bytes p;
+        p.push_back(from_master ? 0 : 1);
+        p.insert(p.end(), bytes.begin(), bytes.end());
+        file->packet(iface, wall(t), p, from_master ? 1 : 2);
+      }
+    }
+  };
 }
 
 }  // namespace mbc::conf::capture

@@ -5,7 +5,11 @@
 // port 502; RTU as LINKTYPE_USER0 with one direction byte: README.md).
 #pragma once
 #include <cstdint>
+#include <chrono>
 #include <cstdio>
+#include <functional>
+#include <tuple>
+#include <vector>
 #include <memory>
 #include <mutex>
 #include <span>
@@ -42,6 +46,12 @@ std::unique_ptr<Target> tap(std::unique_ptr<Target> inner, std::shared_ptr<PcapF
 // The one line a command adds: `path` empty returns `inner` unchanged; the
 // same path shares one file for the whole process (several targets).
 std::unique_ptr<Target> tap_pcap(std::unique_ptr<Target> inner, const std::string& path);
+
+// `mbconform client --pcap`: a writer for ClientOptions::on_wire. Each
+// scenario's frames (requests the scenario server saw, frames it sent), in
+// time order; TCP as one conversation per scenario, RTU as USER0.
+using ClientFrame = std::tuple<std::chrono::steady_clock::time_point, bool /*from the master*/, Bytes>;
+std::function<void(std::vector<ClientFrame>)> client_pcap(const std::string& path, bool mbap, const std::string& name);
 
 // The microseconds since the Unix epoch now (the pcap's timestamps).
 uint64_t wall_clock_us();

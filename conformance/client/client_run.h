@@ -25,6 +25,9 @@ struct ClientOptions {
   std::chrono::milliseconds timeout{500};  // the master's response time-out (connect.timeout_ms)
   std::string pty_path;      // pty: where the link is made (default: a temporary directory)
   std::function<void(const conf::CaseResult&, size_t done, size_t total)> on_case;
+  // After each scenario: every request the server saw and every frame it
+  // sent (`mbconform client --pcap`, conformance/capture/pcap_tap.h).
+  std::function<void(const std::vector<SeenRequest>&, const std::vector<SentFrame>&)> on_wire;
 };
 
 struct ClientRun {
