@@ -165,13 +165,19 @@ class Checker : public FrameSink {
       ++cv.exceptions;
       cv.exceptions_by_fc[fc & 0x7F]++;
     }
+    // A reply answers a request of its own function code (MBAP v1.1b3 §4.1;
+    // exceptions add 0x80): one that matches no waiting request is left
+    // unsolicited (OBSERVED) rather than paired by guess, so a capture that
+    // lost frames or reuses transaction ids never fails a device.
+    int reply_fc = fc & 0x7F;
+    auto same_fc = [&](const Pending& p) { return fc_of(p.frame.carrier, p.frame.adu) == reply_fc; };
     auto match = c.pending.end();
     if (f.carrier == Carrier::mbap) {
       uint16_t tid = be16(f.adu, 0);
       match = std::find_if(c.pending.begin(), c.pending.end(), [&](const Pending& p) {
-        return p.frame.carrier == Carrier::mbap && be16(p.frame.adu, 0) == tid;
+        return p.frame.carrier == Carrier::mbap && be16(p.frame.adu, 0) == tid && same_fc(p);
       });
-    } else if (!c.pending.empty()) {
+    } else if (!c.pending.empty() && same_fc(c.pending.front())) {
       match = c.pending.begin();  // by order; the unit is judged (framing/unit-echo)
     }
     if (match == c.pending.end()) {

@@ -58,7 +58,7 @@ const char* table_word(spec::Table t) {
 }
 
 std::string policy_text(const PolicyEntry& p, Violation v) {
-  std::string where = p.section.empty() ? "" : ", §" + p.section;
+  std::string where = p.section.empty() ? "" : ", " + p.section;
   switch (p.kind) {
     case PolicyEntry::Kind::exception: return fmt::format("exception {:02X} (policy {}{})", p.code, spec::to_string(v), where);
     case PolicyEntry::Kind::silent: return fmt::format("no reply (policy {}{})", spec::to_string(v), where);

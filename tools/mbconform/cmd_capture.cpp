@@ -75,7 +75,6 @@ int check_capture(const CaptureArgs& a) {
     fmt::print(stderr, "{}: error: {}\n", me, e.what());
     return kExitUsage;
   }
-  for (const auto& n : r.run.notes) fmt::print("{}\n", n);
   fmt::print("{}", conf::summary_table(report));
   fmt::print("reports: {}\n", out);
   if (!r.stats.error.empty()) {

@@ -106,6 +106,22 @@ TEST(CaptureRead, WrongRepliesFailTheirCase) {
   EXPECT_GT(conf::count(r.run).must_failed, 0u);
 }
 
+TEST(CaptureRead, AReplyOfAnotherFunctionCodeIsNotPairedByGuess) {
+  Builder b;
+  auto c = b.conv(40006);
+  // Every request with transaction id 0 (as fuzz-72.pcap's client does): the
+  // exception reply to FC 20 belongs to no request this capture holds.
+  b.put(c.data(true, mbap_frame(0, 1, Bytes{0x1D, 0, 0, 0, 0})));
+  b.put(c.data(false, mbap_frame(0, 1, exception_reply(0x20, 1))));
+  Result r = check(b.file);
+  EXPECT_EQ(r.coverage.unsolicited, 1u);
+  EXPECT_EQ(r.coverage.unanswered, 1u);
+  EXPECT_EQ(r.coverage.exchanges, 0u);
+  EXPECT_EQ(find_case(r, "/capture/pairing/unsolicited")->outcome, Outcome::observed);
+  EXPECT_EQ(find_case(r, "/capture/policy/unsupported_function")->outcome, Outcome::skip);
+  EXPECT_EQ(conf::count(r.run).must_failed, 0u);
+}
+
 TEST(CaptureRead, ReassemblesSplitSegmentsAndSkipsRetransmissions) {
   Builder b;
   auto c = b.conv(40002);
