@@ -98,8 +98,12 @@ def run_pcap(mbconform):
     bad = []
     with tempfile.TemporaryDirectory() as tmp:
         # Modbus TCP: serve the standard device, run a slice of the cases against it.
-        srv = subprocess.Popen([mbconform, "serve", "--device", "modbus-standard@1", "--tcp", "127.0.0.1:0"],
-                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        # serve writes its side too: --pcap, and --trace (the serial log format) to a file.
+        serve_pcap = os.path.join(tmp, "serve.pcapng")
+        trace = open(os.path.join(tmp, "serve.log"), "w")
+        srv = subprocess.Popen([mbconform, "serve", "--device", "modbus-standard@1", "--tcp", "127.0.0.1:0",
+                                "--pcap", serve_pcap, "--trace"],
+                               stdout=subprocess.PIPE, stderr=trace, text=True)
         try:
             line = srv.stdout.readline().split()
             port = line[-1].rsplit(":", 1)[-1]
@@ -128,6 +132,21 @@ def run_pcap(mbconform):
         finally:
             srv.send_signal(signal.SIGTERM)
             srv.wait(timeout=10)
+            trace.close()
+        # serve's own pcap: tshark decodes the same requests the client's holds.
+        served = [r[0].replace(":", "").lower() for r in tshark_fields(serve_pcap, "mbtcp && tcp.dstport == 502", ["tcp.payload"])]
+        if collections.Counter(served) != collections.Counter(decoded):
+            bad.append(f"serve --pcap: tshark decodes {len(served)} requests, the client side's pcap {len(decoded)}")
+        # serve --trace read back as a serial log: the same requests per function code.
+        req_log, _, cov_log = check_capture(mbconform, os.path.join(tmp, "serve.log"), os.path.join(tmp, "log"))
+        req_pcap, _, _ = check_capture(mbconform, serve_pcap, os.path.join(tmp, "spcap"))
+        t_req, _ = tshark_counts(serve_pcap)
+        if not (req_log == req_pcap == t_req) or not req_log:
+            bad.append(f"serve --trace / --pcap: requests per FC: log {dict(req_log)}, pcap {dict(req_pcap)}, tshark {dict(t_req)}")
+        if cov_log["findings_total"]:
+            bad.append(f"serve --trace: {cov_log['findings_total']} lines check-capture could not read, e.g. {cov_log['findings'][0]}")
+        print(f"serve: --pcap holds {len(served)} requests as tshark decodes them; --trace read back: "
+              f"{sum(req_log.values())} requests, the same per function code")
 
         # RTU: the in-process reference device, LINKTYPE_USER0 with a direction byte.
         pcap = os.path.join(tmp, "rtu.pcapng")
