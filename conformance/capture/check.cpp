@@ -22,6 +22,9 @@ namespace {
 struct Tally {
   uint64_t seen = 0, failed = 0;
   std::vector<Reliance> relies;
+  // The verdicts' shared fact lists already merged (held, so that no other
+  // list can take the address of one).
+  std::vector<std::shared_ptr<const std::vector<Reliance>>> merged;
   std::vector<FrameRecord> frames;
   std::string first_failure, last_message;
 };
@@ -44,6 +47,9 @@ std::span<const uint8_t> pdu_of(Carrier c, const Bytes& adu) {
 class Checker : public FrameSink {
  public:
   Checker(const spec::Spec& s, const Options& o, Result& r) : spec_(s), opt_(o), r_(r) {
+    for (auto& c : covered_) c.assign(0x10000, false);
+    for (const auto& reg : s.registers)
+      for (uint32_t a = reg.address; a <= reg.last_address() && a <= 0xFFFF; ++a) covered_[size_t(reg.table)][a] = true;
     for (const auto& k : catalogue(s)) order_.push_back(k.packed()), tallies_[k.packed()], keys_[k.packed()] = k;
   }
 
@@ -226,10 +232,14 @@ class Checker : public FrameSink {
     if (fresh) keys_[k] = v.key;
     Tally& t = it->second;
     ++t.seen;
-    if (t.relies.size() < 16)
-      for (const auto& r : v.relies)
+    // The same request's facts come as the same shared list: merged once.
+    if (v.relies && t.relies.size() < 16 && t.merged.size() < 64 &&
+        std::find(t.merged.begin(), t.merged.end(), v.relies) == t.merged.end()) {
+      t.merged.push_back(v.relies);
+      for (const auto& r : *v.relies)
         if (std::none_of(t.relies.begin(), t.relies.end(), [&](const Reliance& q) { return q.fact == r.fact; }))
           t.relies.push_back(r);
+    }
     if (!v.pass) {
       if (t.failed++ == 0) t.first_failure = v.message;
       if (t.frames.size() < opt_.frames_per_case) t.frames.push_back(record(v, x, lone));
@@ -268,7 +278,7 @@ class Checker : public FrameSink {
       n = std::min<uint32_t>(n, 2000);
       for (uint32_t a = first; a < first + n && a <= 0xFFFF; ++a) {
         // Only addresses the spec maps are kept (bounded by the map).
-        if (!spec_.register_covering(uint16_t(a), spec::Table(table))) continue;
+        if (!covered_[size_t(table)][a]) continue;
         r_.coverage.registers[{table, uint16_t(a)}][rw]++;
       }
     };
@@ -305,6 +315,7 @@ class Checker : public FrameSink {
   const Options& opt_;
   Result& r_;
   uint64_t stride_ = 1;
+  std::array<std::vector<bool>, 4> covered_;  // addresses the spec maps, per table
   std::vector<uint64_t> order_;
   std::unordered_map<uint64_t, Tally> tallies_;
   std::unordered_map<uint64_t, CheckKey> keys_;

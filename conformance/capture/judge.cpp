@@ -7,6 +7,8 @@
 #include <fmt/core.h>
 
 #include <algorithm>
+#include <array>
+#include <unordered_map>
 
 #include "cases/facts.h"
 #include "modbus/crc16.h"
@@ -71,10 +73,11 @@ struct Allowed {
   Violation violation;
   std::vector<PolicyEntry> readings;
   std::vector<Reliance> relies;
+  std::shared_ptr<const std::vector<Reliance>> shared;  // `relies`, once complete
 };
 
 Allowed allowed(const spec::Spec& s, Violation v) {
-  Allowed a{v, {}, {}};
+  Allowed a{v, {}, {}, {}};
   PolicyEntry p = facts::policy(a.relies, s, v);
   if (!p.readings.empty()) a.readings = p.readings;
   else a.readings.push_back(p);
@@ -86,15 +89,50 @@ Allowed allowed(const spec::Spec& s, Violation v) {
 struct Breaches {
   std::vector<Allowed> list;
   std::vector<Reliance> relies;   // facts a valid request's verdict rests on
+  std::shared_ptr<const std::vector<Reliance>> shared;  // `relies`, once complete
   std::vector<std::pair<spec::Table, uint16_t>> registers;  // mapped registers it addresses
 };
 
+// The spec's registers by wire address, per table: the map is asked about
+// every address of every request (a linear search per address cost most of
+// the time on a long capture).
+struct Index {
+  const spec::Spec* spec = nullptr;
+  const spec::Register* first = nullptr;
+  size_t count = 0;
+  std::string id;
+  std::array<std::vector<const spec::Register*>, 4> cover;
+  std::array<std::optional<uint16_t>, 4> last;
+  bool for_spec(const spec::Spec& s) const {
+    return spec == &s && first == s.registers.data() && count == s.registers.size() && id == s.device.id;
+  }
+};
+
+const Index& index_of(const spec::Spec& s) {
+  static Index ix;
+  if (ix.for_spec(s)) return ix;
+  ix = Index{};
+  ix.spec = &s;
+  ix.first = s.registers.data();
+  ix.count = s.registers.size();
+  ix.id = s.device.id;
+  for (auto& c : ix.cover) c.assign(0x10000, nullptr);
+  for (const auto& r : s.registers)
+    for (uint32_t a = r.address; a <= r.last_address() && a <= 0xFFFF; ++a) {
+      auto t = size_t(r.table);
+      ix.cover[t][a] = &r;
+      ix.last[t] = std::max<uint16_t>(ix.last[t].value_or(0), uint16_t(a));
+    }
+  return ix;
+}
+
 void add_range(const spec::Spec& s, Breaches& b, spec::Table table, uint32_t first, uint32_t count, bool write) {
   bool unmapped = false, past = false, denied = false;
-  auto last = s.last_address(table);
+  const Index& ix = index_of(s);
+  auto last = ix.last[size_t(table)];
   std::vector<Reliance> access;
   for (uint32_t a = first; a < first + count && a <= 0xFFFF; ++a) {
-    const spec::Register* r = s.register_covering(uint16_t(a), table);
+    const spec::Register* r = ix.cover[size_t(table)][a];
     if (!r) {
       if (!last || a > *last) past = true;
       else unmapped = true;
@@ -118,8 +156,8 @@ void add_range(const spec::Spec& s, Breaches& b, spec::Table table, uint32_t fir
 }
 
 void add_value(const spec::Spec& s, Breaches& b, spec::Table table, uint16_t address, uint16_t value) {
-  const spec::Register* r = s.find_register(address, table);
-  if (!r || r->words != 1) return;  // 32-bit values: both words are needed (not judged word by word)
+  const spec::Register* r = index_of(s).cover[size_t(table)][address];
+  if (!r || r->address != address || r->words != 1) return;  // 32-bit values: both words are needed (not judged word by word)
   std::vector<Reliance> rel;
   const auto& range = facts::range(rel, *r);
   if (!range) return;
@@ -133,7 +171,7 @@ void add_value(const spec::Spec& s, Breaches& b, spec::Table table, uint16_t add
   }
 }
 
-Breaches breaches(const spec::Spec& s, std::span<const uint8_t> pdu) {
+Breaches compute_breaches(const spec::Spec& s, std::span<const uint8_t> pdu) {
   Breaches b;
   uint8_t fc = pdu[0];
   const spec::FunctionCode* f = s.profile.function(fc);
@@ -205,7 +243,25 @@ Breaches breaches(const spec::Spec& s, std::span<const uint8_t> pdu) {
   return b;
 }
 
-Verdict verdict(CheckKey k, bool pass, std::string message, std::vector<Reliance> relies = {}) {
+// A request's breaches depend on its PDU alone (and the spec): a capture
+// repeats its requests (polling), so each distinct one is worked out once.
+const Breaches& breaches(const spec::Spec& s, std::span<const uint8_t> pdu) {
+  static std::unordered_map<std::string, std::unique_ptr<Breaches>> cache;
+  static const Index* for_index = nullptr;
+  const Index* ix = &index_of(s);
+  if (for_index != ix || !ix->for_spec(s) || cache.size() >= 4096) cache.clear();
+  for_index = ix;
+  std::string key(pdu.begin(), pdu.end());
+  key += s.device.id;
+  auto it = cache.find(key);
+  if (it != cache.end()) return *it->second;
+  auto b = std::make_unique<Breaches>(compute_breaches(s, pdu));
+  b->shared = std::make_shared<const std::vector<Reliance>>(std::move(b->relies));
+  for (auto& a : b->list) a.shared = std::make_shared<const std::vector<Reliance>>(std::move(a.relies));
+  return *cache.emplace(std::move(key), std::move(b)).first->second;
+}
+
+Verdict verdict(CheckKey k, bool pass, std::string message, std::shared_ptr<const std::vector<Reliance>> relies = {}) {
   return Verdict{k, pass, std::move(message), std::move(relies)};
 }
 
@@ -237,14 +293,15 @@ std::vector<Verdict> judge_exchange(const spec::Spec& s, const Exchange& x, cons
   if (rtu && !rq.crc_ok) {
     // A corrupted request: the device's answer is its crc_error policy.
     Allowed a = allowed(s, Violation::crc_error);
+    a.shared = std::make_shared<const std::vector<Reliance>>(std::move(a.relies));
     CheckKey k{Check::policy, 0, Violation::crc_error};
     if (x.reply || x.abandoned) {
       bool ok = std::any_of(a.readings.begin(), a.readings.end(),
                             [](const PolicyEntry& p) { return p.kind != PolicyEntry::Kind::silent; });
       out.push_back(verdict(k, ok, ok ? "" : "a reply to a request with a bad CRC; expected " + policy_text(a.readings[0], a.violation),
-                            a.relies));
+                            a.shared));
     } else {
-      out.push_back(verdict(k, true, "", a.relies));
+      out.push_back(verdict(k, true, "", a.shared));
     }
     return out;
   }
@@ -257,14 +314,14 @@ std::vector<Verdict> judge_exchange(const spec::Spec& s, const Exchange& x, cons
     return out;
   }
 
-  Breaches b = breaches(s, rq.pdu);
+  const Breaches& b = breaches(s, rq.pdu);
   if (!x.reply) {
     bool silent_allowed = false;
     for (const auto& a : b.list)
       for (const auto& p : a.readings)
         if (p.kind != PolicyEntry::Kind::exception) silent_allowed = true;
     if (silent_allowed) {
-      for (const auto& a : b.list) out.push_back(verdict({Check::policy, 0, a.violation}, true, "", a.relies));
+      for (const auto& a : b.list) out.push_back(verdict({Check::policy, 0, a.violation}, true, "", a.shared));
     } else if (!x.abandoned) {
       // A capture misses packets; its silence is never a failure of the device.
       out.push_back(verdict({Check::unanswered}, false,
@@ -310,7 +367,7 @@ std::vector<Verdict> judge_exchange(const spec::Spec& s, const Exchange& x, cons
       out.push_back(verdict({Check::policy, 0, a.violation}, any_exact,
                             any_exact ? "" : fmt::format("packet {}: {} to {}: expected {}, got {}", x.reply_packet,
                                                          describe_pdu(rq.pdu, true), x.conversation, expected, got),
-                            a.relies));
+                            a.shared));
     return out;
   }
 
@@ -322,7 +379,7 @@ std::vector<Verdict> judge_exchange(const spec::Spec& s, const Exchange& x, cons
     out.push_back(verdict({Check::reply_well_formed, fc}, !contradicts,
                           fmt::format("packet {}: exception {:02X} ({}) to {}, which the spec allows", x.reply_packet, code,
                                       exception_name(code), describe_pdu(rq.pdu, true)),
-                          b.relies));
+                          b.shared));
     return out;
   }
   Judged j = judge_reply(rq.pdu, rp.pdu);
@@ -334,8 +391,8 @@ std::vector<Verdict> judge_exchange(const spec::Spec& s, const Exchange& x, cons
     for (size_t i = 0; i < v.size(); ++i) t += (i ? "; " : "") + v[i];
     return t;
   };
-  out.push_back(verdict({Check::reply_byte_count, fc}, count_problems.empty(), count_problems.empty() ? "" : joined(count_problems), b.relies));
-  out.push_back(verdict({Check::reply_well_formed, fc}, other.empty(), other.empty() ? "" : joined(other), b.relies));
+  out.push_back(verdict({Check::reply_byte_count, fc}, count_problems.empty(), count_problems.empty() ? "" : joined(count_problems), b.shared));
+  out.push_back(verdict({Check::reply_well_formed, fc}, other.empty(), other.empty() ? "" : joined(other), b.shared));
   bool good = j.ok();
   for (const auto& [table, address] : b.registers) {
     CheckKey k{is_write(fc) ? Check::register_write : Check::register_read, 0, Violation::unsupported_function, table, address};

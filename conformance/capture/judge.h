@@ -3,6 +3,7 @@
 // of conformance/check/ lands, this is the function that switches to it.
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -65,7 +66,9 @@ struct Verdict {
   CheckKey key;
   bool pass = true;
   std::string message;             // why it failed, what was observed
-  std::vector<Reliance> relies;    // the spec's facts the verdict rests on (cases/facts.h)
+  // The spec's facts the verdict rests on (cases/facts.h); shared, since the
+  // same request's facts are worked out once and reused (judge.cpp).
+  std::shared_ptr<const std::vector<Reliance>> relies;
 };
 
 struct JudgeOptions {
