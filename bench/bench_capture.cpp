@@ -4,7 +4,9 @@
 // judge, write the reports), each timed as a child process, with the
 // child's peak RSS (getrusage). Target: check-capture at least 5x tshark's
 // speed, and under 200 MB RSS whatever the file's size (a capture is
-// streamed). The capture is generated here: Modbus TCP conversations of FC 03
+// streamed). The speed target is judged on the children's CPU time (user +
+// system, from wait4), which other work on a shared machine does not
+// inflate; the wall-clock ratio is printed beside it. The capture is generated here: Modbus TCP conversations of FC 03
 // reads, FC 06 and FC 16 writes and exception replies, over Ethernet/IPv4/TCP
 // (modbus/pcapng.h), as many as fit in --mb megabytes.
 //
@@ -87,6 +89,7 @@ uint64_t generate(const std::string& path, uint64_t mb) {
 
 struct Timed {
   double seconds = 0;
+  double cpu_seconds = 0;  // user + system: what a busy machine's other work does not inflate
   long max_rss_kb = 0;
   int status = -1;
 };
@@ -112,6 +115,7 @@ Timed run(const std::vector<std::string>& argv) {
   wait4(pid, &st, 0, &ru);
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   r.max_rss_kb = ru.ru_maxrss;
+  r.cpu_seconds = double(ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) + double(ru.ru_utime.tv_usec + ru.ru_stime.tv_usec) / 1e6;
   r.status = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
   return r;
 }
@@ -141,8 +145,8 @@ int main(int argc, char** argv) {
   fmt::print("capture: {:.1f} MB, {} Modbus/TCP requests and replies\n", double(size) / 1e6, requests);
 
   Timed mine = run({mbconform, "check-capture", file, "--device", "modbus-standard", "--out", (dir / "out").string()});
-  fmt::print("check-capture: {:.2f} s ({:.1f} MB/s), peak RSS {:.1f} MB, exit {}\n", mine.seconds,
-             double(size) / 1e6 / mine.seconds, mine.max_rss_kb / 1024.0, mine.status);
+  fmt::print("check-capture: {:.2f} s wall, {:.2f} s CPU ({:.1f} MB/s of CPU), peak RSS {:.1f} MB, exit {}\n", mine.seconds,
+             mine.cpu_seconds, double(size) / 1e6 / mine.cpu_seconds, mine.max_rss_kb / 1024.0, mine.status);
   bool ok = mine.status == 0 || mine.status == 1;
   if (!ok) fmt::print("check-capture did not run (exit {})\n", mine.status);
   bool rss_ok = mine.max_rss_kb < 200 * 1024;
@@ -150,11 +154,14 @@ int main(int argc, char** argv) {
   bool speed_ok = true;
   if (tshark) {
     Timed ts = run({"tshark", "-n", "-r", file, "-Y", "mbtcp"});
-    fmt::print("tshark -r FILE -Y mbtcp: {:.2f} s ({:.1f} MB/s), peak RSS {:.1f} MB, exit {}\n", ts.seconds,
-               double(size) / 1e6 / ts.seconds, ts.max_rss_kb / 1024.0, ts.status);
-    double ratio = ts.seconds / mine.seconds;
+    fmt::print("tshark -r FILE -Y mbtcp: {:.2f} s wall, {:.2f} s CPU ({:.1f} MB/s of CPU), peak RSS {:.1f} MB, exit {}\n",
+               ts.seconds, ts.cpu_seconds, double(size) / 1e6 / ts.cpu_seconds, ts.max_rss_kb / 1024.0, ts.status);
+    // The target is judged on CPU time: on a shared machine the wall clock
+    // measures the other work too (both ratios are printed).
+    double ratio = ts.cpu_seconds / mine.cpu_seconds, wall_ratio = ts.seconds / mine.seconds;
     speed_ok = ratio >= 5.0;
-    fmt::print("ratio: check-capture is {:.1f}x tshark's speed (target >= 5x): {}\n", ratio, speed_ok ? "met" : "NOT met");
+    fmt::print("ratio: check-capture is {:.1f}x tshark's speed in CPU time (target >= 5x): {}; {:.1f}x in wall time\n",
+               ratio, speed_ok ? "met" : "NOT met", wall_ratio);
   }
   std::filesystem::remove_all(dir);
   return ok && rss_ok && speed_ok ? 0 : 1;
