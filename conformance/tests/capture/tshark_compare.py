@@ -78,6 +78,23 @@ def counts(mbconform, captures):
             print(f"{name}: {sum(m_req.values())} requests in {len(m_req)} function codes, "
                   f"{sum(m_exc.values())} exception replies, {cov['findings_total']} reading findings; tshark agrees"
                   if not bad else f"{name}: differs")
+        # A malformed capture: cut inside its last packet. One line on stderr,
+        # exit 2, the reports still written, the packets before it counted.
+        cut = os.path.join(tmp, "cut.pcap")
+        with open(captures[0], "rb") as f:
+            data = f.read()
+        with open(cut, "wb") as f:
+            f.write(data[:len(data) - 7])
+        out = os.path.join(tmp, "cut")
+        rc = subprocess.run([mbconform, "check-capture", cut, "--device", "modbus-standard", "--out", out],
+                            capture_output=True, text=True)
+        lines = rc.stderr.strip().splitlines()
+        if rc.returncode != 2 or len(lines) != 1 or "truncated" not in lines[0]:
+            bad.append(f"truncated capture: exit {rc.returncode}, stderr {rc.stderr!r}: expected exit 2 and one line")
+        elif not os.path.exists(os.path.join(out, "report.json")):
+            bad.append("truncated capture: no report.json written")
+        else:
+            print(f"truncated capture: exit 2, {lines[0]!r}")
     return bad
 
 
