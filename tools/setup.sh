@@ -30,6 +30,7 @@ packages=(
   libssl-dev openssl  # Modbus/TCP Security: serve --tls, mbtls://, the test PKI (Debian)
   golang-go golang-github-goburrow-modbus-dev  # the goburrow/modbus client adapter, built offline
   zip unzip
+  libpcap-dev tshark  # check-capture reads captures with libpcap; tshark is the tests' independent decoder (Debian)
 )
 # Node for the npm peers (conformance/peers: npm ci into the build tree).
 # Debian's nodejs and npm only where no node is installed: a node from
@@ -55,6 +56,8 @@ step() {  # step WHAT COMMAND...
   fi
 }
 if [ "${#missing[@]}" -gt 0 ]; then
+  # tshark's wireshark-common asks whether non-root users may capture: no, without asking.
+  echo "wireshark-common wireshark-common/install-setuid boolean false" | $SUDO debconf-set-selections 2>/dev/null || true
   step "apt-get update" $SUDO apt-get update
   step "install ${missing[*]}" $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends "${missing[@]}"
 else

@@ -471,6 +471,7 @@ ClientRun run_client(const ClientOptions& o, const std::vector<Scenario>& list) 
       r.extra["answers"] = answers;
       if (!session.restarted()) session.disconnect();
       per_scenario.push_back(server->requests());
+      if (o.on_wire) o.on_wire(server->requests(), server->sent());
       conclude(r, failures);
     }
     r.duration_ms = std::chrono::duration<double, std::milli>(Clock::now() - c0).count();

@@ -29,6 +29,9 @@ struct ClientOptions {
   std::string tls_pki;
   nlohmann::json tls_connect;  // set by run_client: the adapter's connect fields
   std::function<void(const conf::CaseResult&, size_t done, size_t total)> on_case;
+  // After each scenario: every request the server saw and every frame it
+  // sent (`mbconform client --pcap`, conformance/capture/pcap_tap.h).
+  std::function<void(const std::vector<SeenRequest>&, const std::vector<SentFrame>&)> on_wire;
 };
 
 struct ClientRun {

@@ -208,8 +208,11 @@ struct Server::Impl {
   sigset_t run_mask;                   // the mask the loop waits with (stop signals open)
   Clock::time_point accept_resume;     // listeners rest until then after EMFILE
   size_t max_links = 0;                // opt.max_connections, lowered to what RLIMIT_NOFILE leaves room for
+  std::unique_ptr<PcapTrace> pcap;     // --pcap
 
-  Impl(ref::Bus b, Options o) : bus(std::move(b), o.faults), opt(std::move(o)) {}
+  Impl(ref::Bus b, Options o) : bus(std::move(b), o.faults), opt(std::move(o)) {
+    if (!opt.pcap.empty()) pcap = std::make_unique<PcapTrace>(opt.pcap);
+  }
 
   ~Impl() {
     if (epfd >= 0) ::close(epfd);
@@ -322,7 +325,7 @@ struct Server::Impl {
       Link l(a.fd, Transport::tcp, a.name);
       l.role = a.role;
       l.last_rx = now;
-      if (opt.trace) std::fputs((l.name + " connected\n").c_str(), stderr);
+      if (opt.trace) std::fputs((trace_time() + l.name + " connected\n").c_str(), stderr);
       links.push_back(std::move(l));
     }
   }
@@ -382,12 +385,13 @@ struct Server::Impl {
   // a tenth of a one-client exchange.
   template <class What>
   void trace(const Link& l, const char* dir, std::span<const uint8_t> bytes, What&& describe) {
+    if (pcap && !bytes.empty()) pcap->frame(l.fd, !l.rtu(), l.name, dir[0] == 't', bytes);
     if (!opt.trace) return;
     std::string what;
     if constexpr (std::is_invocable_v<What>) what = describe();
     else what = std::string(describe);
-    std::string line = bytes.empty() ? fmt::format("{} {} {}\n", l.name, dir, what)
-                                     : fmt::format("{} {} {} | {}\n", l.name, dir, to_hex(bytes), what);
+    std::string line = bytes.empty() ? fmt::format("{}{} {} {}\n", trace_time(), l.name, dir, what)
+                                     : fmt::format("{}{} {} {} | {}\n", trace_time(), l.name, dir, to_hex(bytes), what);
     std::fputs(line.c_str(), stderr);
   }
 
@@ -602,9 +606,10 @@ struct Server::Impl {
     for (auto& l : links)
       if (l.socket() && !l.closed && (!oldest || l.last_rx < oldest->last_rx)) oldest = &l;
     if (!oldest) return;
-    if (opt.trace) std::fputs((oldest->name + " closed: connection cap, unused the longest\n").c_str(), stderr);
+    if (opt.trace) std::fputs((trace_time() + oldest->name + " closed: connection cap, unused the longest\n").c_str(), stderr);
     oldest->closed = true;
     // Its descriptor comes free now, for the newcomer of this same burst of accepts.
+    if (pcap) pcap->closed(oldest->fd);
     ::close(oldest->fd);
     oldest->fd = -1;
   }
@@ -631,7 +636,7 @@ struct Server::Impl {
       setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &one, sizeof one);  // Guide §4.3.2: find peers that vanished
       Link l(fd, s.transport, fmt::format("{} {}", to_string(s.transport), sockaddr_text(ss)));
       l.last_rx = now;
-      if (opt.trace) std::fputs((l.name + " connected\n").c_str(), stderr);
+      if (opt.trace) std::fputs((trace_time() + l.name + " connected\n").c_str(), stderr);
       links.push_back(std::move(l));
     }
   }
@@ -643,7 +648,7 @@ struct Server::Impl {
       if (l.closed || !l.socket()) continue;
       if (l.eof && l.out.empty() && (!l.rtu() || l.in.empty())) l.closed = true;
       if (opt.idle_timeout_s > 0 && now - l.last_rx >= std::chrono::seconds(opt.idle_timeout_s)) {
-        if (opt.trace) std::fputs((l.name + " closed: idle\n").c_str(), stderr);
+        if (opt.trace) std::fputs((trace_time() + l.name + " closed: idle\n").c_str(), stderr);
         l.closed = true;
       }
     }
@@ -652,8 +657,11 @@ struct Server::Impl {
   void drop_closed_links() {
     std::erase_if(links, [&](Link& l) {
       if (!l.closed) return false;
-      if (opt.trace) std::fputs((l.name + " closed\n").c_str(), stderr);
-      if (l.fd >= 0) ::close(l.fd);
+      if (opt.trace) std::fputs((trace_time() + l.name + " closed\n").c_str(), stderr);
+      if (l.fd >= 0) {
+        if (pcap) pcap->closed(l.fd);
+        ::close(l.fd);
+      }
       return true;
     });
   }

@@ -44,7 +44,8 @@ struct Options {
   std::string eeprom_dir;        // empty: no persistence across restarts
   int baud = 19200;              // the pty's nominal rate: sets the frame gap
   std::optional<int> line_rate;  // pace RTU replies at this rate's wire time
-  bool trace = false;            // every frame to stderr
+  bool trace = false;            // every frame to stderr, timestamped (trace.h)
+  std::string pcap;              // every frame to this pcapng file (trace.h: PcapTrace)
   faults::FaultSet faults;       // injected into every device served (empty: correct devices)
   // A TCP connection that sent nothing for this long is closed (0: never).
   // The default is one no CI gate reaches.

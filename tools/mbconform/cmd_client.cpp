@@ -16,6 +16,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "capture/pcap_tap.h"
 #include "client/client_run.h"
 #include "client/model.h"
 #include "commands.h"
@@ -25,7 +26,7 @@ namespace mbc::cli {
 namespace {
 
 struct ClientArgs {
-  std::string adapter, transport = "tcp", filter, out, quirks, pty, pki;
+  std::string adapter, transport = "tcp", filter, out, quirks, pty, pki, pcap;
   int baud = 19200, timeout_ms = 500;
   bool list = false, plan = false, junit_only = false, quiet = false;
 };
@@ -62,6 +63,13 @@ int run(const ClientArgs& a) {
   o.baud = a.baud;
   o.timeout = std::chrono::milliseconds(a.timeout_ms);
   o.pty_path = a.pty;
+  if (!a.pcap.empty()) o.on_wire = [w = conf::capture::client_pcap(a.pcap, o.transport == client::Transport::tcp, "client " + a.transport)](
+                                      const auto& seen, const auto& sent) {
+    std::vector<conf::capture::ClientFrame> f;
+    for (const auto& q : seen) f.emplace_back(q.last, true, q.adu);
+    for (const auto& s : sent) f.emplace_back(s.at, false, s.bytes);
+    w(std::move(f));
+  };
   std::vector<client::Scenario> list;
   try {
     list = client::selected(o, [&](const std::string& id) { return a.filter.empty() || keep(a.filter, id); });
@@ -155,6 +163,7 @@ void add_client_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--pki", a->pki, "DIR: --transport tls: ca.crt, server.crt/.key, operator.crt/.key (conformance/tests/security/make_pki.sh)");
   cmd->add_option("--baud", a->baud, "pty: the nominal baud rate (t1.5, t3.5, wire-time bound); default 19200");
   cmd->add_option("--timeout-ms", a->timeout_ms, "the master's response time-out sent to the adapter; default 500");
+  cmd->add_option("--pcap", a->pcap, "FILE: also write every frame of every scenario as pcapng (conformance/capture/README.md)");
   cmd->add_option("--pty", a->pty, "pty: where to link the pty the adapter opens (default: a temporary directory)");
   cmd->add_option("--filter", a->filter, "select scenarios by id: a glob ('client/reply/*') or a substring");
   cmd->add_flag("--list", a->list, "print the scenarios (id, level, clause, title) and exit");

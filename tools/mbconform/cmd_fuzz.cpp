@@ -20,6 +20,7 @@
 #include <fstream>
 
 #include "blackbox/engine.h"
+#include "capture/pcap_tap.h"
 #include "commands.h"
 #include "options.h"
 #include "quirks/quirks.h"
@@ -81,7 +82,7 @@ int run_fuzz(FuzzArgs& a) {
   try {
     if (!a.quirks_file.empty()) quirks = conf::quirks::load(a.quirks_file);
     auto named = named_spec(a.t);
-    target = conf::open_target(uri);
+    target = conf::capture::tap_pcap(conf::open_target(uri), a.t.pcap);
     s = spec_for(named, uri, target->info().device_id);
     plan = conf::blackbox::make_plan(s, target->info(), a.t.policy);
   } catch (const std::exception& e) {
@@ -89,7 +90,7 @@ int run_fuzz(FuzzArgs& a) {
     return kExitUsage;
   }
   const conf::TargetInfo info = target->info();
-  conf::blackbox::Open open = [&] { return conf::open_target(uri); };
+  conf::blackbox::Open open = [&] { return conf::capture::tap_pcap(conf::open_target(uri), a.t.pcap); };
   // A live drive gets back the values it had (conformance/safety/safety.h).
   std::optional<conf::Snapshot> snapshot;
   if (info.live) {

@@ -23,6 +23,7 @@
 #include <rapidcheck/detail/Configuration.h>
 #include <unistd.h>
 
+#include "capture/pcap_tap.h"
 #include "commands.h"
 #include "loader.h"
 #include "options.h"
@@ -135,6 +136,7 @@ int run(PropsArgs& a) {
     conf::props::TargetSource src;
     try {
       src = conf::props::source_for(uri, named ? &*named : nullptr);
+      src.open = [open = src.open, pcap = a.t.pcap] { return conf::capture::tap_pcap(open(), pcap); };
     } catch (const std::exception& e) {
       fmt::print(stderr, "mbconform props: error: target {}: {}\n", uri, e.what());
       return kExitUsage;

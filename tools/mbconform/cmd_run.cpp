@@ -19,6 +19,7 @@
 #include <fstream>
 #include <regex>
 
+#include "capture/pcap_tap.h"
 #include "cases/case.h"
 #include "cases/common.h"
 #include "commands.h"
@@ -144,7 +145,7 @@ int run(RunArgs& a) {
     conf::TargetInfo info;
     try {
       if (!dry || (uri.rfind("ref:", 0) == 0 && !named)) {
-        target = conf::open_target(uri);
+        target = conf::capture::tap_pcap(conf::open_target(uri), a.t.pcap);
         info = target->info();
       } else {
         info = planned_info(uri, s);

@@ -18,6 +18,7 @@ struct ServeArgs {
   std::string eeprom_dir;
   std::optional<int> baud, line_rate;
   bool trace = false;
+  std::string pcap;
   std::vector<std::string> faults;  // --fault NAME[,NAME], repeatable
   bool list_faults = false;
   int idle_timeout_s = serve::Options{}.idle_timeout_s;
@@ -35,6 +36,7 @@ serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_
   if (o.endpoints.empty()) throw CLI::ValidationError("serve", "give at least one of --tcp, --rtu-tcp, --pty, --tls");
   o.eeprom_dir = a.eeprom_dir;
   o.trace = a.trace;
+  o.pcap = a.pcap;
   o.line_rate = a.line_rate;
   o.idle_timeout_s = a.idle_timeout_s;
   o.max_connections = a.max_connections;
@@ -94,7 +96,8 @@ void add_serve_command(CLI::App& app, int& exit_code) {
       ->check(CLI::Range(300, 4000000));
   cmd->add_option("--line-rate", a.line_rate, "pace RTU replies at the wire time of this baud rate")
       ->check(CLI::Range(300, 4000000));
-  cmd->add_flag("--trace", a.trace, "log every frame to stderr");
+  cmd->add_flag("--trace", a.trace, "log every frame to stderr, timestamped (the serial log format check-capture reads)");
+  cmd->add_option("--pcap", a.pcap, "FILE: also write every frame as pcapng (Wireshark; conformance/capture/README.md)");
   cmd->add_option("--fault", a.faults,
                   "NAME[,NAME]: serve deliberately broken devices (every device served); repeatable; see --list-faults");
   cmd->add_option("--idle-timeout", a.idle_timeout_s, "SECONDS: close a TCP connection silent this long (0: never)")

@@ -20,6 +20,7 @@ void add_target_options(CLI::App& cmd, TargetOptions& o, bool many, const std::s
   cmd.add_option("--device", o.device, "ID: the spec (spec/devices/ID.yaml) of a live target (ref: targets carry their own)");
   cmd.add_option("--spec", o.spec_file, "FILE: a spec file describing a live target")->excludes(cmd.get_option("--device"));
   cmd.add_option("--out", o.out, out_help);
+  cmd.add_option("--pcap", o.pcap, "FILE: also write every frame exchanged as pcapng (Wireshark; conformance/capture/README.md)");
   cmd.add_flag("--allow-motion", o.policy.allow_motion, "live targets: allow writes to command and motion registers");
   cmd.add_flag("--allow-eeprom-writes", o.policy.allow_eeprom_writes, "live targets: allow writes that wear EEPROM/flash");
   cmd.add_flag("--allow-broadcast", o.policy.allow_broadcast, "live targets: allow writes to unit 0 (every drive on the line takes them)");

@@ -22,6 +22,7 @@ struct TargetOptions {
   std::string device, spec_file;     // --device ID | --spec FILE
   std::string out;                   // --out DIR
   conf::WritePolicy policy;          // --allow-motion, --allow-eeprom-writes, --allow-broadcast
+  std::string pcap;                  // --pcap FILE: every exchange as pcapng (conformance/capture/pcap_tap.h)
 };
 
 // --target (repeatable when `many`, else once and required), --device,
