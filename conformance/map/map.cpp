@@ -218,8 +218,10 @@ class Prober {
         uint32_t mid = lo + (hi - lo) / 2;
         (read(ti, last + 1, mid) == Answer::mapped ? lo : hi) = mid;
       }
+      // The read that failed may have failed for its quantity (a device's
+      // own limit below the standard's), not for last + 1: that address is
+      // left to a single read.
       last += lo;
-      if (last + 1 <= 0xFFFF) at(ti, last + 1) = Seen::unmapped;  // a read of it with the block failed
       break;
     }
     if (last + 1 == a) return last;
@@ -248,7 +250,7 @@ class Prober {
   void scan(const TableInfo& ti, uint32_t from, uint32_t min_end, uint32_t gap) {
     uint32_t misses = 0, run = 0;
     for (uint32_t a = from; a <= 0xFFFF && (a < min_end || misses < gap); ++a) {
-      if (run >= 3) {
+      if (run >= 3 && at(ti, a) == Seen::unknown) {
         uint32_t last = grow(ti, a);
         run = 0;
         if (last + 1 != a) {

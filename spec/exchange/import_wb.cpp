@@ -213,7 +213,8 @@ class WbImporter {
     std::string base;
     for (char c : id.empty() ? name : id) base += std::isalnum(static_cast<unsigned char>(c)) ? char(std::tolower(static_cast<unsigned char>(c))) : '_';
     while (base.find("__") != std::string::npos) base.replace(base.find("__"), 2, "_");
-    if (base.empty() || std::isdigit(static_cast<unsigned char>(base[0]))) base = "r_" + base;
+    if (base.empty() || !std::isalnum(static_cast<unsigned char>(base[0]))) base = "r" + base;
+    if (base.size() > 60) base.resize(60);  // an id is at most 80 characters, and a bitfield's is the key + "-bits"
     std::string k = base;
     for (int n = 2; keys_.count(k); ++n) k = fmt::format("{}_{}", base, n);
     keys_.insert(k);

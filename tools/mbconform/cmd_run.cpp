@@ -47,6 +47,7 @@ struct RunArgs {
   int map_budget = conf::map::kDefaultBudget;
   std::optional<std::chrono::milliseconds> map_time;  // --map-time
   bool fail_on_should = false;                        // --fail-on should
+  bool verbose = false;                               // -v: every case's line, not only failures
   bool allow_writes = false;
   std::string quirks_file;
 };
@@ -214,7 +215,9 @@ int run(RunArgs& a) {
     opt.on_case = [&](const conf::CaseResult& r, size_t done, size_t total) {
       // On a terminal a failure stays on screen as it happens; elsewhere (a
       // log, CI) the summary at the end lists it, once.
-      if (r.outcome == conf::Outcome::fail && tty) {
+      if (a.verbose) {
+        fmt::print("{}{}\n", tty ? "\r\033[K" : "", conf::progress_line(r, done, total));  // every case, as it ends
+      } else if (r.outcome == conf::Outcome::fail && tty) {
         fmt::print("\r\033[K{}\n", conf::progress_line(r, done, total));
       } else if (tty) {
         fmt::print("\r\033[K{}", conf::progress_line(r, done, total));
@@ -307,6 +310,7 @@ void add_run_command(CLI::App& app, int& exit_code) {
                   "reported apart, not failed (conformance/README.md, Quirks files)");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
   cmd->add_flag("--quiet", a->quiet, "no progress line");
+  cmd->add_flag("-v,--verbose", a->verbose, "a line for every case as it ends, not only for failures");
   cmd->callback([a, &exit_code] { exit_code = run(*a); });
 }
 

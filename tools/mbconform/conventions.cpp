@@ -155,6 +155,10 @@ std::optional<int> check_args(CLI::App& app, std::vector<std::string>& args) {
         w = "--quiet";
         continue;
       }
+      if (name == "-v" && !takes(at, "-v") && takes(at, "--verbose")) {
+        w = "--verbose";
+        continue;
+      }
       if (!takes(at, name)) {
         std::string near = nearest(name, option_names(at));
         std::fprintf(stderr, "%s: error: unknown option '%s'%s (%s --help lists them)\n", path_of(at).c_str(), name.c_str(),

@@ -60,11 +60,20 @@ def main():
     shutil.rmtree(WORK, ignore_errors=True)
     os.makedirs(WORK)
     out = os.path.join(WORK, "run")
-    # A drive with a fault (words swapped: many failures of one cause) beside
-    # one that passes: the verdict is FAIL.
-    p = subprocess.run([MBC, "run", "--quiet", "--target", "ref:hsc60?fault=swapped-words", "--target",
-                        "ref:hanstar-7trsm5740q", "--out", out], capture_output=True, text=True, timeout=600)
-    check(p.returncode == 1, f"run exits 1 (a MUST failed): {p.returncode}")
+    # A drive with a fault (words swapped: many failures of one cause),
+    # served over TCP as a live drive is (so the safety rules skip what needs
+    # a flag): the verdict is FAIL.
+    server = subprocess.Popen([MBC, "serve", "--device", "hsc60", "--fault", "swapped-words", "--tcp", "127.0.0.1:0"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    line = server.stdout.readline()
+    check(line.startswith("listening tcp "), f"serve listens: {line!r}")
+    try:
+        p = subprocess.run([MBC, "run", "--quiet", "--target", f"tcp://{line.split()[2]}", "--device", "hsc60", "--out", out],
+                           capture_output=True, text=True, timeout=600)
+    finally:
+        server.terminate()
+        server.wait(timeout=10)
+    check(p.returncode == 1, f"run exits 1 (a MUST failed): {p.returncode} {p.stderr[-500:]}")
     page = "file://" + os.path.abspath(os.path.join(out, "report.html"))
 
     dom = chromium("--dump-dom", page)
@@ -72,13 +81,13 @@ def main():
     d = Dom()
     d.feed(dom.stdout)
     verdict = d.find("div", "verdict")
-    check(len(verdict) == 1 and "fail" in d.elements[verdict[0]][1]["class"] and d.elements[verdict[0] + 1][2] == "FAIL",
+    check(len(verdict) == 1 and "fail" in d.elements[verdict[0]][1]["class"] and d.elements[verdict[0] + 1][2].startswith("FAIL"),
           "one verdict banner, FAIL")
     details = d.find("div", "detail")
     check(len(details) == 1 and verdict and verdict[0] < details[0], "the summary comes before the details")
     summaries = d.find("section", "device-summary")
-    check([d.elements[i][1]["data-device"] for i in summaries] == ["hsc60", "hanstar-7trsm5740q"],
-          f"a summary per device: {[d.elements[i][1].get('data-device') for i in summaries]}")
+    check([d.elements[i][1]["data-device"] for i in summaries] == ["hsc60"],
+          f"a summary of the device: {[d.elements[i][1].get('data-device') for i in summaries]}")
     first_detail = details[0] if details else len(d.elements)
     text_of = lambda lo, hi: " ".join(e[2] for e in d.elements[lo:hi])
     summary_text = text_of(0, first_detail)
@@ -89,7 +98,7 @@ def main():
     check(0 < len(causes) <= 6, f"a few causes, not one line per case: {len(causes)}")
     check("0x" in text_of(causes[0], causes[0] + 8) if causes else False, "a cause names its registers")
     for level in ("MUST", "SHOULD", "OBSERVED"):
-        check(len([i for i in d.find("tr", data_level=level) if i < first_detail]) == 2, f"counts of {level} for both devices")
+        check(len([i for i in d.find("tr", data_level=level) if i < first_detail]) == 1, f"the count of {level} cases")
     failures_h = [i for i in d.find("h3", "failures") if i > first_detail]
     grid = [i for i, e in enumerate(d.elements) if e[0] == "table" and "regs" in (e[1].get("class") or "")]
     check(failures_h and grid and failures_h[0] < grid[0], "below the summary: failures, then the register grid")
@@ -103,7 +112,7 @@ def main():
     check(r.returncode == 0 and os.path.exists(pdf), f"chromium prints the page: exit {r.returncode} {r.stderr[-300:]}")
     info = subprocess.run(["pdfinfo", pdf], capture_output=True, text=True).stdout
     pages = int(next(l.split()[1] for l in info.splitlines() if l.startswith("Pages:")))
-    check("595" in info and "842" in info, "A4 pages (595 x 842 pt)")
+    check("(A4)" in info, f"A4 pages: {[l for l in info.splitlines() if l.startswith('Page size')]}")
     summary_pages = None
     for n in range(1, pages + 1):
         t = subprocess.run(["pdftotext", "-f", str(n), "-l", str(n), pdf, "-"], capture_output=True, text=True).stdout
