@@ -44,7 +44,7 @@ std::string export_wb_template(const spec::Spec& s) {
     c["address"] = r.address;
     c["type"] = bits ? "switch" : "value";
     if (!bits) c["format"] = format(r);
-    if (r.words == 2) c["word_order"] = r.low_first() ? "little_endian" : "big_endian";
+    if (r.words == 2) c["word_order"] = r.low_word_first() ? "little_endian" : "big_endian";
     if (r.scale != 1) c["scale"] = r.scale;
     if (!r.unit.empty()) c["units"] = r.unit;
     if (r.access == Access::ro) c["readonly"] = true;
