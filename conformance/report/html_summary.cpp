@@ -270,6 +270,10 @@ std::string device_summary(const RunReport& rep, const DeviceRun& d) {
   if (!skipped.empty()) {
     h += "<h3>Skipped</h3><ul class=skipped>";
     auto v = by_count(skipped);
+    // What a flag would enable first: that is what the integrator can act on.
+    std::stable_sort(v.begin(), v.end(), [](const auto& a, const auto& b) {
+      return (a.first.find("enable with") != std::string::npos) > (b.first.find("enable with") != std::string::npos);
+    });
     for (size_t i = 0; i < v.size() && i < kShown; ++i) h += fmt::format("<li>{} cases: {}</li>", v[i].second, esc(v[i].first));
     if (v.size() > kShown) h += fmt::format("<li>{} more reasons below</li>", v.size() - kShown);
     h += "</ul>";
