@@ -67,7 +67,7 @@ code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
 @media print{body{margin:0;font-size:10px;max-width:none}.verdict{font-size:14px;-webkit-print-color-adjust:exact;print-color-adjust:exact}
  .verdict b{font-size:18px}.pass,.fail,.observed,.skip,mark{-webkit-print-color-adjust:exact;print-color-adjust:exact}
  h2{font-size:14px;margin:.4em 0}h3{font-size:12px;margin:.4em 0}code,pre{font-size:9px}.causes code{font-size:8px}
- .device-summary{break-inside:avoid-page}.detail{break-before:page}}
+ tr,li{break-inside:avoid}h2,h3{break-after:avoid}.detail{break-before:page}}
 </style></head><body>)";
   h += html::summary(rep);
   h += fmt::format("<div class=detail><h1>Details</h1><p>mbconform {} · started {} · version {}{}</p>", esc(rep.command),

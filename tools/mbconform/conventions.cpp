@@ -135,7 +135,9 @@ void add_conventions(CLI::App& app, int& exit_code) {
       }
       at = next;
     }
-    std::printf("%s", at->help().c_str());
+    std::string text = at->help();
+    if (!text.empty() && text.back() != '\n') text += '\n';
+    std::printf("%s", text.c_str());
     exit_code = 0;
   });
   footer_everywhere(&app);

@@ -120,7 +120,10 @@ TEST(Map, ProbeFindsTheGappedMapsOfTheDrives) {
 // coils) and answers a read that starts past them with a byte count of 0.
 class BitsPastTheEnd : public Target {
  public:
-  BitsPastTheEnd() { info_ = {"fake:bits-past-end", "ref", Framing::rtu, 1}; }
+  BitsPastTheEnd() {
+    info_.uri = "fake:bits-past-end";
+    info_.kind = "ref";
+  }
   const TargetInfo& info() const override { return info_; }
   Reply transact(uint8_t, std::span<const uint8_t> pdu) override {
     Reply r;
