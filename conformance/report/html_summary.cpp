@@ -80,7 +80,8 @@ std::optional<uint16_t> value_read(const DeviceRun& d, uint16_t address) {
 // A failure's cause: its clause and its message with the numbers taken out,
 // so the same fault at 35 registers is one line.
 std::string cause_of(const CaseResult& r) {
-  static const std::regex numbers("0x[0-9A-Fa-f]+|\\b[0-9A-Fa-f]{2}( [0-9A-Fa-f]{2})+\\b|-?\\b[0-9]+(\\.[0-9]+)?\\b");
+  // 0x0044, 80000, -1.5, hex bytes "01 03 00 44", register words "[07D1 0000]".
+  static const std::regex numbers("0x[0-9A-Fa-f]+|\\b[0-9A-Fa-f]{2}( [0-9A-Fa-f]{2})+\\b|\\b[0-9A-F]{4}\\b|-?\\b[0-9]+(\\.[0-9]+)?\\b");
   std::string m = r.message;
   if (auto more = m.find(" (+"); more != std::string::npos) m.resize(more);
   return r.clause + ": " + std::regex_replace(m, numbers, "#");
