@@ -59,6 +59,7 @@ struct Checker {
     const auto& ops = s.operations;
     if (ops.save) write("/operations/save", *ops.save);
     if (ops.factory_reset) write("/operations/factory_reset", *ops.factory_reset);
+    for (size_t i = 0; i < ops.setup.size(); ++i) write("/operations/setup/" + std::to_string(i), ops.setup[i]);
     if (!ops.motion) return;
     const auto& m = *ops.motion;
     const std::string mp = "/operations/motion";

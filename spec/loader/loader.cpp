@@ -437,6 +437,14 @@ struct Builder {
       s.errata.push_back(std::move(x));
     }
     if (r.contains("operations")) build_operations(s, r["operations"]);
+    if (r.contains("timing")) {
+      const json& t = r["timing"];
+      for (auto [key, field] : {std::pair{"response_timeout_ms", &Timing::response_timeout_ms},
+                                std::pair{"frame_timeout_ms", &Timing::frame_timeout_ms},
+                                std::pair{"guard_interval_us", &Timing::guard_interval_us}})
+        if (t.contains(key)) s.timing.*field = t[key].get<double>();
+      s.timing.section = str(t, "section");
+    }
     check_basis_errata(s);
     return s;
   }
@@ -497,6 +505,9 @@ struct Builder {
     s.operations.section = str(o, "section");
     s.operations.save = optional_write(o, "save", p);
     s.operations.factory_reset = optional_write(o, "factory_reset", p);
+    if (o.contains("setup"))
+      for (size_t i = 0; i < o["setup"].size(); ++i)
+        s.operations.setup.push_back(register_write(o["setup"][i], p + "/setup/" + std::to_string(i)));
     if (!o.contains("motion")) return;
     const json& m = o["motion"];
     const std::string mp = p + "/motion";

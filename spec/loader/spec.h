@@ -381,9 +381,19 @@ struct MotionOperations {
 // how a move is made (`operations:`; absent when the manual documents none).
 struct Operations {
   std::string section;
+  // Writes a master makes, in order, before using the device (a template's
+  // `setup`): each a register write, so the safety rules gate it like any other.
+  std::vector<RegisterWrite> setup;
   std::optional<RegisterWrite> save;
   std::optional<RegisterWrite> factory_reset;
   std::optional<MotionOperations> motion;
+};
+
+// How long a master waits, as the source states it (`timing:`): for a
+// reply, for the rest of a frame, and between two frames.
+struct Timing {
+  std::optional<double> response_timeout_ms, frame_timeout_ms, guard_interval_us;
+  std::string section;
 };
 
 struct Spec {
@@ -397,6 +407,7 @@ struct Spec {
   std::vector<Example> examples;
   std::vector<Erratum> errata;
   Operations operations;
+  Timing timing;
 
   const Register* find_register(uint16_t address, Table table = Table::holding) const;
   // The register whose words cover `address` (a 2-word register covers two).

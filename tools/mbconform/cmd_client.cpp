@@ -20,6 +20,7 @@
 #include "client/client_run.h"
 #include "client/model.h"
 #include "commands.h"
+#include "conventions.h"
 #include "report/report.h"
 
 namespace mbc::cli {
@@ -29,6 +30,7 @@ struct ClientArgs {
   std::string adapter, transport = "tcp", filter, out, quirks, pty, pki, pcap;
   int baud = 19200, timeout_ms = 500;
   bool list = false, plan = false, junit_only = false, quiet = false;
+  bool fail_on_should = false;  // --fail-on should
 };
 
 // A glob ('client/reply/*') or a substring of the case id.
@@ -106,7 +108,7 @@ int run(const ClientArgs& a) {
   }
   bool tty = isatty(STDOUT_FILENO) && !a.quiet;
   o.on_case = [&](const conf::CaseResult& r, size_t done, size_t total) {
-    if (r.outcome == conf::Outcome::fail) fmt::print("{}{}\n", tty ? "\r\033[K" : "", conf::progress_line(r, done, total));
+    if (r.outcome == conf::Outcome::fail && tty) fmt::print("\r\033[K{}\n", conf::progress_line(r, done, total));  // else the summary lists it, once
     else if (tty) fmt::print("\r\033[K{}", conf::progress_line(r, done, total));
     std::fflush(stdout);
   };
@@ -114,6 +116,7 @@ int run(const ClientArgs& a) {
   report.command = "client";
   report.started_at = stamp("%Y-%m-%dT%H:%M:%SZ");
   report.version = "mbconform 0.1";
+  report.fail_on_should = a.fail_on_should;
   client::ClientRun cr = client::run_client(o, list);
   if (tty) fmt::print("\r\033[K");
   if (!cr.error.empty()) {
@@ -123,7 +126,7 @@ int run(const ClientArgs& a) {
   }
   client::apply_quirks(cr.run, quirks);
   report.devices.push_back(cr.run);
-  std::string out = a.out.empty() ? "reports/client/" + stamp("%Y%m%dT%H%M%SZ") : a.out;
+  std::string out = a.out.empty() ? default_out_dir("client") : a.out;
   try {
     conf::write_reports(report, out, a.junit_only);
     if (!a.junit_only) {
@@ -142,7 +145,7 @@ int run(const ClientArgs& a) {
     return kExitUsage;
   }
   fmt::print("{}", conf::summary_table(report));
-  int rc = conf::count(cr.run).must_failed > 0 ? kExitFailed : kExitOk;
+  int rc = run_failed(report) ? kExitFailed : kExitOk;
   for (const auto& k : quirks.list) {
     if (k.used || k.by != conf::quirks::Quirk::By::case_id) continue;
     fmt::print("quirk '{}' matched no failing case: the library changed; update {}\n", k.pattern, a.quirks);
@@ -171,6 +174,7 @@ void add_client_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--out", a->out, "report directory (default reports/client/<UTC date-time>/)");
   cmd->add_option("--quirks", a->quirks, "a quirks file, a YAML list of {case: ID-or-glob, reason} (conformance/README.md): known deviations, reported apart");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
+  add_fail_on_option(cmd, a->fail_on_should);
   cmd->add_flag("--quiet", a->quiet, "no progress line");
   cmd->callback([a, &exit_code] { exit_code = run(*a); });
 }

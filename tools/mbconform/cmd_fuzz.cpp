@@ -22,6 +22,7 @@
 #include "blackbox/engine.h"
 #include "capture/pcap_tap.h"
 #include "commands.h"
+#include "conventions.h"
 #include "options.h"
 #include "quirks/quirks.h"
 #include "report/report.h"
@@ -69,6 +70,7 @@ fs::path save(const fs::path& dir, const conf::blackbox::Plan& plan, const conf:
 int run_fuzz(FuzzArgs& a) {
   const std::string uri = a.t.targets.front();
   if (!a.replay.empty()) return replay_file(a.replay, uri, a.t, "fuzz");
+  if (a.t.out.empty()) a.t.out = default_out_dir("fuzz");
   if (!conf::out_dir_ok(a.t.out, "mbconform fuzz")) return kExitUsage;
   auto duration = parse_duration(a.duration);
   if (!duration) {
@@ -149,9 +151,9 @@ int run_fuzz(FuzzArgs& a) {
 
 void add_fuzz_command(CLI::App& app, int& exit_code) {
   auto args = std::make_shared<FuzzArgs>();
-  args->t.out = "fuzz-findings";
+
   auto* cmd = app.add_subcommand("fuzz", "Black-box structure-aware fuzzing of a target; saves minimal reproducers");
-  add_target_options(*cmd, args->t, false, "DIR: reproducers, one per distinct finding (default fuzz-findings)");
+  add_target_options(*cmd, args->t, false, "DIR: reproducers, one per distinct finding (default reports/fuzz/<UTC date-time>/)");
   cmd->add_option("--duration", args->duration, "How long to fuzz: 500ms, 20s, 5m, 1h (default 10s)");
   cmd->add_option("--seed", args->seed, "Random seed (default: from the clock, printed)");
   cmd->add_option("--batch", args->batch, "Frames between two liveness probes (default 50)")->check(CLI::Range(1, 100000));

@@ -25,6 +25,7 @@
 
 #include "capture/pcap_tap.h"
 #include "commands.h"
+#include "conventions.h"
 #include "loader.h"
 #include "options.h"
 #include "properties/properties.h"
@@ -127,7 +128,7 @@ int run(PropsArgs& a) {
   report.command = "props";
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
   report.version = "mbconform 0.1";
-  std::string out = a.t.out.empty() ? "reports/runs/props-" + utc_now("%Y%m%dT%H%M%SZ") : a.t.out;
+  std::string out = a.t.out.empty() ? default_out_dir("props") : a.t.out;
   if (!conf::out_dir_ok(out, "mbconform props")) return kExitUsage;
   bool failed = false;
   std::vector<std::pair<std::string, std::string>> regressions;  // file name, text

@@ -23,6 +23,7 @@
 #include "cases/case.h"
 #include "cases/common.h"
 #include "commands.h"
+#include "conventions.h"
 #include "loader.h"
 #include "map/map.h"
 #include "options.h"
@@ -46,6 +47,9 @@ struct RunArgs {
   bool list = false, plan = false, junit_only = false, quiet = false;
   std::string map;  // --map auto | FILE | inline
   int map_budget = conf::map::kDefaultBudget;
+  std::optional<std::chrono::milliseconds> map_time;  // --map-time
+  bool fail_on_should = false;                        // --fail-on should
+  bool verbose = false;                               // -v: every case's line, not only failures
   bool allow_writes = false;
   std::string quirks_file;
 };
@@ -126,12 +130,13 @@ int run(RunArgs& a) {
   report.command = "run";
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
   report.version = "mbconform 0.1";
+  report.fail_on_should = a.fail_on_should;
 
   std::signal(SIGINT, on_signal);
   std::signal(SIGTERM, on_signal);
   bool dry = a.list || a.plan;
   bool tty = isatty(STDOUT_FILENO) && !a.quiet;
-  const std::string out = a.t.out.empty() ? "reports/runs/" + utc_now("%Y%m%dT%H%M%SZ") : a.t.out;
+  const std::string out = a.t.out.empty() ? default_out_dir("run") : a.t.out;
   if (!dry && !conf::out_dir_ok(out, "mbconform run")) return kExitUsage;
   for (const auto& uri : targets) {
     spec::Spec s;
@@ -162,15 +167,8 @@ int run(RunArgs& a) {
         fmt::print(stderr, "mbconform run: error: target {}: {}\n", uri, why);
         return kExitUsage;
       }
-      auto t0 = std::chrono::steady_clock::now();
-      map = conf::map::probe(*target, a.map_budget);
-      double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      notes.push_back(fmt::format("map probed in {} requests, {:.2f} s: {}", map->requests, secs, map->describe()));
-      for (const auto& u : map->unmapped)
-        notes.push_back(fmt::format("unmapped {} addresses answered: {} ({} probes)", conf::map::table_name(u.table), u.answer, u.seen));
-      if (map->partial)
-        notes.push_back(fmt::format("PARTIAL MAP: the probe budget of {} requests ran out at {}; nothing past it was probed",
-                                    a.map_budget, map->partial_at));
+      map = conf::map::probe(*target, conf::map::ProbeLimits{a.map_budget, a.map_time});
+      notes = conf::map::probe_notes(*map);
       if (!a.quiet) fmt::print("{}: {}\n", uri, notes.front());
     } else if (a.map == "auto" && a.plan) {
       fmt::print("# --map auto: the probe sends at most {} reads (FC 01/02/03/04, --map-budget) before the cases; "
@@ -220,8 +218,12 @@ int run(RunArgs& a) {
     conf::RunOptions opt;
     opt.stop = &g_stop;
     opt.on_case = [&](const conf::CaseResult& r, size_t done, size_t total) {
-      if (r.outcome == conf::Outcome::fail) {
-        fmt::print("{}{}\n", tty ? "\r\033[K" : "", conf::progress_line(r, done, total));
+      // On a terminal a failure stays on screen as it happens; elsewhere (a
+      // log, CI) the summary at the end lists it, once.
+      if (a.verbose) {
+        fmt::print("{}{}\n", tty ? "\r\033[K" : "", conf::progress_line(r, done, total));  // every case, as it ends
+      } else if (r.outcome == conf::Outcome::fail && tty) {
+        fmt::print("\r\033[K{}\n", conf::progress_line(r, done, total));
       } else if (tty) {
         fmt::print("\r\033[K{}", conf::progress_line(r, done, total));
       }
@@ -250,6 +252,7 @@ int run(RunArgs& a) {
     if (info.kind == "tls" && !g_stop.load())
       for (auto& r : conf::security::check_server(conf::security::from_uri(uri), s.device.id))
         if (keep(r.id)) dr.cases.push_back(std::move(r));
+    conf::describe_device(dr, s);
     if (tty) fmt::print("\r\033[K");
     if (snap) {
       try {
@@ -290,9 +293,7 @@ int run(RunArgs& a) {
   // Interrupted: the run was not done (2), whatever it found so far. A lost
   // target is recorded as the FAIL of the case it was lost in (1).
   if (report.interrupted) return kExitUsage;
-  bool must_failed = false;
-  for (const auto& d : report.devices) must_failed |= conf::count(d).must_failed > 0;
-  if (must_failed) return kExitFailed;
+  if (run_failed(report)) return kExitFailed;
   for (const auto& d : report.devices)
     if (!d.error.empty()) return kExitUsage;
   return kExitOk;
@@ -303,7 +304,7 @@ int run(RunArgs& a) {
 void add_run_command(CLI::App& app, int& exit_code) {
   auto a = std::make_shared<RunArgs>();
   auto* cmd = app.add_subcommand("run", "Run the conformance cases generated from a spec against targets; write reports");
-  add_target_options(*cmd, a->t, true, "DIR: report directory (default reports/runs/<UTC date-time>/)");
+  add_target_options(*cmd, a->t, true, "DIR: report directory (default reports/run/<UTC date-time>/)");
   cmd->add_flag("--list", a->list, "print the cases (id, level, clause, title) and exit");
   cmd->add_option("--filter", a->filter, "select cases by id: a glob ('*/registers/*'), a regex, or a substring");
   cmd->add_flag("--plan", a->plan, "print every frame the cases would send, without sending anything");
@@ -312,11 +313,14 @@ void add_run_command(CLI::App& app, int& exit_code) {
                   "the target's data map instead of the spec's: 'auto' (probe it with reads), a map file, or "
                   "'holding=0-199,coils=0-199,input=0-199,discrete=0-199' (conformance/README.md, Maps)");
   cmd->add_option("--map-budget", a->map_budget, "the most requests --map auto sends (default 2000)")->check(CLI::Range(1, 1000000));
+  add_map_time_option(cmd, a->map_time);
+  add_fail_on_option(cmd, a->fail_on_should);
   cmd->add_flag("--allow-writes", a->allow_writes, "with --map auto or a map without access: run the cases that write");
   cmd->add_option("--quirks", a->quirks_file, "a quirks file: known deviations (case ids or globs, with reasons) "
                   "reported apart, not failed (conformance/README.md, Quirks files)");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
   cmd->add_flag("--quiet", a->quiet, "no progress line");
+  cmd->add_flag("-v,--verbose", a->verbose, "a line for every case as it ends, not only for failures");
   cmd->callback([a, &exit_code] { exit_code = run(*a); });
 }
 
