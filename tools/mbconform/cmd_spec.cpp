@@ -12,7 +12,10 @@
 #include "exchange.h"
 #include "loader.h"
 #include "map/map.h"
+#include "options.h"
 #include "runner/runner.h"
+#include "session/session.h"
+#include "session/signals.h"
 #include "targets/target.h"
 
 namespace mbc::cli {
@@ -94,6 +97,7 @@ bool valid_id(const std::string& id) {
 
 int run_import(const std::string& csv, const std::string& id, std::string out) {
   if (!valid_id(id)) throw std::runtime_error("--id '" + id + "': a spec id is [a-z0-9][a-z0-9-]*");
+  check_readable(csv, kMaxTextFileBytes, "--csv");
   std::ifstream in(csv, std::ios::binary);
   if (!in) throw std::runtime_error("cannot open " + csv);
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -187,10 +191,15 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
   discover->add_option("--map-budget", discover_budget, "the most read requests the probe sends")->check(CLI::Range(1, 1000000));
   discover->callback([&] {
     try {
-      auto target = conf::open_target(discover_target);
-      spec::Spec none;
-      if (std::string why = conf::unreachable(*target, none); !why.empty()) throw std::runtime_error(why);
+      // Through a session with no spec: its gate lets no write through.
+      conf::install_stop_signals();
+      conf::SessionOptions so;
+      so.command = "spec discover";
+      conf::Session session(discover_target, nullptr, so);
+      conf::Target* target = &session.target();
+      if (std::string why = session.reachable(); !why.empty()) throw std::runtime_error(why);
       conf::map::Map m = conf::map::probe(*target, discover_budget);
+      if (auto stop = session.stopped()) throw std::runtime_error("INCOMPLETE: " + *stop + "; no spec written");
       std::string id = discover_id.empty() ? fs::path(discover_out).stem().string() : discover_id;
       if (!write_file(discover_out, conf::map::skeleton_yaml(m, id, target->info().unit)))
         throw std::runtime_error("cannot write " + discover_out);

@@ -29,6 +29,9 @@ void add_client_command(CLI::App& app, int& exit_code);
 // `replay`: a frame script (conformance/script/README.md) against any target (cmd_replay.cpp).
 void add_replay_command(CLI::App& app, int& exit_code);
 
+// `restore`: a drive put back from a command's journal (cmd_restore.cpp).
+void add_restore_command(CLI::App& app, int& exit_code);
+
 struct TargetOptions;
 // Replays the frame script `file` on `uri` (default: ref: of the script's
 // device); the spec is --device/--spec, else the script's `device`. Prints

@@ -14,6 +14,7 @@ int main(int argc, char** argv) {
   mbc::cli::add_fuzz_command(app, exit_code);
   mbc::cli::add_client_command(app, exit_code);
   mbc::cli::add_replay_command(app, exit_code);
+  mbc::cli::add_restore_command(app, exit_code);
   mbc::cli::add_global_options(app);
   try {
     app.parse(argc, argv);
