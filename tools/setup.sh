@@ -13,6 +13,7 @@ packages=(
   libjson-c-dev
   golang-go golang-github-goburrow-modbus-dev  # the goburrow/modbus client adapter, built offline
   zip unzip
+  libre2-dev  # run --filter: a linear-time regex matcher (Debian)
 )
 # Node for the npm peers (conformance/peers: npm ci into the build tree).
 # Debian's nodejs and npm only where no node is installed: a node from
