@@ -13,7 +13,7 @@ std::atomic<int> g_signal{0};
 // Written before a handler can read it; a second signal prints it as is.
 char g_restore_line[4096] = "";
 
-extern "C" void on_stop_signal(int sig) {
+void on_session_stop_signal(int sig) {
   if (g_stop.exchange(true) && (sig == SIGINT || sig == SIGTERM)) {
     const char* msg = g_restore_line[0] ? g_restore_line : "mbconform: stopped at once\n";
     (void)!::write(STDERR_FILENO, msg, std::strlen(msg));
@@ -26,7 +26,7 @@ extern "C" void on_stop_signal(int sig) {
 
 void install_stop_signals() {
   struct sigaction sa {};
-  sa.sa_handler = on_stop_signal;
+  sa.sa_handler = on_session_stop_signal;
   sigemptyset(&sa.sa_mask);
   sa.sa_flags = SA_RESTART;  // the exchange in flight ends as usual; the command sees the stop after it
   for (int s : {SIGINT, SIGTERM, SIGHUP}) sigaction(s, &sa, nullptr);
