@@ -335,7 +335,9 @@ std::unique_ptr<Target> Session::open_another(bool reopen) {
 }
 
 std::string Session::preflight(std::string& identity) {
-  if (!spec_ || !inner_->info().live) return "";
+  // The standard's baseline describes any server that follows the
+  // standard, not one product: nothing to identify.
+  if (!spec_ || !inner_->info().live || spec_->device.id == "modbus-standard") return "";
   const auto& id = spec_->device.identification;
   const auto* fc43 = spec_->profile.function(43);
   if (fc43 && std::find(fc43->mei_types.begin(), fc43->mei_types.end(), 14) != fc43->mei_types.end() &&

@@ -276,7 +276,10 @@ int run(RunArgs& a) {
     // Live drives: keep every register the run may write, put them back
     // afterwards (also after SIGINT or a target error) and report what could not be.
     std::vector<std::string> snap_notes;
-    if (std::string why = prepare_live(*session, a.t, snap_notes); !why.empty()) {
+    // A map in use: the target is judged by its own map, not identified as the spec's device.
+    TargetOptions live_opts = a.t;
+    if (!a.map.empty()) live_opts.no_preflight = true;
+    if (std::string why = prepare_live(*session, live_opts, snap_notes); !why.empty()) {
       fmt::print(stderr, "mbconform run: error: {}\n", why);
       return kExitUsage;
     }
