@@ -38,7 +38,7 @@ Out run_cli(const std::string& args) {
 
 nlohmann::json report(const std::string& dir) {
   std::ifstream in(dir + "/report.json");
-  nlohmann::json j;
+  nlohmann::json j = nlohmann::json::object();
   if (in) in >> j;
   return j;
 }
@@ -63,7 +63,7 @@ Tally tally(const nlohmann::json& j, const std::string& fault_words) {
 #if defined(BROKEN_PLUGIN_6) && defined(BROKEN_PLUGIN_10)
 TEST(PluginFaults, ARunAgainstAPluginThatCrashesOnEveryWriteCompletes) {
   TempDir dir;
-  Out o = run_cli(fmt::format("run --quiet --target 'plugin:{}?device=hsc60' --out {}", BROKEN_PLUGIN_6, dir / "r"));
+  Out o = run_cli(fmt::format("run --quiet --target 'plugin:{}?device=hsc60' --device hsc60 --out {}", BROKEN_PLUGIN_6, dir / "r"));
   EXPECT_EQ(o.rc, 1) << o.text;
   Tally t = tally(report(dir / "r"), "the plugin crashed");
   EXPECT_GT(t.total, 100u) << o.text;
@@ -74,7 +74,7 @@ TEST(PluginFaults, ARunAgainstAPluginThatCrashesOnEveryWriteCompletes) {
 
 TEST(PluginFaults, ARunAgainstAPluginThatHangsOnEveryWriteCompletes) {
   TempDir dir;
-  Out o = run_cli(fmt::format("run --quiet --target 'plugin:{}?device=hsc60&timeout=100' --out {}", BROKEN_PLUGIN_10, dir / "r"));
+  Out o = run_cli(fmt::format("run --quiet --target 'plugin:{}?device=hsc60&timeout=100' --device hsc60 --out {}", BROKEN_PLUGIN_10, dir / "r"));
   EXPECT_EQ(o.rc, 1) << o.text;
   Tally t = tally(report(dir / "r"), "the plugin hung");
   EXPECT_EQ(t.lost, 0u) << o.text;
@@ -83,12 +83,12 @@ TEST(PluginFaults, ARunAgainstAPluginThatHangsOnEveryWriteCompletes) {
 
 TEST(PluginFaults, ADeadlineEndsTheRunAndNamesTheCasesNotRun) {
   TempDir dir;
-  Out o = run_cli(fmt::format("run --quiet --target 'plugin:{}?device=hsc60&timeout=300' --deadline 3s --out {}", BROKEN_PLUGIN_10,
+  Out o = run_cli(fmt::format("run --quiet --target 'plugin:{}?device=hsc60&timeout=300' --device hsc60 --deadline 3s --out {}", BROKEN_PLUGIN_10,
                               dir / "r"));
   EXPECT_EQ(o.rc, 2) << o.text;
   size_t not_run = 0;
-  for (const auto& d : report(dir / "r")["devices"])
-    for (const auto& c : d["cases"]) not_run += c.value("message", "").find("--deadline 3s ran out") != std::string::npos;
+  for (const auto& d : report(dir / "r").value("devices", nlohmann::json::array()))
+    for (const auto& c : d.value("cases", nlohmann::json::array())) not_run += c.value("message", "").find("--deadline 3s ran out") != std::string::npos;
   EXPECT_GT(not_run, 0u) << o.text;
 }
 #endif
@@ -96,7 +96,7 @@ TEST(PluginFaults, ADeadlineEndsTheRunAndNamesTheCasesNotRun) {
 #ifdef BROKEN_PLUGIN_7
 TEST(PluginFaults, APluginThatKillsItsParentDoesNotEndTheRun) {
   TempDir dir;
-  Out o = run_cli(fmt::format("run --quiet --target 'plugin:{}?device=hsc60' --out {}", BROKEN_PLUGIN_7, dir / "r"));
+  Out o = run_cli(fmt::format("run --quiet --target 'plugin:{}?device=hsc60' --device hsc60 --out {}", BROKEN_PLUGIN_7, dir / "r"));
   EXPECT_TRUE(o.rc == 0 || o.rc == 1) << o.text;
   EXPECT_TRUE(report(dir / "r").contains("devices")) << o.text;
 }
@@ -118,7 +118,7 @@ bool gone(int pid) {
 TEST(PluginFaults, AChildThePluginForksDoesNotOutliveTheRun) {
   TempDir dir;
   std::string pids = dir / "pids";
-  Out o = run_cli(fmt::format("run --quiet --filter registers --target 'plugin:{}?device=hsc60&config={}' --out {}", BROKEN_PLUGIN_8,
+  Out o = run_cli(fmt::format("run --quiet --filter registers --target 'plugin:{}?device=hsc60&config={}' --device hsc60 --out {}", BROKEN_PLUGIN_8,
                               pids, dir / "r"));
   EXPECT_TRUE(o.rc == 0 || o.rc == 1) << o.text;
   std::ifstream in(pids);
@@ -134,7 +134,7 @@ TEST(PluginFaults, AChildThePluginForksDoesNotOutliveTheRun) {
 #ifdef BROKEN_PLUGIN_9
 TEST(PluginFaults, APluginOverItsMemoryLimitFailsThatCaseOnly) {
   TempDir dir;
-  Out o = run_cli(fmt::format("run --quiet --target 'plugin:{}?device=hsc60' --plugin-mem 256 --out {}", BROKEN_PLUGIN_9, dir / "r"));
+  Out o = run_cli(fmt::format("run --quiet --target 'plugin:{}?device=hsc60' --device hsc60 --plugin-mem 256 --out {}", BROKEN_PLUGIN_9, dir / "r"));
   EXPECT_TRUE(o.rc == 0 || o.rc == 1) << o.text;
   Tally t = tally(report(dir / "r"), "the plugin crashed");
   EXPECT_EQ(t.lost, 0u) << o.text;
