@@ -7,6 +7,7 @@
 #include <ctime>
 #include <map>
 #include <set>
+#include <thread>
 
 #include "modbus/limits.h"
 #include "modbus/pdu.h"
@@ -47,6 +48,11 @@ int read_limit(const spec::Spec* s, spec::Table table) {
 }
 
 bool no_reply(const std::string& why) { return why.find("no reply") != std::string::npos; }
+
+// After a restore: how long the line settles before it is looked at again,
+// and how many times (restore_journal).
+constexpr std::chrono::milliseconds kSettle{300};
+constexpr int kSettleRounds = 3;
 
 }  // namespace
 
@@ -524,6 +530,28 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
         line("not-restored", *e, msg);
       }
     }
+  // Frames the stopped command left queued (in a serial adapter, a
+  // gateway, a server the host holds up) may still be applied after the
+  // restore: let the line settle, look again, put back what changed.
+  for (int round = 0; round < kSettleRounds && !rep.gave_up && rep.not_restored.empty(); ++round) {
+    std::this_thread::sleep_for(kSettle);
+    bool changed = false;
+    for (const auto* e : order) {
+      std::string why;
+      auto now = read_table(t, e->table, e->address, int(e->value.size()), why);
+      if (now && *now == e->value) continue;
+      changed = true;
+      std::string err = write_table_verified(t, s, e->table, e->address, e->value, name(*e));
+      if (err.empty()) {
+        ++rep.restored;
+        line("restored", *e, "again, after the line settled");
+      } else {
+        rep.not_restored.push_back(err);
+        line("not-restored", *e, err);
+      }
+    }
+    if (!changed) break;
+  }
   try {
     record.record(fmt::format("end {} {} kept, {} written back, {} verified, {} not restored",
                               rep.not_restored.empty() ? "restored" : "incomplete", rep.kept, rep.restored, rep.verified,
