@@ -107,9 +107,12 @@ void rejection_changes_nothing(Session& s) {
 
 void foreign_or_corrupt_ignored(Session& s) {
   const SpecView& v = s.view();
-  Request req = pick_bool() || v.writable().empty() ? pick_valid_read(v) : pick_valid_write(v);
-  Image before = image_or_fail(s, "before");
   bool corrupt = s.target().info().raw && pick_bool();
+  // A valid frame to another slave is a read: a write would change a drive
+  // on the line that nothing restores (the session's gate refuses it). A
+  // write goes out only corrupted, which no receiver takes.
+  Request req = !corrupt || pick_bool() || v.writable().empty() ? pick_valid_read(v) : pick_valid_write(v);
+  Image before = image_or_fail(s, "before");
   if (corrupt) {
     Bytes frame = rtu_frame(s.unit(), req.pdu);
     size_t at = pick<size_t>(0, frame.size());

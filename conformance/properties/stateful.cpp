@@ -480,7 +480,8 @@ struct StepCmd final : rc::state::Command<Model, Sut> {
       case 3: {
         uint8_t other = uint8_t(pick<int>(1, 247));
         if (other >= m.unit) ++other;
-        auto r = v.writable().empty() ? pick_valid_read(v) : pick_valid_write(v);
+        // A read: a valid write to another slave would change a drive nothing restores.
+        auto r = pick_valid_read(v);
         frame(other, r.pdu, fmt::format("{} to slave {}", r.note, other));
         break;
       }

@@ -69,8 +69,16 @@ Uri parse_uri(const std::string& text) {
     at = amp == std::string::npos ? query.size() : amp + 1;
     if (kv.empty()) continue;
     auto eq = kv.find('=');
-    u.query.emplace_back(kv.substr(0, eq), eq == std::string::npos ? "" : kv.substr(eq + 1));
+    std::string key = kv.substr(0, eq);
+    // One value per parameter: "unit=1&unit=2" must not pass as either.
+    if (u.param(key)) throw std::invalid_argument(fmt::format("target '{}': parameter '{}' given twice", text, key));
+    u.query.emplace_back(key, eq == std::string::npos ? "" : kv.substr(eq + 1));
   }
+  // rtu://dev/ttyUSB0 reads as host "dev": the device path follows three slashes.
+  if (u.scheme == "rtu" && !u.host.empty())
+    throw std::invalid_argument(fmt::format("target '{}': a serial line is rtu:///PATH (three slashes), e.g. rtu:///dev/ttyUSB0; "
+                                            "'{}' is not a path",
+                                            text, text.substr(0, text.find('?'))));
   return u;
 }
 

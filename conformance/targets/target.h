@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <stdexcept>
 #include <span>
 #include <string>
 #include <vector>
@@ -46,6 +47,13 @@ struct Reply {
   std::string framing_error;
   std::chrono::microseconds latency{0};  // request sent -> last byte received (or timeout)
   bool silent() const { return frame.empty(); }
+};
+
+// A fault of the thing under test that the target recovered from (a plugin
+// that crashed or hung; its host was restarted): that exchange failed, and
+// the target is usable again. It never counts toward a lost target.
+struct RecoveredFault : std::runtime_error {
+  using std::runtime_error::runtime_error;
 };
 
 class Target {

@@ -10,8 +10,12 @@
 #include <fmt/core.h>
 
 #include "commands.h"
+#include "loader.h"
 #include "options.h"
+#include "report/report.h"
 #include "script/script.h"
+#include "session/session.h"
+#include "session/signals.h"
 #include "targets/target.h"
 
 namespace mbc::cli {
@@ -19,6 +23,7 @@ namespace mbc::cli {
 int replay_file(const std::string& file, const std::string& uri_in, const TargetOptions& o, const char* command) {
   conf::script::Script sc;
   try {
+    check_readable(file, kMaxTextFileBytes, "frame script");
     sc = conf::script::parse_file(file);
   } catch (const std::exception& e) {
     fmt::print(stderr, "{}\n", e.what());
@@ -32,20 +37,45 @@ int replay_file(const std::string& file, const std::string& uri_in, const Target
     }
     uri = "ref:" + sc.device;
   }
-  std::optional<spec::Spec> spec;
-  std::unique_ptr<conf::Target> target;
+  // A `wait` holds a live line (and the drive's state) that long; on ref:
+  // it moves the virtual clock and costs nothing.
+  if (!o.allow_long_waits && uri.rfind("ref:", 0) != 0)
+    for (const auto& st : sc.steps)
+      if (st.kind == conf::script::Step::Kind::wait && st.us > uint64_t(kMaxWaitSeconds) * 1'000'000) {
+        fmt::print(stderr, "mbconform {}: error: {}:{}: wait {} s is longer than {} s: --allow-long-waits\n", command, file,
+                   st.line, st.us / 1'000'000, kMaxWaitSeconds);
+        return kExitUsage;
+      }
+  // Every frame goes through the session: the gate (the same opt-ins as
+  // every command), the journal, the restore (conformance/session/session.h).
+  std::optional<spec::Spec> named;
+  Opened opened;
   try {
-    auto named = named_spec(o);
-    target = conf::open_target(uri);
-    // The spec only adds the exception codes the device documents; a script
-    // of a device nobody names is judged by the standard alone.
-    std::string device = sc.device.empty() ? target->info().device_id : sc.device;
-    if (named || !device.empty() || uri.rfind("ref:", 0) == 0) spec = spec_for(named, uri, device);
+    named = named_spec(o);
+    // The spec says what may be written; a script names its device.
+    if (!named && !sc.device.empty() && uri.rfind("ref:", 0) != 0) named = spec::load_spec_by_id(sc.device);
+    std::string out = o.out.empty() ? "reports/runs/replay-" + utc_now("%Y%m%dT%H%M%SZ") : o.out;
+    conf::Uri u = conf::parse_uri(uri);
+    bool live = u.scheme != "ref" && u.scheme != "plugin";
+    if (live && !conf::out_dir_ok(out, ("mbconform " + std::string(command)).c_str())) return kExitUsage;
+    conf::install_stop_signals();
+    opened = open_session(named, uri, session_options(o, command, live ? out : ""), true);
   } catch (const std::exception& e) {
     fmt::print(stderr, "mbconform {}: error: {}\n", command, e.what());
     return kExitUsage;
   }
-  auto r = conf::script::replay(*target, sc, spec ? &*spec : nullptr);
+  conf::Session& session = *opened.session;
+  std::vector<std::string> notes;
+  if (std::string why = prepare_live(session, o, notes); !why.empty()) {
+    fmt::print(stderr, "mbconform {}: error: {}\n", command, why);
+    return kExitUsage;
+  }
+  auto r = conf::script::replay(session.target(), sc, opened.spec.get());
+  restore_and_say(session, command);
+  if (auto stop = session.stopped()) {
+    fmt::print("{} on {}: INCOMPLETE: {} at line {}\n", file, uri, *stop, r.line);
+    return kExitUsage;
+  }
   switch (r.outcome) {
     case conf::script::ReplayResult::Outcome::met:
       fmt::print("{} on {}: {} steps, every expectation met\n", file, uri, sc.steps.size());
@@ -69,6 +99,9 @@ void add_replay_command(CLI::App& app, int& exit_code) {
                                         "target URI (default: ref: of the script's device)");
   cmd->add_option("--device", o->device, "ID: the spec of the target (default: the script's device)");
   cmd->add_option("--spec", o->spec_file, "FILE: a spec file describing the target");
+  cmd->add_option("--out", o->out, "DIR: the journal of a live target (default reports/runs/replay-<UTC date-time>/)");
+  add_opt_ins(*cmd, *o);
+  cmd->add_flag("--no-preflight", o->no_preflight, "live targets: skip the read-only check that the drive looks like the spec");
   cmd->callback([file, o, &exit_code] {
     exit_code = replay_file(*file, o->targets.empty() ? "" : o->targets.front(), *o, "replay");
   });

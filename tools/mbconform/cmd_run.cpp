@@ -8,7 +8,7 @@
 // Exit codes: 0 every MUST case passed; 1 a MUST case failed; 2 the run could
 // not be done (bad target, bad spec, bad arguments, interrupted).
 #include <fmt/core.h>
-#include <fnmatch.h>
+#include <re2/re2.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -17,7 +17,6 @@
 #include <ctime>
 #include <filesystem>
 #include <fstream>
-#include <regex>
 
 #include "capture/pcap_tap.h"
 #include "cases/case.h"
@@ -33,13 +32,13 @@
 #include "script/script.h"
 #include "safety/safety.h"
 #include "security/security.h"
+#include "session/session.h"
+#include "session/progress.h"
+#include "session/signals.h"
 #include "targets/target.h"
 
 namespace mbc::cli {
 namespace {
-
-std::atomic<bool> g_stop{false};
-extern "C" void on_signal(int) { g_stop.store(true); }
 
 struct RunArgs {
   TargetOptions t;
@@ -50,21 +49,35 @@ struct RunArgs {
   std::optional<std::chrono::milliseconds> map_time;  // --map-time
   bool fail_on_should = false;                        // --fail-on should
   bool verbose = false;                               // -v: every case's line, not only failures
-  bool allow_writes = false;
   std::string quirks_file;
+  std::string deadline;  // --deadline: the whole run's time
 };
 
-// GLOB (fnmatch, '*' crosses '/') or, when it has regex syntax, an ECMAScript
-// regex searched in the id; a plain word matches as a substring.
+// Which case ids --filter selects, in time linear in the id (RE2; a glob is
+// translated to RE2 too): 're:REGEX' or a pattern with regex syntax
+// (^ $ ( ) | [ ] \ { }) is an RE2 regex searched in the id; one with * or ?
+// is a glob over the whole id ('*' crosses '/'); anything else is a literal
+// substring ("max+1" is literal). Throws std::invalid_argument with one line.
 std::function<bool(const std::string&)> make_filter(const std::string& f) {
   if (f.empty()) return [](const std::string&) { return true; };
-  if (f.find_first_of("^$()|+[]\\{}") != std::string::npos) {
-    std::regex re(f, std::regex::ECMAScript);
-    return [re](const std::string& id) { return std::regex_search(id, re); };
+  std::string pattern;
+  bool regex = f.rfind("re:", 0) == 0 || f.find_first_of("^$()|[]\\{}") != std::string::npos;
+  if (regex) {
+    pattern = f.rfind("re:", 0) == 0 ? f.substr(3) : f;
+  } else if (f.find_first_of("*?") != std::string::npos) {
+    pattern = "^";
+    for (char c : f) pattern += c == '*' ? ".*" : c == '?' ? "." : RE2::QuoteMeta(std::string(1, c));
+    pattern += "$";
+  } else {
+    return [f](const std::string& id) { return id.find(f) != std::string::npos; };
   }
-  if (f.find_first_of("*?") != std::string::npos)
-    return [f](const std::string& id) { return fnmatch(f.c_str(), id.c_str(), 0) == 0; };
-  return [f](const std::string& id) { return id.find(f) != std::string::npos; };
+  RE2::Options o;
+  o.set_log_errors(false);
+  o.set_max_mem(8 << 20);
+  auto re = std::make_shared<RE2>(pattern, o);
+  if (!re->ok()) throw std::invalid_argument(fmt::format("--filter '{}': not a pattern RE2 takes: {}",
+                                                         f.size() > 60 ? f.substr(0, 60) + "..." : f, re->error()));
+  return [re](const std::string& id) { return RE2::PartialMatch(id, *re); };
 }
 
 // What a target will be, without opening it (for --list and --plan on live
@@ -104,6 +117,7 @@ int run(RunArgs& a) {
   conf::quirks::Quirks quirks;
   if (!a.quirks_file.empty()) {
     try {
+      check_readable(a.quirks_file, kMaxQuirksBytes, "--quirks");
       quirks = conf::quirks::load(a.quirks_file);
     } catch (const std::exception& e) {
       fmt::print(stderr, "{}\n", e.what());
@@ -125,19 +139,44 @@ int run(RunArgs& a) {
   if (targets.empty() && named) targets.push_back("ref:" + named->device.id);
   if (targets.empty()) targets = targets_or_default(a.t);
 
-  auto keep = make_filter(a.filter);
+  std::function<bool(const std::string&)> keep;
+  try {
+    keep = make_filter(a.filter);
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "mbconform run: error: {}\n", e.what());
+    return kExitUsage;
+  }
   conf::RunReport report;
   report.command = "run";
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
   report.version = "mbconform 0.1";
   report.fail_on_should = a.fail_on_should;
 
-  std::signal(SIGINT, on_signal);
-  std::signal(SIGTERM, on_signal);
+  conf::install_stop_signals();
+  std::optional<std::chrono::steady_clock::time_point> deadline;
+  if (!a.deadline.empty()) {
+    auto d = parse_duration(a.deadline);
+    if (!d || d->count() == 0) {
+      fmt::print(stderr, "mbconform run: error: --deadline '{}': expected 1ms to 31 days, e.g. 90s, 10m, 2h\n", a.deadline);
+      return kExitUsage;
+    }
+    deadline = std::chrono::steady_clock::now() + *d;
+  }
+  // Set between cases: a stop signal, or the deadline passed.
+  std::atomic<bool> stop_run{false};
+  auto should_stop = [&] {
+    return conf::stop_requested() || (deadline && std::chrono::steady_clock::now() >= *deadline);
+  };
   bool dry = a.list || a.plan;
   bool tty = isatty(STDOUT_FILENO) && !a.quiet;
   const std::string out = a.t.out.empty() ? default_out_dir("run") : a.t.out;
   if (!dry && !conf::out_dir_ok(out, "mbconform run")) return kExitUsage;
+  if (!dry && !a.summary_dir.empty()) {
+    if (std::string why = conf::out_dir_problem(a.summary_dir); !why.empty()) {
+      fmt::print(stderr, "mbconform run: error: --summary: {}\n", why);
+      return kExitUsage;
+    }
+  }
   for (const auto& uri : targets) {
     spec::Spec s;
     try {
@@ -146,14 +185,24 @@ int run(RunArgs& a) {
       fmt::print(stderr, "mbconform run: error: target {}: {}\n", uri, e.what());
       return kExitUsage;
     }
-    std::unique_ptr<conf::Target> target;
+    // Every frame goes through the session: its gate, its journal (in the
+    // report directory), its restore (conformance/session/session.h).
+    std::unique_ptr<conf::Session> session;
+    conf::Target* target = nullptr;
     conf::TargetInfo info;
     try {
       if (!dry || (uri.rfind("ref:", 0) == 0 && !named)) {
-        target = conf::capture::tap_pcap(conf::open_target(uri), a.t.pcap);
+        auto so = session_options(a.t, "run", out);
+        so.stop_mid_exchange = false;  // the runner stops between cases
+        if (!a.map.empty()) so.rules.access_unstated = !(given_map && given_map->access_known());
+        session = std::make_unique<conf::Session>(uri, &s, std::move(so));
+        if (!session->journal_path().empty())
+          fmt::print(stderr, "journal: {} (if this command is killed: mbconform restore {})\n", session->journal_path(),
+                     session->journal_path());
+        target = &session->target();
         info = target->info();
       } else {
-        info = planned_info(uri, s);
+        info = planned_info(conf::line_settings(uri, &s).uri, s);
       }
     } catch (const std::exception& e) {
       fmt::print(stderr, "mbconform run: error: cannot open target {}: {}\n", uri, e.what());
@@ -163,8 +212,8 @@ int run(RunArgs& a) {
     std::vector<std::string> notes;
     std::optional<conf::map::Map> map = given_map;
     if (a.map == "auto" && target) {
-      if (std::string why = conf::unreachable(*target, s); !why.empty()) {
-        fmt::print(stderr, "mbconform run: error: target {}: {}\n", uri, why);
+      if (std::string why = session->reachable(); !why.empty()) {
+        fmt::print(stderr, "mbconform run: error: {}\n", why);
         return kExitUsage;
       }
       map = conf::map::probe(*target, conf::map::ProbeLimits{a.map_budget, a.map_time});
@@ -183,7 +232,7 @@ int run(RunArgs& a) {
     for (auto& c : conf::all_cases(g))
       if (keep(c.id)) cases.push_back(std::move(c));
 
-    if (map) conf::map::adapt_cases(cases, *map, a.allow_writes);
+    if (map) conf::map::adapt_cases(cases, *map, a.t.allow_writes);
     bool security_kept = false;  // an mbtls:// target also runs conformance/security/'s checks
     if (info.kind == "tls")
       for (const auto& n : conf::security::check_names()) security_kept = security_kept || keep(s.device.id + "/security/" + n);
@@ -216,64 +265,63 @@ int run(RunArgs& a) {
     fmt::print("{}: {} cases against {}\n", s.device.id, cases.size(), info.uri);
     std::fflush(stdout);
     conf::RunOptions opt;
-    opt.stop = &g_stop;
+    stop_run = should_stop();
+    opt.stop = &stop_run;
+    conf::Progress progress(fmt::format("run {}", s.device.id), a.t.progress, a.quiet);
     opt.on_case = [&](const conf::CaseResult& r, size_t done, size_t total) {
+      if (should_stop()) stop_run = true;
       // On a terminal a failure stays on screen as it happens; elsewhere (a
-      // log, CI) the summary at the end lists it, once.
-      if (a.verbose) {
-        fmt::print("{}{}\n", tty ? "\r\033[K" : "", conf::progress_line(r, done, total));  // every case, as it ends
-      } else if (r.outcome == conf::Outcome::fail && tty) {
-        fmt::print("\r\033[K{}\n", conf::progress_line(r, done, total));
-      } else if (tty) {
-        fmt::print("\r\033[K{}", conf::progress_line(r, done, total));
+      // log, CI) the summary at the end lists it, once. -v: every case.
+      if (a.verbose || (r.outcome == conf::Outcome::fail && tty)) {
+        progress.clear();
+        fmt::print("{}\n", conf::progress_line(r, done, total));
+        std::fflush(stdout);
       }
-      std::fflush(stdout);
+      progress.update(done, total, "cases");
     };
     // Live drives: keep every register the run may write, put them back
     // afterwards (also after SIGINT or a target error) and report what could not be.
-    std::optional<conf::Snapshot> snap;
     std::vector<std::string> snap_notes;
-    if (info.live) {
-      if (std::string why = conf::unreachable(*target, s); !why.empty()) {
-        fmt::print(stderr, "mbconform run: error: target {}: {}\n", uri, why);
-        return kExitUsage;
-      }
-      try {
-        snap = conf::Snapshot::take(*target, s, a.t.policy);
-        for (const auto& f : snap->failures()) snap_notes.push_back(f);
-      } catch (const std::exception& e) {
-        fmt::print(stderr, "mbconform run: error: target {}: cannot read the registers to keep: {}\n", uri, e.what());
-        return kExitUsage;
-      }
+    // A map in use: the target is judged by its own map, not identified as the spec's device.
+    TargetOptions live_opts = a.t;
+    if (!a.map.empty()) live_opts.no_preflight = true;
+    if (std::string why = prepare_live(*session, live_opts, snap_notes); !why.empty()) {
+      fmt::print(stderr, "mbconform run: error: {}\n", why);
+      return kExitUsage;
     }
     conf::DeviceRun dr = conf::run_cases(*target, s, cases, opt);
     // Modbus/TCP Security: what the server does around the TLS handshake
     // (conformance/security/), beside the standard cases run inside TLS.
-    if (info.kind == "tls" && !g_stop.load())
+    if (info.kind == "tls" && !conf::stop_requested())
       for (auto& r : conf::security::check_server(conf::security::from_uri(uri), s.device.id))
         if (keep(r.id)) dr.cases.push_back(std::move(r));
     conf::describe_device(dr, s);
-    if (tty) fmt::print("\r\033[K");
-    if (snap) {
-      try {
-        for (auto& f : snap->restore(*target)) dr.restore_failures.push_back(std::move(f));
-      } catch (const std::exception& e) {
-        dr.restore_failures.push_back(fmt::format("restore stopped: {}", e.what()));
-      }
+    progress.clear();
+    if (info.live) {
+      for (auto& f : restore_and_say(*session, "run")) dr.restore_failures.push_back(std::move(f));
       for (auto& n : snap_notes) dr.safety_notes.push_back(std::move(n));
-      for (const auto& f : dr.restore_failures) fmt::print(stderr, "mbconform run: {}: {}\n", s.device.id, f);
+    }
+    if (stop_run && !conf::stop_requested()) {
+      // The deadline: every case not run is named, and the report is INCOMPLETE.
+      for (size_t k = dr.cases.size(); k < cases.size(); ++k) {
+        conf::CaseResult nr = conf::result_header(cases[k]);
+        nr.outcome = conf::Outcome::error;
+        nr.message = fmt::format("not run: --deadline {} ran out", a.deadline);
+        dr.cases.push_back(std::move(nr));
+      }
+      dr.interrupted = true;
+      report.interrupted = true;
+      dr.notes.push_back(fmt::format("--deadline {} ran out: the cases not run are listed as errors", a.deadline));
     }
     dr.notes.insert(dr.notes.begin(), notes.begin(), notes.end());
     if (!quirks.empty()) conf::quirks::apply(quirks, dr);
     report.devices.push_back(std::move(dr));
-    if (g_stop.load()) {
+    if (stop_run.load()) {
       report.interrupted = true;
       report.devices.back().interrupted = true;
       break;
     }
   }
-  std::signal(SIGINT, SIG_DFL);
-  std::signal(SIGTERM, SIG_DFL);
   if (dry) return kExitOk;
 
   try {
@@ -306,7 +354,8 @@ void add_run_command(CLI::App& app, int& exit_code) {
   auto* cmd = app.add_subcommand("run", "Run the conformance cases generated from a spec against targets; write reports");
   add_target_options(*cmd, a->t, true, "DIR: report directory (default reports/run/<UTC date-time>/)");
   cmd->add_flag("--list", a->list, "print the cases (id, level, clause, title) and exit");
-  cmd->add_option("--filter", a->filter, "select cases by id: a glob ('*/registers/*'), a regex, or a substring");
+  cmd->add_option("--filter", a->filter, "select cases by id: a substring (literal), a glob ('*/registers/*'), or an RE2 regex ('re:fc0[36]/gap$'; also any "
+                  "pattern with ^$()|[]{}\\)");
   cmd->add_flag("--plan", a->plan, "print every frame the cases would send, without sending anything");
   cmd->add_option("--summary", a->summary_dir, "also write the stable summary.md and summary.json into this directory");
   cmd->add_option("--map", a->map,
@@ -315,11 +364,12 @@ void add_run_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--map-budget", a->map_budget, "the most requests --map auto sends (default 2000)")->check(CLI::Range(1, 1000000));
   add_map_time_option(cmd, a->map_time);
   add_fail_on_option(cmd, a->fail_on_should);
-  cmd->add_flag("--allow-writes", a->allow_writes, "with --map auto or a map without access: run the cases that write");
   cmd->add_option("--quirks", a->quirks_file, "a quirks file: known deviations (case ids or globs, with reasons) "
                   "reported apart, not failed (conformance/README.md, Quirks files)");
+  cmd->add_option("--deadline", a->deadline, "the whole run's time (e.g. 10m): then the run stops between cases, restores, "
+                  "and names the cases not run (report INCOMPLETE, exit 2)");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
-  cmd->add_flag("--quiet", a->quiet, "no progress line");
+  cmd->add_flag("-q,--quiet", a->quiet, "no progress on stderr, no failure lines as they happen");
   cmd->add_flag("-v,--verbose", a->verbose, "a line for every case as it ends, not only for failures");
   cmd->callback([a, &exit_code] { exit_code = run(*a); });
 }

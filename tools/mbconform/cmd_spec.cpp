@@ -16,7 +16,10 @@
 #include "loader.h"
 #include "conventions.h"
 #include "map/map.h"
+#include "options.h"
 #include "runner/runner.h"
+#include "session/session.h"
+#include "session/signals.h"
 #include "targets/target.h"
 
 namespace mbc::cli {
@@ -124,6 +127,7 @@ bool valid_id(const std::string& id) {
 int run_import(const std::string& csv_file, const std::string& wb_file, std::string id, std::string out) {
   if (csv_file.empty() == wb_file.empty()) throw std::runtime_error("give one of --csv FILE and --wb-template FILE");
   const std::string& csv = csv_file.empty() ? wb_file : csv_file;
+  check_readable(csv, kMaxTextFileBytes, csv_file.empty() ? "--wb-template" : "--csv");
   std::ifstream in(csv, std::ios::binary);
   if (!in) throw std::runtime_error("cannot open " + csv);
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -239,10 +243,15 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
   add_map_time_option(discover, discover_time);
   discover->callback([&] {
     try {
-      auto target = conf::open_target(discover_target);
-      spec::Spec none;
-      if (std::string why = conf::unreachable(*target, none); !why.empty()) throw std::runtime_error(why);
+      // Through a session with no spec: its gate lets no write through.
+      conf::install_stop_signals();
+      conf::SessionOptions so;
+      so.command = "spec discover";
+      conf::Session session(discover_target, nullptr, so);
+      conf::Target* target = &session.target();
+      if (std::string why = session.reachable(); !why.empty()) throw std::runtime_error(why);
       conf::map::Map m = conf::map::probe(*target, conf::map::ProbeLimits{discover_budget, discover_time});
+      if (auto stop = session.stopped()) throw std::runtime_error("INCOMPLETE: " + *stop + "; no spec written");
       std::string id = discover_id.empty() ? fs::path(discover_out).stem().string() : discover_id;
       if (!write_file(discover_out, conf::map::skeleton_yaml(m, id, target->info().unit)))
         throw std::runtime_error("cannot write " + discover_out);
