@@ -127,8 +127,8 @@ void bench_peers(const std::string& exe, const mbc::spec::Spec& standard) {
       double probe_s = since(t0);
       auto spec = mbc::conf::map::apply(standard, map);
       mbc::conf::GenContext g{spec, target->info(), {}, &standard};
+      g.map = mbc::conf::map::terms(map, true);
       auto cases = mbc::conf::all_cases(g);
-      mbc::conf::map::adapt_cases(cases, map, true);
       auto t1 = std::chrono::steady_clock::now();
       auto run = mbc::conf::run_cases(*target, spec, cases);
       double run_s = since(t1), total = probe_s + run_s;

@@ -143,6 +143,7 @@ class TcpTarget final : public Target {
     in_.clear();
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (rr.closed) {
+      r.closed = r.frame.empty();
       modbus_close(ctx_);
       connected_ = false;
     }

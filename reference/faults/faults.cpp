@@ -9,6 +9,7 @@
 #include "modbus/bytes.h"
 #include "modbus/crc16.h"
 #include "modbus/limits.h"
+#include "modbus/pdu.h"
 #include "modbus/rtu.h"
 
 namespace mbc::faults {
@@ -37,6 +38,9 @@ const std::vector<FaultInfo>& all_faults() {
       {Fault::ignore_broadcast, "ignore-broadcast", "drops broadcast writes the spec says are applied"},
       {Fault::bad_reply_crc, "bad-reply-crc", "every RTU reply carries a wrong CRC"},
       {Fault::wrong_byte_count, "wrong-byte-count", "FC 01-04/23 replies state a byte count 2 higher than sent"},
+      {Fault::read_before_write, "read-before-write",
+       "FC 23 reads its read range before it writes its write range (MBAP v1.1b3 §6.17: the write is performed first), "
+       "so an overlapping read returns the old values"},
       {Fault::forget_persistent, "forget-persistent",
        "a power cycle loses the stored (EEPROM/flash) values: persistent registers come back at their defaults"},
       {Fault::keep_volatile, "keep-volatile",
@@ -105,7 +109,8 @@ bool device_level(const FaultSet& f) {
 
 bool pdu_level(const FaultSet& f) {
   for (Fault x : {Fault::wrong_exception_code, Fault::off_by_one_limit, Fault::refuse_limit, Fault::swapped_words,
-                  Fault::accept_out_of_range, Fault::accept_read_only, Fault::lost_write, Fault::wrong_byte_count})
+                  Fault::accept_out_of_range, Fault::accept_read_only, Fault::lost_write, Fault::wrong_byte_count,
+                  Fault::read_before_write})
     if (f.has(x)) return true;
   return false;
 }
@@ -236,6 +241,16 @@ std::optional<Bytes> FaultyBus::device_pdu(ref::Device& d, std::span<const uint8
   if (!pdu_level(faults_) || pdu_in.empty()) return d.handle_pdu(pdu_in, broadcast);
   Bytes pdu(pdu_in.begin(), pdu_in.end());
   const uint8_t fc = pdu[0];
+  // read-before-write: the FC 23 read range as it was before the write (an
+  // FC 03 of the same range), in the reply of the FC 23 itself.
+  if (faults_.has(Fault::read_before_write) && fc == 23 && pdu.size() >= 5) {
+    auto before = d.handle_pdu(read_request(3, be16(pdu, 1), be16(pdu, 3)), broadcast);
+    auto reply = d.handle_pdu(pdu, broadcast);
+    if (before && reply && !before->empty() && before->front() == 3 && !reply->empty() && reply->front() == 23 &&
+        before->size() == reply->size())
+      std::copy(before->begin() + 1, before->end(), reply->begin() + 1);
+    return reply;
+  }
   const bool read_words = (fc == 3 || fc == 4) && pdu.size() == 5;
   const bool write_words = (fc == 6 && pdu.size() == 5) || (fc == 16 && pdu.size() >= 6 && pdu.size() == size_t(6 + pdu[5]));
   uint16_t start = pdu.size() >= 3 ? be16(pdu, 1) : 0;

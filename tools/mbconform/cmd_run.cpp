@@ -28,7 +28,7 @@
 #include "quirks/quirks.h"
 #include "report/report.h"
 #include "runner/runner.h"
-#include "script/script.h"
+#include "check/text.h"
 #include "safety/safety.h"
 #include "targets/target.h"
 
@@ -48,8 +48,10 @@ struct RunArgs {
   std::string quirks_file;
 };
 
-// GLOB (fnmatch, '*' crosses '/') or, when it has regex syntax, an ECMAScript
-// regex searched in the id; a plain word matches as a substring.
+// The pattern a --filter asks for (conf::select_cases: a filter is literal
+// unless it holds '*' or '?', or starts with "re:"): GLOB (fnmatch, '*'
+// crosses '/') or, when it has regex syntax, an ECMAScript regex searched in
+// the id; a plain word matches as a substring.
 std::function<bool(const std::string&)> make_filter(const std::string& f) {
   if (f.empty()) return [](const std::string&) { return true; };
   if (f.find_first_of("^$()|+[]\\{}") != std::string::npos) {
@@ -70,7 +72,7 @@ conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   i.kind = u.scheme;
   i.framing = u.scheme == "tcp" ? conf::Framing::mbap : conf::Framing::rtu;
   i.live = u.scheme != "ref" && u.scheme != "plugin";
-  i.raw = u.scheme != "tcp";
+  i.raw = true;  // every kind sends raw frames in its own framing (tcp: raw MBAP), as the opened target says
   i.unit = uint8_t(std::stoi(u.param("unit").value_or(std::to_string(s.serial.slave_default.value_or(1)))));
   if (auto b = u.param("baud")) i.baud = std::stoi(*b);
   else if (u.scheme == "ref") i.baud = s.serial.baud_default;
@@ -119,7 +121,6 @@ int run(RunArgs& a) {
   if (targets.empty() && named) targets.push_back("ref:" + named->device.id);
   if (targets.empty()) targets = targets_or_default(a.t);
 
-  auto keep = make_filter(a.filter);
   conf::RunReport report;
   report.command = "run";
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
@@ -179,11 +180,14 @@ int run(RunArgs& a) {
     if (map && (a.map != "auto" || target)) s = conf::map::apply(s, *map);
 
     conf::GenContext g{s, info, a.t.policy, standard ? &*standard : nullptr};
+    if (map) g.map = conf::map::terms(*map, a.allow_writes);
     std::vector<conf::Case> cases;
-    for (auto& c : conf::all_cases(g))
-      if (keep(c.id)) cases.push_back(std::move(c));
-
-    if (map) conf::map::adapt_cases(cases, *map, a.allow_writes);
+    try {
+      cases = conf::select_cases(conf::all_cases(g), a.filter, make_filter);
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "mbconform run: error: --filter '{}': {}\n", a.filter, e.what());
+      return kExitUsage;
+    }
     if (cases.empty() && !a.filter.empty()) {
       fmt::print(stderr, "mbconform run: error: --filter '{}' matches none of the {} cases for {}\n", a.filter,
                  conf::all_cases(g).size(), uri);
@@ -197,15 +201,14 @@ int run(RunArgs& a) {
       continue;
     }
     if (a.plan) {
-      // A frame script (conformance/script/README.md): `mbconform replay` runs it.
-      if (&uri == &targets.front()) fmt::print("{}\n", conf::script::kHeader);
+      // A frame script (conformance/check/README.md): `mbconform replay` runs it.
+      if (&uri == &targets.front()) fmt::print("{}\n", conf::check::kHeader);
       fmt::print("#\n# {}: {} cases, unit {}, {}\ndevice {}\n", info.uri, cases.size(), info.unit,
                  info.framing == conf::Framing::rtu ? "RTU frames" : "MBAP frames (transaction id * : the target numbers its own)",
                  s.device.id);
       for (const auto& c : cases) {
-        fmt::print("#\n# {}  [{}] {}\n", c.id, conf::to_string(c.level), c.clause);
-        if (!c.skip_reason.empty()) fmt::print("# (skip: {})\n", c.skip_reason);
-        for (const auto& l : conf::plan_lines(c, info)) fmt::print("{}\n", l);
+        fmt::print("#\n");
+        for (const auto& l : conf::check::case_lines(c, info.framing)) fmt::print("{}\n", l);
       }
       for (const auto& b : conf::cases::planned_broadcast_writes(cases)) fmt::print("# every drive on the line receives: {}\n", b);
       continue;
@@ -295,7 +298,8 @@ void add_run_command(CLI::App& app, int& exit_code) {
   auto* cmd = app.add_subcommand("run", "Run the conformance cases generated from a spec against targets; write reports");
   add_target_options(*cmd, a->t, true, "DIR: report directory (default reports/runs/<UTC date-time>/)");
   cmd->add_flag("--list", a->list, "print the cases (id, level, clause, title) and exit");
-  cmd->add_option("--filter", a->filter, "select cases by id: a glob ('*/registers/*'), a regex, or a substring");
+  cmd->add_option("--filter", a->filter, "select cases by id: a part of the id, taken literally ('fc15/quantity-limit+1'); "
+                  "a glob ('*/registers/*'); or a regex after 're:' ('re:fc1[56]/')");
   cmd->add_flag("--plan", a->plan, "print every frame the cases would send, without sending anything");
   cmd->add_option("--summary", a->summary_dir, "also write the stable summary.md and summary.json into this directory");
   cmd->add_option("--map", a->map,

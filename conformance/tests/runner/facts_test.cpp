@@ -77,7 +77,7 @@ std::string shape(const Case& c) {
     return x;
   };
   for (const auto& st : c.steps) {
-    s += "|" + to_hex(st.pdu) + to_hex(st.adu) + "=" + expect(st.expect);
+    s += "|" + to_hex(st.pdu) + to_hex(st.bytes) + "=" + expect(st.expect);
     for (const auto& a : st.expect.either) s += "/" + expect(a);
   }
   return s;
