@@ -98,7 +98,7 @@ Plan make_plan(const spec::Spec& s, const TargetInfo& info, const WritePolicy& p
   for (const auto& ex : s.examples) {
     auto adu = parse_hex(ex.resolved_request ? *ex.resolved_request : ex.request);
     if (!adu || adu->size() < 4) continue;
-    Bytes pdu(adu->begin() + 1, adu->end() - 2);
+    Bytes pdu = rtu_unframe(*adu).pdu;
     if (p.safe(pdu, false)) p.examples.push_back(pdu);
   }
   // The probe: a read of the first holding register (else any register) the

@@ -100,7 +100,7 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
     }
     if (auto bw = broadcast_forbidden(g.target, g.policy, (*req)[1]); !bw.empty() && b.skip.empty()) b.skip = bw;
     if (crc_valid && cases::has_fc(g.spec, 3))
-      for (auto range : written_by(Bytes(req->begin() + 1, req->end() - 2))) {
+      for (auto range : written_by(rtu_unframe(*req).pdu)) {
         held.push_back({b.steps.size(), range});
         auto rd = cases::read_range_step(g, spec::Table::holding, range.first, uint16_t(range.second),
                                          cases::normal("what the target holds, broadcast back at the end"));
@@ -122,7 +122,7 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
       b.skip = "the printed response is not a frame";
       return;
     }
-    Bytes pdu(resp->begin() + 1, resp->end() - 2);
+    Bytes pdu = rtu_unframe(*resp).pdu;
     e = cases::exact(pdu, "the printed response");
     if (crc_ok(*resp)) e.adu = rtu_frame(unit, pdu);
     else b.note += "printed response CRC is wrong; the PDU is compared; ";
@@ -138,7 +138,7 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
     // The manual prints two readings: the resolved one above, or the frame as printed.
     if (auto printed = parse_hex(*ex.response); printed && printed->size() >= 4) {
       e.reading = e.text;
-      Expect alt = cases::exact(Bytes(printed->begin() + 1, printed->end() - 2), "the printed response");
+      Expect alt = cases::exact(rtu_unframe(*printed).pdu, "the printed response");
       alt.reading = alt.text;
       e.text += " or the printed response (printed two ways)";
       e.either.push_back(std::move(alt));
@@ -149,7 +149,7 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
   if (crc_valid) {
     s.kind = Step::Kind::frame;
     s.unit = unit;
-    s.pdu.assign(req->begin() + 1, req->end() - 2);
+    s.pdu = rtu_unframe(*req).pdu;
   } else {
     // A frame the manual corrupts on purpose: it goes out raw, re-addressed to
     // the target with the same CRC error (the XOR from the correct CRC is kept).

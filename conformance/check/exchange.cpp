@@ -229,7 +229,7 @@ CaseResult run_case(Exchange& x, const spec::Spec& spec, const Case& c) {
     if (fr.expected) {
       const Bytes& e = *fr.expected;
       bool adu = info.framing == Framing::rtu && e.size() >= 4 && crc_ok(e);
-      fr.expected_decoded = describe_pdu(adu ? std::span<const uint8_t>(e).subspan(1, e.size() - 3) : std::span<const uint8_t>(e), false);
+      fr.expected_decoded = describe_pdu(adu ? rtu_unframe(e).pdu : e, false);
     }
     auto miss = judge_expect(st.expect, st, reply, ctx);
     if (!st.expect.either.empty()) {

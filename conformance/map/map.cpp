@@ -11,6 +11,7 @@
 
 #include "modbus/hex.h"
 #include "modbus/judge.h"
+#include "modbus/rtu.h"
 #include "modbus/limits.h"
 #include "modbus/pdu.h"
 #include "yaml_json.h"
@@ -419,7 +420,7 @@ bool example_inside(const spec::Example& ex, const Map& m) {
   auto parsed = parse_hex(ex.resolved_request.value_or(ex.request));
   if (!parsed || parsed->size() < 4) return false;
   const Bytes& adu = *parsed;
-  Bytes pdu(adu.begin() + 1, adu.end() - 2);
+  Bytes pdu = rtu_unframe(adu).pdu;
   if (pdu.size() < 5) return false;
   auto be = [&](size_t at) { return uint32_t(pdu[at] << 8 | pdu[at + 1]); };
   // The most addresses one request can touch in a table: its read's limit.

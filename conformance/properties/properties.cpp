@@ -24,7 +24,7 @@ check::Step Step::script() const {
     case Kind::frame: break;
   }
   check::Step s = frame.size() >= 4 && crc_ok(frame)
-                       ? check::frame(framing, frame[0], Bytes(frame.begin() + 1, frame.end() - 2))
+                       ? check::frame(framing, frame[0], rtu_unframe(frame).pdu)
                        : check::raw_rtu(frame);
   s.tid = tid;
   s.expect = expect;

@@ -9,7 +9,6 @@
 #include "modbus/bytes.h"
 #include "modbus/crc16.h"
 #include "modbus/limits.h"
-#include "modbus/pdu.h"
 #include "modbus/rtu.h"
 
 namespace mbc::faults {
@@ -241,14 +240,15 @@ std::optional<Bytes> FaultyBus::device_pdu(ref::Device& d, std::span<const uint8
   if (!pdu_level(faults_) || pdu_in.empty()) return d.handle_pdu(pdu_in, broadcast);
   Bytes pdu(pdu_in.begin(), pdu_in.end());
   const uint8_t fc = pdu[0];
-  // read-before-write: the FC 23 read range as it was before the write (an
-  // FC 03 of the same range), in the reply of the FC 23 itself.
+  // read-before-write: the FC 23 reply carries the read range as it was
+  // before the write (the register image taken first), not after it.
   if (faults_.has(Fault::read_before_write) && fc == 23 && pdu.size() >= 5) {
-    auto before = d.handle_pdu(read_request(3, be16(pdu, 1), be16(pdu, 3)), broadcast);
+    const uint16_t start = be16(pdu, 1), count = be16(pdu, 3);
+    Bytes before;
+    for (uint32_t a = start; a < uint32_t(start) + count && a <= 0xFFFF; ++a) put_be16(before, d.word(uint16_t(a)));
     auto reply = d.handle_pdu(pdu, broadcast);
-    if (before && reply && !before->empty() && before->front() == 3 && !reply->empty() && reply->front() == 23 &&
-        before->size() == reply->size())
-      std::copy(before->begin() + 1, before->end(), reply->begin() + 1);
+    if (reply && reply->size() == 2 + before.size() && (*reply)[0] == 23)
+      std::copy(before.begin(), before.end(), reply->begin() + 2);
     return reply;
   }
   const bool read_words = (fc == 3 || fc == 4) && pdu.size() == 5;

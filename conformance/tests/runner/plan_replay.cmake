@@ -39,10 +39,11 @@ set(want "${run_pass} pass, ${run_fail} fail, ${run_observed} observed, ${run_sk
 if(NOT got STREQUAL want)
   message(FATAL_ERROR "${TARGET}: run counted ${want}; the replay of its plan ${got}\n${out}")
 endif()
-string(REGEX MATCHALL "FAIL [^ ]+ \\[" fails "${out}")
+# One "FAIL <id> [LEVEL] ..." line per failed case (a '[' would split a CMake list: match before it).
+string(REGEX MATCHALL "(^|\n)FAIL [^ \n]+" fails "${out}")
 set(replay_failed "")
 foreach(f IN LISTS fails)
-  string(REGEX REPLACE "^FAIL ([^ ]+) \\[$" "\\1" id "${f}")
+  string(REGEX REPLACE "^\n?FAIL " "" id "${f}")
   list(APPEND replay_failed "${id}")
 endforeach()
 list(SORT run_failed)
