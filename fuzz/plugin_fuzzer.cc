@@ -1,6 +1,6 @@
 // A vendor's slave stack behind the plugin C ABI
 // (conformance/plugin/mbconform_plugin.h), fuzzed in process with coverage:
-//   MBCONFORM_PLUGIN=./libmystack.so [MBCONFORM_PLUGIN_CONFIG=...] [MBCONFORM_PLUGIN_UNIT=1] \
+//   MBCONFORM_PLUGIN=./libmystack.so [MBCONFORM_PLUGIN_CONFIG=...] [MBCONFORM_PLUGIN_UNIT=1]
 //     plugin_fuzzer -dict=fuzz/device_fuzzer.dict corpus-dir corpus/plugin
 // Build the stack with -fsanitize=fuzzer-no-link,address to get its edges
 // and its memory errors. Input (fuzz/input_format.h): records [flags][n][n bytes],

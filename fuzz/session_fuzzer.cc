@@ -27,7 +27,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       case fuzz::kFrameFixCrc:
       case fuzz::kFrameRaw: {
         if (at >= size) return 0;
-        size_t n = std::min<size_t>(data[at++], size - at);
+        size_t len = data[at++];
+        size_t n = std::min<size_t>(len, size - at);
         Bytes adu(data + at, data + at + n);
         at += n;
         if (op == fuzz::kFrameFixCrc) {

@@ -9,7 +9,9 @@ namespace mbc {
 using std::chrono::microseconds;
 
 Bytes rtu_frame(uint8_t slave, std::span<const uint8_t> pdu) {
-  Bytes b{slave};
+  Bytes b;
+  b.reserve(pdu.size() + kRtuAddress + kRtuCrc);
+  b.push_back(slave);
   b.insert(b.end(), pdu.begin(), pdu.end());
   append_crc(b);
   return b;

@@ -1,6 +1,22 @@
 #!/usr/bin/env bash
 # Installs everything mbconform builds and tests with, from Debian packages.
 # Safe to run again; needs root (or sudo) for apt-get.
+#
+# Where each dependency comes from, and what keeps a registry's next release
+# from changing it (tools/check-pins.py checks the last three; ctest pins_*):
+#   registry          what                                  pinned by
+#   Debian (apt)      compilers, libraries, tools below     the machine's Debian release (stable
+#                                                           updates only); nothing from elsewhere
+#   npm               the npm peers (conformance/peers/)    package-lock.json via `npm ci`; a
+#                                                           dependency declared by a dist-tag,
+#                                                           '*' or an open range is pinned by an
+#                                                           `overrides` entry at its locked version
+#                                                           (@types/node: modbus-stream says 'latest')
+#   Go                goburrow/modbus client adapter        Debian's golang-github-goburrow-modbus-dev,
+#                                                           built in GOPATH mode with GO111MODULE=off
+#                                                           and GOPROXY=off: no module proxy
+#   Python            pymodbus, pyserial, PyYAML            Debian's python3-* packages, run by
+#                                                           /usr/bin/python3; no pip
 set -euo pipefail
 SUDO=""
 if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi

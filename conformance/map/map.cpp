@@ -469,10 +469,10 @@ spec::Spec apply(const spec::Spec& base, const Map& m) {
       // fact comes from"); a given map states what it says, and a range
       // without ':rw'/':ro' leaves writability assumed.
       if (m.source.rfind("probe of ", 0) == 0) {
-        r.basis[spec::Fact::read] = {spec::Basis::observed, m.source + ": reads answered"};
-        r.basis[spec::Fact::write] = {spec::Basis::observed, m.source + ": not probed, a probe only reads"};
+        r.basis[spec::Fact::read] = {.basis = spec::Basis::observed, .why = m.source + ": reads answered"};
+        r.basis[spec::Fact::write] = {.basis = spec::Basis::observed, .why = m.source + ": not probed, a probe only reads"};
       } else if (!b.access) {
-        spec::FactBasis assumed{spec::Basis::inferred, m.source + " gives no access: taken as the table allows"};
+        spec::FactBasis assumed{.basis = spec::Basis::inferred, .why = m.source + " gives no access: taken as the table allows"};
         assumed.searched = m.source;
         r.basis[spec::Fact::write] = assumed;
       }

@@ -230,27 +230,27 @@ Prediction predict(const Model& m, std::span<const uint8_t> adu) {
 check::Expect expectation(const Model& m, const Prediction& p, std::span<const uint8_t> adu) {
   using K = check::Expect::Kind;
   switch (p.kind) {
-    case Prediction::Kind::silence: return {K::silence, {}, 0};
-    case Prediction::Kind::any: return {K::any_or_silence, {}, 0};
+    case Prediction::Kind::silence: return {.kind = K::silence};
+    case Prediction::Kind::any: return {.kind = K::any_or_silence};
     case Prediction::Kind::refused:
-      if (p.refusal.kind == Expected::Kind::exception) return {K::exception, {}, uint8_t(p.refusal.code)};
-      if (p.refusal.kind == Expected::Kind::silence) return {K::silence, {}, 0};
-      return {K::any_or_silence, {}, 0};  // an exception or silence: the policy is unspecified
+      if (p.refusal.kind == Expected::Kind::exception) return {.kind = K::exception, .code = uint8_t(p.refusal.code)};
+      if (p.refusal.kind == Expected::Kind::silence) return {.kind = K::silence};
+      return {.kind = K::any_or_silence};  // an exception or silence: the policy is unspecified
     case Prediction::Kind::normal: break;
   }
-  if (p.or_refused) return {K::any, {}, 0};
-  if (p.exact) return {K::reply, *p.exact, 0};
+  if (p.or_refused) return {.kind = K::any};
+  if (p.exact) return {.kind = K::reply, .pdu = *p.exact};
   if (p.read && adu.size() >= 4) {
     // Every word read known to the model: the reply is exact (MBAP v1.1b3 §6.3).
     Bytes r{adu[1], uint8_t(2 * p.read->second)};
     for (uint16_t i = 0; i < p.read->second; ++i) {
       auto it = m.words.find(uint16_t(p.read->first + i));
-      if (it == m.words.end() || !it->second) return {K::normal, {}, 0};
+      if (it == m.words.end() || !it->second) return {.kind = K::normal};
       r.insert(r.end(), {uint8_t(*it->second >> 8), uint8_t(*it->second)});
     }
-    return {K::reply, r, 0};
+    return {.kind = K::reply, .pdu = r};
   }
-  return {K::normal, {}, 0};
+  return {.kind = K::normal};
 }
 
 std::string reply_text(const Reply& r) {

@@ -34,7 +34,10 @@ std::string summary_table(const RunReport& rep) {
         s += fmt::format("QUIRK {} (declared: {})\n     {}\n", r.id, r.quirk, r.message);
   for (const auto& d : rep.devices) {
     if (!d.error.empty()) s += fmt::format("{}: {}\n", d.device_id, d.error);
-    for (const auto& b : d.broadcast_writes) s += fmt::format("{}: broadcast sent: {}\n", d.device_id, b);
+    // Every drive on a live line took these; an in-process device is alone
+    // on its line (the reports still list them).
+    if (d.target_uri.rfind("ref:", 0) != 0)
+      for (const auto& b : d.broadcast_writes) s += fmt::format("{}: broadcast sent: {}\n", d.device_id, b);
   }
   for (const auto& d : rep.devices)
     for (const auto& n : d.notes) s += fmt::format("{}: {}\n", d.device_id, n);

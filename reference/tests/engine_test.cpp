@@ -156,7 +156,9 @@ TEST_P(PerDevice, GarbageNeverCrashesAndRepliesAreWellFormed) {
     }
     auto before = d.holding_image();
     auto reply = d.handle_rtu(b);
-    if (!crc_ok(b) || b.size() < 4 || b.size() > 256) EXPECT_EQ(d.holding_image(), before);
+    if (!crc_ok(b) || b.size() < 4 || b.size() > 256) {
+      EXPECT_EQ(d.holding_image(), before);
+    }
     if (reply) {
       ASSERT_LE(reply->size(), 256u);
       ASSERT_TRUE(crc_ok(*reply));

@@ -40,6 +40,6 @@ struct Response {
 };
 
 // Hook flags in the create() response.
-enum Hooks : unsigned { kHasRtu = 1, kHasPdu = 2, kHasReset = 4, kHasPowerCycle = 8, kHasAdvance = 16 };
+constexpr unsigned kHasRtu = 1, kHasPdu = 2, kHasReset = 4, kHasPowerCycle = 8, kHasAdvance = 16;
 
 }  // namespace mbc::conf::plugin_host

@@ -86,7 +86,7 @@ TEST(ScriptFormat, MalformedLinesNameFileLineColumnAndRule) {
 TEST(ScriptFormat, FramesPrintInTheFramingSent) {
   Bytes pdu{0x03, 0x00, 0x20, 0x00, 0x01};
   EXPECT_EQ(line(frame(Framing::rtu, 1, pdu)), "rtu 01 03 00 20 00 01 85 C0");
-  EXPECT_EQ(line(frame(Framing::mbap, 1, pdu, Expect{Expect::Kind::silence, {}, 0})), "mbap * 00 00 00 06 01 03 00 20 00 01  -> silence");
+  EXPECT_EQ(line(frame(Framing::mbap, 1, pdu, Expect{.kind = Expect::Kind::silence})), "mbap * 00 00 00 06 01 03 00 20 00 01  -> silence");
   Step known = frame(Framing::mbap, 1, pdu);
   known.tid = 0x0102;
   EXPECT_EQ(line(known), "mbap 01 02 00 00 00 06 01 03 00 20 00 01");

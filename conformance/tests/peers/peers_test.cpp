@@ -313,7 +313,9 @@ TEST(TargetLoss, WedgedConnectionIsOneFail) {
   EXPECT_NE((*c)["message"].get<std::string>().find("stopped answering"), std::string::npos) << (*c)["message"];
   EXPECT_EQ(l.report["incomplete"], "") << l.out.text;
   for (const auto& k : l.report["devices"][0]["cases"]) {
-    if (k["outcome"] == "fail") EXPECT_TRUE(k["id"].get<std::string>().ends_with("fc100/unsupported")) << k["id"] << ": " << k["message"];
+    if (k["outcome"] == "fail") {
+      EXPECT_TRUE(k["id"].get<std::string>().ends_with("fc100/unsupported")) << k["id"] << ": " << k["message"];
+    }
   }
 }
 

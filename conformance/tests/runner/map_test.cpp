@@ -117,7 +117,9 @@ TEST(Map, TheMapPlacesTheStandardsCases) {
   EXPECT_TRUE(has(cs, "/standard/fc05/value-00FF"));
   // Without a stated access, the cases that write wait for --allow-writes.
   for (const auto& c : cs) {
-    if (c.id.ends_with("/standard/fc05/value-00FF")) EXPECT_NE(c.skip_reason.find("--allow-writes"), std::string::npos);
+    if (c.id.ends_with("/standard/fc05/value-00FF")) {
+      EXPECT_NE(c.skip_reason.find("--allow-writes"), std::string::npos);
+    }
   }
   // A server that answers every address: nothing is past its end.
   auto all = cases_on(map::parse_inline("holding=0-65535,coils=0-65535,input=0-65535,discrete=0-65535"));

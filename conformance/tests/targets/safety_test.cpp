@@ -132,9 +132,11 @@ TEST(Snapshot, RestoresChangedRegistersOverTheWire) {
     ASSERT_GT(changed, 0);
     auto failed = snap.restore(*t);
     EXPECT_TRUE(failed.empty()) << failed.front();
-    for (const auto& k : snap.kept())
-      if (k.table == spec::Table::holding)
+    for (const auto& k : snap.kept()) {
+      if (k.table == spec::Table::holding) {
         EXPECT_EQ(read(*t, k.address, k.words), std::vector<uint16_t>(k.value, k.value + k.words)) << k.name;
+      }
+    }
   }
 }
 
@@ -166,8 +168,11 @@ TEST(Snapshot, RestoresCoils) {
   ASSERT_GT(coils, 0) << "modbus-standard has writable coils";
   auto failed = snap.restore(*t);
   EXPECT_TRUE(failed.empty()) << failed.front();
-  for (const auto& k : snap.kept())
-    if (k.table == spec::Table::coil) EXPECT_EQ(read_coils(*t, k.address, 1), std::vector<bool>{k.value[0] != 0}) << k.name;
+  for (const auto& k : snap.kept()) {
+    if (k.table == spec::Table::coil) {
+      EXPECT_EQ(read_coils(*t, k.address, 1), std::vector<bool>{k.value[0] != 0}) << k.name;
+    }
+  }
 }
 
 // Registers a drive will not read before the run are one finding: one line,
