@@ -31,8 +31,8 @@ namespace mbc::conf::check {
 // A fact a case relies on, and where it comes from (spec/README.md, "Where
 // each fact comes from"). Recorded by the accessors of cases/facts.h only.
 struct Reliance {
-  std::string fact;         // "register 0x0BB8 read", "exception_policy.crc_error", "FC 16 max_quantity"
-  spec::FactBasis basis;
+  std::string fact{};         // "register 0x0BB8 read", "exception_policy.crc_error", "FC 16 max_quantity"
+  spec::FactBasis basis{};
 };
 
 // What must come back for one step: written when the step is made, from the
@@ -50,19 +50,19 @@ struct Expect {
     any,             // any well-formed reply: normal, or an exception code the standard or the spec knows
     any_or_silence,  // `any`, or no reply (a request the device may drop: fuzzed, malformed)
   } kind = Kind::none;
-  Bytes pdu;
+  Bytes pdu{};
   uint8_t code = 0;
-  std::optional<Bytes> adu;
-  std::vector<uint16_t> words;
+  std::optional<Bytes> adu{};
+  std::vector<uint16_t> words{};
   int memo = -1;         // `same`: the index of the earlier step (in its case) whose reply this must equal
-  std::string text;      // the expectation in words, for reports ("exception 03 (policy value_out_of_range, §6.2.4)")
+  std::string text{};      // the expectation in words, for reports ("exception 03 (policy value_out_of_range, §6.2.4)")
   // The facts this expectation was built from (cases/facts.h); a case
   // relies on its steps' facts too.
-  std::vector<Reliance> relies;
+  std::vector<Reliance> relies{};
   // The source prints two readings: the reply may meet this expectation or
   // any of `either` (each with its `reading` named); the runner records which.
-  std::vector<Expect> either;
-  std::string reading;   // this reading's name ("silence (the text)")
+  std::vector<Expect> either{};
+  std::string reading{};   // this reading's name ("silence (the text)")
 };
 
 struct Step {
@@ -77,13 +77,13 @@ struct Step {
   // framing its bytes belong to, which the target must have.
   Framing framing = Framing::rtu;
   uint8_t unit = 0;                   // frame (0 = broadcast)
-  Bytes pdu;                          // frame
-  std::optional<uint16_t> tid;        // frame printed as MBAP: its transaction id; nullopt prints '*'
-  Bytes bytes;                        // raw: the whole ADU as sent
-  std::optional<size_t> gap;          // raw RTU: an inter-character pause after this many bytes
+  Bytes pdu{};                          // frame
+  std::optional<uint16_t> tid{};        // frame printed as MBAP: its transaction id; nullopt prints '*'
+  Bytes bytes{};                        // raw: the whole ADU as sent
+  std::optional<size_t> gap{};          // raw RTU: an inter-character pause after this many bytes
   uint64_t us = 0;                    // advance, wait
-  Expect expect;
-  std::string note;                   // what the step means ("write 0x0020 = 1000 (FC 06)")
+  Expect expect{};
+  std::string note{};                   // what the step means ("write 0x0020 = 1000 (FC 06)")
   // frame writes (FC 06/16): when >= 0, the value words are the registers the
   // read at step `words_from` (of the same case) got, filled in when the step
   // is sent (a broadcast that writes back what the target held). Not sent
@@ -101,26 +101,26 @@ struct Step {
 // A check: a stable id tied to the clause it checks, the requirement quoted,
 // and its steps.
 struct Case {
-  std::string id;           // "<device>/<family>/<section-or-register>/<n>"
-  std::string family;       // examples | registers | function-codes | framing | standard | deviations
-  std::string clause;       // "57HS-R §6.2.4", "MBAP v1.1b3 §6.3", "MB-SL v1.02 §2.4.1"
+  std::string id{};           // "<device>/<family>/<section-or-register>/<n>"
+  std::string family{};       // examples | registers | function-codes | framing | standard | deviations
+  std::string clause{};       // "57HS-R §6.2.4", "MBAP v1.1b3 §6.3", "MB-SL v1.02 §2.4.1"
   Level level = Level::must;
-  std::string title;
-  std::string requirement;  // the sentence checked
-  std::vector<Step> steps;
-  std::vector<std::string> errata;
+  std::string title{};
+  std::string requirement{};  // the sentence checked
+  std::vector<Step> steps{};
+  std::vector<std::string> errata{};
   // The facts the case relies on beyond its steps' expectations
   // (cases/facts.h). settle_level() turns an inferred one into OBSERVED.
-  std::vector<Reliance> relies;
+  std::vector<Reliance> relies{};
   // Set by settle_level() when an inferred fact moved the case off MUST/SHOULD.
-  std::optional<Level> level_if_stated;
-  std::optional<uint16_t> register_address;  // for the per-register table
+  std::optional<Level> level_if_stated{};
+  std::optional<uint16_t> register_address{};  // for the per-register table
   // Registers (holding, address + words) the case writes: they are read
   // before it and written back after it, so cases do not leak state.
-  std::vector<std::pair<uint16_t, int>> touches;
+  std::vector<std::pair<uint16_t, int>> touches{};
   // Set when the case cannot run on this target (capability, safety): it is
   // reported skip with this reason.
-  std::string skip_reason;
+  std::string skip_reason{};
   // Every function is optional (MBAP v1.1b3 §5.1): when set (cases on a
   // server's probed or given map, not on a spec of its own), an exception 01
   // to a step that expected something else means the server does not

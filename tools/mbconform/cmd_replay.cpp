@@ -51,7 +51,8 @@ int replay_file(const std::string& file, const std::string& uri_in, const Target
     fmt::print(stderr, "mbconform {}: error: {}\n", command, e.what());
     return kExitUsage;
   }
-  // TODO(session): the session's gated, journalled Link for live targets.
+  // A Target as a Link, no gate yet: the session (session/link.h) gives its
+  // gated, journalled Link here.
   conf::DirectLink link(*target);
   auto r = conf::replay(link, sc, spec ? &*spec : nullptr);
   using Outcome = conf::ReplayResult::Outcome;

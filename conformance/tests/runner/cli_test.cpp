@@ -366,9 +366,12 @@ TEST(RunCli, ServedStandardOverTcpPlanReplaysAlike) {
   EXPECT_EQ(mbap, 4u) << summary.dump(1);
   // short-pdu and long-pdu: the reference answers exception 03, as the
   // standard's reading expects, so nothing differs.
-  for (const auto& c : d["observed"])
-    if (std::string(c["id"]).find("/mbap/short-pdu") != std::string::npos || std::string(c["id"]).find("/mbap/long-pdu") != std::string::npos)
+  for (const auto& c : d["observed"]) {
+    std::string id = c["id"];
+    if (id.find("/mbap/short-pdu") != std::string::npos || id.find("/mbap/long-pdu") != std::string::npos) {
       EXPECT_EQ(std::string(c["message"]).find("differs"), std::string::npos) << c.dump();
+    }
+  }
 
   Out plan = run({"run", "--target", uri, "--device", "modbus-standard", "--filter", "/standard/", "--plan"});
   ASSERT_EQ(plan.rc, 0) << plan.text;

@@ -2,7 +2,8 @@
 # `mbconform run` on TARGET, then `run --plan` into a file and `replay` of that
 # file on the same TARGET, and fails unless both give the same pass, fail,
 # observed and skip counts, name the same failing cases and exit alike.
-#   cmake -DMBCONFORM=<bin> -DTARGET=<uri> -DWORK_DIR=<dir> -P plan_replay.cmake
+#   cmake -DMBCONFORM=<bin> -DTARGET=<uri> -DWORK_DIR=<dir> [-DMUST_FAIL=<case id>] -P plan_replay.cmake
+# MUST_FAIL: a case the run must fail (the fault of a broken device is caught).
 file(REMOVE_RECURSE "${WORK_DIR}")
 file(MAKE_DIRECTORY "${WORK_DIR}")
 execute_process(COMMAND "${MBCONFORM}" run --quiet --target "${TARGET}" --out "${WORK_DIR}/run" --summary "${WORK_DIR}/summary"
@@ -53,5 +54,8 @@ if(NOT run_failed STREQUAL replay_failed)
 endif()
 if(NOT run_rc EQUAL replay_rc)
   message(FATAL_ERROR "${TARGET}: run exit ${run_rc}, replay exit ${replay_rc}\n${out}${err}")
+endif()
+if(MUST_FAIL AND NOT MUST_FAIL IN_LIST run_failed)
+  message(FATAL_ERROR "${TARGET}: ${MUST_FAIL} does not fail; failing: [${run_failed}]")
 endif()
 message(STATUS "${TARGET}: ${got}; failing: [${run_failed}]")
