@@ -366,7 +366,8 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "usage: mbc_corpus_gen --out DIR [--source SRC]\n");
     return 2;
   }
-  Output out{.root = out_dir};
+  Output out;
+  out.root = out_dir;
   device_and_session(out);
   reply_parser(out);
   differential(out);

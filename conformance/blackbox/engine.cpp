@@ -114,8 +114,16 @@ Plan make_plan(const spec::Spec& s, const TargetInfo& info, const WritePolicy& p
 
 // ---- steps and their expectations (from the standard, never from an implementation) ----
 
+// An expectation of a kind alone (a designated initializer would leave
+// pdu and code to -Wmissing-field-initializers).
+check::Expect expecting(check::Expect::Kind k) {
+  check::Expect e;
+  e.kind = k;
+  return e;
+}
+
 Step probe_step(const Plan& p) {
-  return check::frame(p.info.framing, p.info.unit, p.probe, check::Expect{.kind = check::Expect::Kind::normal}, kProbeNote);
+  return check::frame(p.info.framing, p.info.unit, p.probe, expecting(check::Expect::Kind::normal), kProbeNote);
 }
 
 bool is_probe(const Step& s) { return s.kind == Step::Kind::frame && s.note == kProbeNote; }
@@ -124,16 +132,16 @@ check::Expect expect_for(const Plan& p, const Step& s) {
   using K = check::Expect::Kind;
   // A fuzzed request may be one the device drops (its spec's policy, or a
   // request too broken to parse): silence is no finding, a bad reply is.
-  if (s.kind == Step::Kind::frame) return {.kind = s.unit == 0 ? K::silence : K::any_or_silence};
+  if (s.kind == Step::Kind::frame) return expecting(s.unit == 0 ? K::silence : K::any_or_silence);
   if (s.kind != Step::Kind::raw) return {};
   // MB-SL v1.02 §2.1: no reply to another slave id or to broadcast; §2.4.2:
   // none to a frame with a bad CRC, length or gap, unless the device's manual
   // says it answers corrupted frames (its crc_error policy).
-  if (check::request_pdu(s, p.info.unit)) return {.kind = K::any_or_silence};
+  if (check::request_pdu(s, p.info.unit)) return expecting(K::any_or_silence);
   bool addressed = !s.bytes.empty() && s.bytes[0] == p.info.unit;
   auto pe = p.spec->profile.policy(spec::Violation::crc_error);
-  if (addressed && pe.kind == spec::PolicyEntry::Kind::exception) return {.kind = K::any_or_silence};
-  return {.kind = K::silence};
+  if (addressed && pe.kind == spec::PolicyEntry::Kind::exception) return expecting(K::any_or_silence);
+  return expecting(K::silence);
 }
 
 std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r) {

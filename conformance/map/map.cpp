@@ -450,6 +450,15 @@ bool example_inside(const spec::Example& ex, const Map& m) {
 
 }  // namespace
 
+namespace {
+spec::FactBasis basis(spec::Basis kind, const std::string& why) {
+  spec::FactBasis b;
+  b.basis = kind;
+  b.why = why;
+  return b;
+}
+}  // namespace
+
 spec::Spec apply(const spec::Spec& base, const Map& m) {
   spec::Spec s = base;
   s.registers.clear();
@@ -469,10 +478,10 @@ spec::Spec apply(const spec::Spec& base, const Map& m) {
       // fact comes from"); a given map states what it says, and a range
       // without ':rw'/':ro' leaves writability assumed.
       if (m.source.rfind("probe of ", 0) == 0) {
-        r.basis[spec::Fact::read] = {.basis = spec::Basis::observed, .why = m.source + ": reads answered"};
-        r.basis[spec::Fact::write] = {.basis = spec::Basis::observed, .why = m.source + ": not probed, a probe only reads"};
+        r.basis[spec::Fact::read] = basis(spec::Basis::observed, m.source + ": reads answered");
+        r.basis[spec::Fact::write] = basis(spec::Basis::observed, m.source + ": not probed, a probe only reads");
       } else if (!b.access) {
-        spec::FactBasis assumed{.basis = spec::Basis::inferred, .why = m.source + " gives no access: taken as the table allows"};
+        spec::FactBasis assumed = basis(spec::Basis::inferred, m.source + " gives no access: taken as the table allows");
         assumed.searched = m.source;
         r.basis[spec::Fact::write] = assumed;
       }
