@@ -179,7 +179,7 @@ int run(RunArgs& a) {
     }
     if (map && (a.map != "auto" || target)) s = conf::map::apply(s, *map);
 
-    conf::GenContext g{s, info, a.t.policy, standard ? &*standard : nullptr};
+    conf::GenContext g{s, info, a.t.policy, standard ? &*standard : nullptr, std::nullopt};
     if (map) g.map = conf::map::terms(*map, a.allow_writes);
     std::vector<conf::Case> cases;
     try {

@@ -26,7 +26,7 @@ std::vector<Case> cases_on(const map::Map& m) {
   static const spec::Spec applied_base = standard();
   spec::Spec s = map::apply(applied_base, m);
   auto t = open_target("ref:modbus-standard");
-  GenContext g{s, t->info(), {}, &standard()};
+  GenContext g{s, t->info(), {}, &standard(), std::nullopt};
   g.map = map::terms(m, false);
   return all_cases(g);
 }
