@@ -4,6 +4,7 @@
 # observed and skip counts, name the same failing cases and exit alike.
 #   cmake -DMBCONFORM=<bin> -DTARGET=<uri> -DWORK_DIR=<dir> [-DMUST_FAIL=<case id>] -P plan_replay.cmake
 # MUST_FAIL: a case the run must fail (the fault of a broken device is caught).
+cmake_minimum_required(VERSION 3.25)
 file(REMOVE_RECURSE "${WORK_DIR}")
 file(MAKE_DIRECTORY "${WORK_DIR}")
 execute_process(COMMAND "${MBCONFORM}" run --quiet --target "${TARGET}" --out "${WORK_DIR}/run" --summary "${WORK_DIR}/summary"
