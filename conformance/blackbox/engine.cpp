@@ -13,6 +13,7 @@
 #include "blackbox/spec_values.h"
 #include "modbus/bytes.h"
 #include "modbus/crc16.h"
+#include "modbus/function_codes.h"
 #include "modbus/judge.h"
 #include "modbus/limits.h"
 #include "modbus/pdu.h"
@@ -49,7 +50,7 @@ bool Plan::safe(std::span<const uint8_t> pdu, bool foreign_or_broadcast) const {
   // MB-SL v1.02 §6.1.2 (FC 08/04): Listen Only Mode is a legal way to stop
   // answering; the liveness probe would call it a finding.
   if (fc == 8 && pdu.size() >= 3 && be16(pdu, 1) == 4) return false;
-  bool write = fc == 5 || fc == 6 || fc == 15 || fc == 16 || fc == 22 || fc == 23;
+  bool write = is_write_function(fc);
   if (info.live) {
     // Only function codes the spec lists or the standard defines as reads:
     // a vendor may put anything behind an undocumented code.
@@ -101,7 +102,7 @@ Plan make_plan(const spec::Spec& s, const TargetInfo& info, const WritePolicy& p
   for (const auto& ex : s.examples) {
     auto adu = parse_hex(ex.resolved_request ? *ex.resolved_request : ex.request);
     if (!adu || adu->size() < 4) continue;
-    Bytes pdu(adu->begin() + 1, adu->end() - 2);
+    Bytes pdu = rtu_unframe(*adu).pdu;
     if (p.safe(pdu, false)) p.examples.push_back(pdu);
   }
   // The probe: a read of the first holding register (else any register) the
@@ -119,20 +120,20 @@ Plan make_plan(const spec::Spec& s, const TargetInfo& info, const WritePolicy& p
 
 // An expectation of a kind alone (a designated initializer would leave
 // pdu and code to -Wmissing-field-initializers).
-script::Expect expecting(script::Expect::Kind k) {
-  script::Expect e;
+check::Expect expecting(check::Expect::Kind k) {
+  check::Expect e;
   e.kind = k;
   return e;
 }
 
 Step probe_step(const Plan& p) {
-  return script::frame(p.info.framing, p.info.unit, p.probe, expecting(script::Expect::Kind::normal), kProbeNote);
+  return check::frame(p.info.framing, p.info.unit, p.probe, expecting(check::Expect::Kind::normal), kProbeNote);
 }
 
 bool is_probe(const Step& s) { return s.kind == Step::Kind::frame && s.note == kProbeNote; }
 
-script::Expect expect_for(const Plan& p, const Step& s) {
-  using K = script::Expect::Kind;
+check::Expect expect_for(const Plan& p, const Step& s) {
+  using K = check::Expect::Kind;
   // A fuzzed request may be one the device drops (its spec's policy, or a
   // request too broken to parse): silence is no finding, a bad reply is.
   if (s.kind == Step::Kind::frame) return expecting(s.unit == 0 ? K::silence : K::any_or_silence);
@@ -140,7 +141,7 @@ script::Expect expect_for(const Plan& p, const Step& s) {
   // MB-SL v1.02 §2.1: no reply to another slave id or to broadcast; §2.4.2:
   // none to a frame with a bad CRC, length or gap, unless the device's manual
   // says it answers corrupted frames (its crc_error policy).
-  if (script::request_pdu(s, p.info.unit)) return expecting(K::any_or_silence);
+  if (check::request_pdu(s, p.info.unit)) return expecting(K::any_or_silence);
   bool addressed = !s.bytes.empty() && s.bytes[0] == p.info.unit;
   auto pe = p.spec->profile.policy(spec::Violation::crc_error);
   if (addressed && pe.kind == spec::PolicyEntry::Kind::exception) return expecting(K::any_or_silence);
@@ -148,11 +149,11 @@ script::Expect expect_for(const Plan& p, const Step& s) {
 }
 
 std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r) {
-  auto m = script::check(s, p.info.unit, r, p.spec);
+  auto m = check::judge(s, r, check::JudgeContext{p.info.unit, p.info.framing, p.spec, {}});
   if (!m) return std::nullopt;
   std::string why = m->why;
   std::string kind;
-  using M = script::Mismatch::Kind;
+  using M = check::Mismatch::Kind;
   bool addressed = s.kind != Step::Kind::raw || (!s.bytes.empty() && s.bytes[0] == p.info.unit);
   switch (m->kind) {
     case M::answered:
@@ -218,7 +219,7 @@ std::optional<Finding> execute(Target& t, const Plan& p, const Step& s, Outcome*
     if (out) account(*out, p, s, r);
     return judge(p, s, r);
   } catch (const std::exception& e) {
-    return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), script::line(s))};
+    return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(s))};
   }
 }
 
@@ -227,7 +228,7 @@ std::optional<Finding> execute(Target& t, const Plan& p, const Step& s, Outcome*
 Step Generator::next() {
   Step s = [&] {
     const auto& info = p_.info;
-    if (info.virtual_clock && pick(20) == 0) return script::advance(uint64_t(pick(500'000)));
+    if (info.virtual_clock && pick(20) == 0) return check::advance(uint64_t(pick(500'000)));
     for (int attempt = 0; attempt < 20; ++attempt) {
       int strategy = int(pick(info.raw ? 5 : 4));
       Bytes pdu;
@@ -244,9 +245,9 @@ Step Generator::next() {
         }
       }
       if (pdu.empty() || pdu.size() > kMaxPdu || !p_.safe(pdu, false)) continue;
-      return script::frame(info.framing, info.unit, pdu);
+      return check::frame(info.framing, info.unit, pdu);
     }
-    return script::frame(info.framing, info.unit, valid_read());
+    return check::frame(info.framing, info.unit, valid_read());
   }();
   s.expect = expect_for(p_, s);
   return s;
@@ -348,7 +349,7 @@ std::optional<Step> Generator::malformed(const Bytes& pdu) {
   if (p_.info.framing != Framing::rtu) return std::nullopt;
   const bool stream = p_.info.kind == "tcp" || p_.info.kind == "rtu-tcp";
   uint8_t unit = p_.info.unit;
-  Step s = script::raw_rtu(rtu_frame(unit, pdu));
+  Step s = check::raw_rtu(rtu_frame(unit, pdu));
   Bytes& a = s.bytes;
   static const int kStreamCases[] = {0, 3, 4};
   switch (stream ? kStreamCases[pick(3)] : int(pick(6))) {
@@ -481,7 +482,7 @@ std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch,
       try {
         replies = t.transact_all(requests, depth);
       } catch (const std::exception& e) {
-        return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), script::line(steps.back()))};
+        return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(steps.back()))};
       }
       for (size_t i = 0; i < steps.size(); ++i) account(out, p, steps[i], replies[i]);
       for (size_t i = 0; i < steps.size(); ++i)
@@ -502,7 +503,7 @@ std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch,
 // bad FC 16 reply are two).
 std::string signature(const Finding& f, const Plan& p, const Step& last) {
   if (f.kind != "malformed-reply" && f.kind != "unknown-exception-code") return f.kind;
-  auto pdu = script::request_pdu(last, p.info.unit);
+  auto pdu = check::request_pdu(last, p.info.unit);
   if (!pdu || pdu->empty()) return f.kind;
   return fmt::format("{} fc{:02X}", f.kind, (*pdu)[0]);
 }
@@ -582,12 +583,12 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
       Outcome child_counts;
       f = isolated([&]() -> std::optional<Finding> {
         std::ofstream j(o.journal, std::ios::trunc);
-        j << script::kHeader << "\n";
-        return round(*target, p, seed, o.batch, o.depth, deadline, [&](const Step& s) { j << script::line(s) << std::endl; },
+        j << check::kHeader << "\n";
+        return round(*target, p, seed, o.batch, o.depth, deadline, [&](const Step& s) { j << check::line(s) << std::endl; },
                      known, child_counts);
       });
       try {
-        history = script::parse_file(o.journal).steps;
+        history = check::parse_file(o.journal).steps;
       } catch (const std::exception&) {
       }
       std::remove(o.journal.c_str());
@@ -625,8 +626,8 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
   return out;
 }
 
-script::Script reproducer(const Plan& p, const Reported& r, const std::string& replay_command) {
-  script::Script s;
+check::Script reproducer(const Plan& p, const Reported& r, const std::string& replay_command) {
+  check::Script s;
   s.device = p.spec->device.id;
   s.comment = fmt::format("mbconform fuzz reproducer: {}\n", r.signature);
   std::istringstream msg(r.finding.message);

@@ -1,7 +1,7 @@
 // The black-box fuzzer behind `mbconform fuzz`: structure-aware frames from
 // a device's spec sent to any Target, every reply judged from the standard,
 // each distinct finding reduced by delta debugging to a minimal reproducer
-// in the frame-script format (conformance/script/README.md).
+// in the frame-script format (conformance/check/README.md).
 //
 // Frames come from the spec: reads of its registers, writes of each
 // register's valid and boundary values, the manual's example requests, and
@@ -29,13 +29,14 @@
 #include <vector>
 
 #include "safety/safety.h"
-#include "script/script.h"
+#include "check/judge.h"
+#include "check/text.h"
 #include "spec.h"
 #include "targets/target.h"
 
 namespace mbc::conf::blackbox {
 
-using Step = script::Step;
+using Step = check::Step;
 
 struct Finding {
   std::string kind;     // stable name: no-answer, malformed-reply, answered-broadcast, ...
@@ -66,9 +67,9 @@ bool is_probe(const Step& s);
 // The expectation the standard gives a generated step on this plan's target:
 // silence for broadcast, another slave id or a corrupted frame (unless the
 // spec's crc_error policy answers), else any well-formed reply.
-script::Expect expect_for(const Plan& p, const Step& s);
+check::Expect expect_for(const Plan& p, const Step& s);
 
-// Judges one exchange from the standard (script::check) and names the finding.
+// Judges one exchange from the standard (check::judge) and names the finding.
 std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r);
 // Runs one step; a target that throws (connection lost, plugin error) is a finding too.
 std::optional<Finding> execute(Target& t, const Plan& p, const Step& s);
@@ -182,6 +183,6 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
              const std::function<void(const Reported&)>& on_finding);
 
 // The reproducer of a finding as a frame script (comments say what was found).
-script::Script reproducer(const Plan& p, const Reported& r, const std::string& replay_command);
+check::Script reproducer(const Plan& p, const Reported& r, const std::string& replay_command);
 
 }  // namespace mbc::conf::blackbox

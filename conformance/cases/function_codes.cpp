@@ -38,6 +38,7 @@ struct Gen {
     c.family = "function-codes";
     c.id = fmt::format("{}/function-codes/fc{:02}/{}", g.spec.device.id, fc, what);
     c.clause = clause(g.spec, section);
+    c.functions_optional = g.map.has_value();  // on a map every function is optional (MBAP v1.1b3 §5.1)
     return c;
   }
 
@@ -260,7 +261,7 @@ struct Gen {
       Step s;
       s.unit = g.target.unit;
       s.pdu = {16, uint8_t(run ? run->first >> 8 : 0), uint8_t(run ? run->first & 0xFF : 0), 0, 0, 0};
-      s.what = "write multiple registers, quantity 0";
+      s.note = "write multiple registers, quantity 0";
       s.expect = pe.expect;
       if (run) c.touches = touches(run->first, 1);
       add(std::move(c), s);
@@ -294,7 +295,7 @@ struct Gen {
       Step s;
       s.unit = g.target.unit;
       s.pdu = write_multiple_registers(run->first, words);
-      s.what = fmt::format("write {} x{} (FC 16)", hex16(run->first), words.size());
+      s.note = fmt::format("write {} x{} (FC 16)", hex16(run->first), words.size());
       s.expect = over ? pe.expect : cases::write_echo(s.pdu);
       add(std::move(c), s);
     }
@@ -303,7 +304,7 @@ struct Gen {
       s.unit = g.target.unit;
       std::vector<uint16_t> zeros(n, 0);
       s.pdu = write_multiple_registers(a, zeros);
-      s.what = fmt::format("write {} x{} (FC 16)", hex16(a), n);
+      s.note = fmt::format("write {} x{} (FC 16)", hex16(a), n);
       s.expect = e;
       return std::optional<Step>(s);
     });
@@ -314,7 +315,7 @@ struct Gen {
       Step s;
       s.unit = g.target.unit;
       s.pdu = write_single_register(a, 0);
-      s.what = fmt::format("write {} = 0 (FC 06)", hex16(a));
+      s.note = fmt::format("write {} = 0 (FC 06)", hex16(a));
       s.expect = e;
       return std::optional<Step>(s);
     });
@@ -358,8 +359,17 @@ struct Gen {
       c.requirement = fmt::format("A function code the device does not support: {}.", pe.expect.text);
       Step s;
       s.unit = g.target.unit;
-      std::tie(s.pdu, s.what) = unsupported_request(fc);
+      std::tie(s.pdu, s.note) = unsupported_request(fc);
       s.expect = pe.expect;
+      if (g.map) {
+        // A server on a map chooses which public function codes it implements
+        // (MBAP v1.1b3 §5.1): a code the map's spec leaves out is answered
+        // either way, never judged by that spec's policy.
+        c.functions_optional = false;
+        s.expect.kind = Expect::Kind::answered;
+        s.expect.text = "a reply, normal or exception: the server chooses which public function codes it implements (MBAP v1.1b3 §5.1)";
+        c.requirement = "A server answers every request it receives: with a normal reply, or with an exception (MBAP v1.1b3 §7).";
+      }
       add(std::move(c), s);
     }
   }

@@ -154,7 +154,7 @@ struct Gen {
     if (readable) {
       if (auto rd = cases::read_step(g, r, Expect{})) {
         rd->setup = true;
-        rd->what = "before: " + rd->what;
+        rd->note = "before: " + rd->note;
         memo = 0;
         c.steps.push_back(std::move(*rd));
       }
@@ -167,7 +167,7 @@ struct Gen {
       c.steps.push_back(std::move(*st));
       if (memo >= 0) {
         Expect same;
-        same.kind = Expect::Kind::unchanged;
+        same.kind = Expect::Kind::same;
         same.memo = memo;
         same.text = "the value read before (unchanged)";
         if (auto rd = cases::read_step(g, r, same)) c.steps.push_back(std::move(*rd));
@@ -285,7 +285,7 @@ struct Gen {
       int64_t off = r.persistence.unless_value == 0 ? 1 : 0;
       if (auto st = cases::write_step(g, *sw, cases::encode(*sw, off))) {
         st->setup = true;
-        st->what = "persistence on: " + st->what;
+        st->note = "persistence on: " + st->note;
         c.steps.push_back(std::move(*st));
         c.touches.push_back({sw->address, 1});
       }
@@ -296,7 +296,7 @@ struct Gen {
     c.steps.push_back(std::move(*st));
     Step pc;
     pc.kind = Step::Kind::power_cycle;
-    pc.what = "power cycle";
+    pc.note = "power cycle";
     c.steps.push_back(std::move(pc));
     auto want = persistent ? w : words_for(r, dflt);
     Expect after = want_words(r, want, persistent ? show(r, v) + " (stored)" : show(r, dflt) + " (the default)");

@@ -13,6 +13,7 @@
 
 #include "modbus/hex.h"
 #include "modbus/judge.h"
+#include "modbus/rtu.h"
 #include "modbus/limits.h"
 #include "modbus/pdu.h"
 #include "yaml_json.h"
@@ -555,28 +556,7 @@ std::string skeleton_yaml(const Map& m, const std::string& id, uint8_t unit) {
   return y;
 }
 
-void adapt_cases(std::vector<Case>& cases, const Map& map, bool allow_writes) {
-  for (auto& c : cases) {
-    bool writing = std::any_of(c.steps.begin(), c.steps.end(), [](const Step& st) { return writes(st.pdu); });
-    if (writing && !allow_writes && !map.access_known() && c.skip_reason.empty())
-      c.skip_reason = "writes on a map whose access is not stated (a probe cannot tell what is writable): needs --allow-writes";
-    c.functions_optional = !(c.family == "function-codes" && c.id.ends_with("/unsupported"));
-    if (c.family == "function-codes" && c.id.ends_with("/unsupported"))
-      for (auto& st : c.steps) {
-        st.expect.kind = Expect::Kind::answered;
-        st.expect.text = "a reply, normal or exception: the server chooses which public function codes it implements (MBAP v1.1b3 §5.1)";
-        c.requirement = "A server answers every request it receives: with a normal reply, or with an exception (MBAP v1.1b3 §7).";
-      }
-  }
-}
-
-bool writes(const Bytes& pdu) {
-  if (pdu.empty()) return false;
-  switch (pdu[0]) {
-    case 5: case 6: case 15: case 16: case 22: case 23: return true;
-    default: return false;
-  }
-}
+OnMap terms(const Map& map, bool allow_writes) { return OnMap{map.access_known(), allow_writes}; }
 
 namespace {
 
@@ -595,7 +575,7 @@ bool example_inside(const spec::Example& ex, const Map& m) {
   auto parsed = parse_hex(ex.resolved_request.value_or(ex.request));
   if (!parsed || parsed->size() < 4) return false;
   const Bytes& adu = *parsed;
-  Bytes pdu(adu.begin() + 1, adu.end() - 2);
+  Bytes pdu = rtu_unframe(adu).pdu;
   if (pdu.size() < 5) return false;
   auto be = [&](size_t at) { return uint32_t(pdu[at] << 8 | pdu[at + 1]); };
   // The most addresses one request can touch in a table: its read's limit.

@@ -115,15 +115,8 @@ const char* table_name(spec::Table);
 // unspecified or marked as a placeholder to state from the manual.
 std::string skeleton_yaml(const Map& map, const std::string& device_id, uint8_t unit);
 
-// What a map cannot tell, applied to the cases generated on it:
-//  - the cases that write are skipped unless `allow_writes` or the map states
-//    every block's access (a probe cannot tell what is writable);
-//  - which public function codes the server implements is its own choice
-//    (MBAP v1.1b3 §5.1), so a code the spec's device leaves out
-//    ("<fc>/unsupported") expects a reply, normal or exception, not exception 01.
-void adapt_cases(std::vector<Case>& cases, const Map& map, bool allow_writes);
-
-// Whether a request PDU writes (FC 05, 06, 15, 16, 22, 23).
-bool writes(const Bytes& pdu);
+// What a map cannot tell is an input to generating the cases on it
+// (GenContext::map, cases/case.h): the terms for this map.
+OnMap terms(const Map& map, bool allow_writes);
 
 }  // namespace mbc::conf::map

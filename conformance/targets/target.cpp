@@ -6,6 +6,7 @@
 #include <stdexcept>
 
 #include "modbus/crc16.h"
+#include "modbus/rtu.h"
 #include "modbus/limits.h"
 #include "targets/kinds.h"
 
@@ -96,25 +97,11 @@ void decode_rtu_reply(Reply& r, uint8_t slave) {
   r.pdu.reset();
   r.framing_error.clear();
   if (r.frame.empty()) return;
-  if (r.frame.size() < 4) {
-    r.framing_error = fmt::format("reply of {} bytes is shorter than the 4 of an RTU frame", r.frame.size());
-    return;
-  }
-  if (r.frame.size() > kMaxRtuAdu) {
-    r.framing_error = fmt::format("reply of {} bytes exceeds the {} of MB-SL v1.02 §2.5.1.1", r.frame.size(), kMaxRtuAdu);
-    return;
-  }
-  if (!crc_ok(r.frame)) {
-    uint16_t want = crc16(std::span(r.frame).first(r.frame.size() - 2));
-    r.framing_error = fmt::format("reply CRC {:02X} {:02X}, correct is {:02X} {:02X}", r.frame[r.frame.size() - 2],
-                                  r.frame.back(), want & 0xFF, want >> 8);
-    return;
-  }
-  if (r.frame[0] != slave) {
-    r.framing_error = fmt::format("reply from slave {}, request went to {}", r.frame[0], slave);
-    return;
-  }
-  r.pdu = Bytes(r.frame.begin() + 1, r.frame.end() - 2);
+  // Address, PDU, CRC (MB-SL v1.02 §2.5.1): modbus/rtu.h unframes it.
+  Unframed u = rtu_unframe(r.frame);
+  if (!u.ok()) r.framing_error = "reply: " + u.error;
+  else if (u.unit != slave) r.framing_error = fmt::format("reply from slave {}, request went to {}", u.unit, slave);
+  else r.pdu = std::move(u.pdu);
 }
 
 }  // namespace mbc::conf

@@ -46,6 +46,7 @@ struct Reply {
   std::optional<Bytes> pdu;
   std::string framing_error;
   std::chrono::microseconds latency{0};  // request sent -> last byte received (or timeout)
+  bool closed = false;  // the peer closed the connection instead of answering (TCP kinds)
   bool silent() const { return frame.empty(); }
 };
 

@@ -228,6 +228,7 @@ class TcpTarget final : public Target {
     in_.clear();
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (rr.closed) {
+      r.closed = r.frame.empty();
       modbus_close(ctx_);
       connected_ = false;
     }
@@ -256,20 +257,13 @@ class TcpTarget final : public Target {
   // protocol id is 0, the length counts the unit id and the PDU.
   static void judge_mbap(Reply& r, const std::optional<Mbap>& sent) {
     if (r.frame.empty()) return;
-    auto h = parse_mbap(r.frame);
-    if (!h) {
-      r.framing_error = fmt::format("reply of {} bytes is shorter than the 7-byte MBAP header", r.frame.size());
-    } else if (h->protocol != 0) {
-      r.framing_error = fmt::format("reply protocol id {}, Modbus is 0", h->protocol);
-    } else if (!h->length_ok() || h->adu_size() != r.frame.size()) {
-      r.framing_error = fmt::format("reply MBAP length {} but {} bytes follow it", h->length, r.frame.size() - 6);
-    } else if (sent && h->transaction != sent->transaction) {
-      r.framing_error = fmt::format("reply transaction id {}, request was {}", h->transaction, sent->transaction);
-    } else if (sent && h->unit != sent->unit) {
-      r.framing_error = fmt::format("reply unit id {}, request went to {}", h->unit, sent->unit);
-    } else {
-      r.pdu = Bytes(r.frame.begin() + kMbapHeader, r.frame.end());
-    }
+    Unframed u = mbap_unframe(r.frame);  // header whole, protocol 0, length right (modbus/mbap.h)
+    if (!u.ok()) r.framing_error = "reply: " + u.error;
+    else if (sent && u.transaction != sent->transaction)
+      r.framing_error = fmt::format("reply transaction id {}, request was {}", u.transaction, sent->transaction);
+    else if (sent && u.unit != sent->unit)
+      r.framing_error = fmt::format("reply unit id {}, request went to {}", u.unit, sent->unit);
+    else r.pdu = std::move(u.pdu);
   }
 
   TargetInfo info_;

@@ -8,7 +8,7 @@
 // Fuzzing goes on until --duration runs out. Each distinct finding (its kind
 // and the function code it came on) is reduced by delta debugging on fresh
 // targets to a minimal sequence of frames and saved once, as a frame script
-// (conformance/script/README.md) in DIR, with the command that replays it.
+// (conformance/check/README.md) in DIR, with the command that replays it.
 // Findings whose kind (or signature, "KIND fcNN") a quirks file declares
 // (--quirks, conformance/README.md) are left aside and counted.
 // Exit 0: nothing found; 1: a finding; 2: could not run.
@@ -61,7 +61,7 @@ fs::path save(const fs::path& dir, const conf::blackbox::Plan& plan, const conf:
     if (!fs::exists(file)) break;
   }
   std::string replay = fmt::format("mbconform replay {} --target '{}'", file.string(), uri);
-  std::ofstream(file) << conf::script::format(conf::blackbox::reproducer(plan, r, replay));
+  std::ofstream(file) << conf::check::format(conf::blackbox::reproducer(plan, r, replay));
   return file;
 }
 

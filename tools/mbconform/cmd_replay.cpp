@@ -1,10 +1,13 @@
 // mbconform replay: any frame script (a case plan, a property counterexample
-// or regression, a fuzz reproducer; conformance/script/README.md) against
+// or regression, a fuzz reproducer; conformance/check/README.md) against
 // any target.
 //
 //   mbconform replay FILE [--target URI] [--device ID | --spec FILE]
 //
-// Exit 0: every expectation met; 1: one was not (the line is named);
+// Steps without a case stop at the first miss (its line is named); cases (a
+// plan from `run --plan`) run the way `run` runs them: every case judged,
+// OBSERVED and SHOULD outcomes recorded as such, one line of counts.
+// Exit 0: every expectation met (cases: no MUST case failed); 1: one was not;
 // 2: the script cannot run there (raw bytes of another framing, a clock or a
 // power cycle on a live target, an unreadable file, a target that cannot be opened).
 #include <fmt/core.h>
@@ -12,8 +15,10 @@
 #include "commands.h"
 #include "loader.h"
 #include "options.h"
+#include "check/text.h"
+#include "loader.h"
 #include "report/report.h"
-#include "script/script.h"
+#include "runner/runner.h"
 #include "session/session.h"
 #include "session/signals.h"
 #include "targets/target.h"
@@ -21,10 +26,10 @@
 namespace mbc::cli {
 
 int replay_file(const std::string& file, const std::string& uri_in, const TargetOptions& o, const char* command) {
-  conf::script::Script sc;
+  conf::check::Script sc;
   try {
     check_readable(file, kMaxTextFileBytes, "frame script");
-    sc = conf::script::parse_file(file);
+    sc = conf::check::parse_file(file);
   } catch (const std::exception& e) {
     fmt::print(stderr, "{}\n", e.what());
     return kExitUsage;
@@ -41,7 +46,7 @@ int replay_file(const std::string& file, const std::string& uri_in, const Target
   // it moves the virtual clock and costs nothing.
   if (!o.allow_long_waits && uri.rfind("ref:", 0) != 0)
     for (const auto& st : sc.steps)
-      if (st.kind == conf::script::Step::Kind::wait && st.us > uint64_t(kMaxWaitSeconds) * 1'000'000) {
+      if (st.kind == conf::check::Step::Kind::wait && st.us > uint64_t(kMaxWaitSeconds) * 1'000'000) {
         fmt::print(stderr, "mbconform {}: error: {}:{}: wait {} s is longer than {} s: --allow-long-waits\n", command, file,
                    st.line, st.us / 1'000'000, kMaxWaitSeconds);
         return kExitUsage;
@@ -70,20 +75,35 @@ int replay_file(const std::string& file, const std::string& uri_in, const Target
     fmt::print(stderr, "mbconform {}: error: {}\n", command, why);
     return kExitUsage;
   }
-  auto r = conf::script::replay(session.target(), sc, opened.spec.get());
+  // Through the session (a Link): its gate, its journal, its restore.
+  auto r = conf::replay(session, sc, opened.spec.get());
   restore_and_say(session, command);
+  using Outcome = conf::ReplayResult::Outcome;
   if (auto stop = session.stopped()) {
     fmt::print("{} on {}: INCOMPLETE: {} at line {}\n", file, uri, *stop, r.line);
     return kExitUsage;
   }
+  if (r.outcome != Outcome::cannot_run && r.line == 0 && !sc.cases.empty()) {
+    // Cases: one line of counts, a line per failed case (as `run` counts them).
+    auto n = conf::count(r.run);
+    for (const auto& c : r.run.cases)
+      if (c.outcome == conf::Outcome::fail || c.outcome == conf::Outcome::error)
+        fmt::print("{} {} [{}] {}: {}\n", c.outcome == conf::Outcome::fail ? "FAIL" : "ERROR", c.id, conf::to_string(c.level),
+                   c.clause, c.message);
+    fmt::print("{} on {}: {} cases: {} pass, {} fail, {} observed, {} skip{}{}\n", file, uri, r.run.cases.size(), n.pass,
+               n.fail, n.observed, n.skip, n.error ? fmt::format(", {} error", n.error) : "",
+               sc.steps.empty() ? "" : fmt::format(" (and {} steps before the first case, every expectation met)", sc.steps.size()));
+    if (!r.run.error.empty()) fmt::print(stderr, "mbconform {}: {}\n", command, r.run.error);
+    return n.must_failed > 0 ? kExitFailed : kExitOk;
+  }
   switch (r.outcome) {
-    case conf::script::ReplayResult::Outcome::met:
+    case Outcome::met:
       fmt::print("{} on {}: {} steps, every expectation met\n", file, uri, sc.steps.size());
       return kExitOk;
-    case conf::script::ReplayResult::Outcome::failed:
+    case Outcome::failed:
       fmt::print("{}:{}: not met on {}: {}\n", file, r.line, uri, r.message);
       return kExitFailed;
-    case conf::script::ReplayResult::Outcome::cannot_run:
+    case Outcome::cannot_run:
       fmt::print(stderr, "mbconform {}: error: {}:{}: cannot run on {}: {}\n", command, file, r.line, uri, r.message);
       return kExitUsage;
   }
@@ -94,7 +114,7 @@ void add_replay_command(CLI::App& app, int& exit_code) {
   auto file = std::make_shared<std::string>();
   auto o = std::make_shared<TargetOptions>();
   auto* cmd = app.add_subcommand("replay", "Replay a frame script (plan, counterexample, regression, reproducer) against a target");
-  cmd->add_option("FILE", *file, "a frame script (conformance/script/README.md)")->required();
+  cmd->add_option("FILE", *file, "a frame script (conformance/check/README.md)")->required();
   cmd->add_option_function<std::string>("--target", [o](const std::string& t) { o->targets = {t}; },
                                         "target URI (default: ref: of the script's device)");
   cmd->add_option("--device", o->device, "ID: the spec of the target (default: the script's device)");

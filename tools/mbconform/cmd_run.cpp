@@ -29,7 +29,7 @@
 #include "quirks/quirks.h"
 #include "report/report.h"
 #include "runner/runner.h"
-#include "script/script.h"
+#include "check/text.h"
 #include "safety/safety.h"
 #include "security/security.h"
 #include "session/session.h"
@@ -53,11 +53,31 @@ struct RunArgs {
   std::string deadline;  // --deadline: the whole run's time
 };
 
-// Which case ids --filter selects, in time linear in the id (RE2; a glob is
-// translated to RE2 too): 're:REGEX' or a pattern with regex syntax
-// (^ $ ( ) | [ ] \ { }) is an RE2 regex searched in the id; one with * or ?
-// is a glob over the whole id ('*' crosses '/'); anything else is a literal
-// substring ("max+1" is literal). Throws std::invalid_argument with one line.
+// What --filter selects (conf::select_cases: literal unless it holds '*'
+// or '?', a glob over the whole id, '*' crossing '/'; or "re:REGEX", searched
+// in the id), matched with RE2 in time linear in the id whatever the
+// pattern. Throws std::invalid_argument with one line.
+conf::Matcher re2_matcher(const std::string& text, bool glob) {
+  std::string pattern;
+  if (glob) {
+    pattern = "^";
+    for (char c : text) pattern += c == '*' ? ".*" : c == '?' ? "." : RE2::QuoteMeta(std::string(1, c));
+    pattern += "$";
+  } else {
+    pattern = text;
+  }
+  RE2::Options o;
+  o.set_log_errors(false);
+  o.set_max_mem(8 << 20);
+  auto re = std::make_shared<RE2>(pattern, o);
+  if (!re->ok()) throw std::invalid_argument(fmt::format("--filter '{}': not a pattern RE2 takes: {}",
+                                                         text.size() > 60 ? text.substr(0, 60) + "..." : text, re->error()));
+  return [re](const std::string& id) { return RE2::PartialMatch(id, *re); };
+}
+std::function<conf::Matcher(const std::string&)> pattern_for(const std::string& filter) {
+  bool regex = filter.rfind("re:", 0) == 0;
+  return [regex](const std::string& text) { return re2_matcher(text, !regex); };
+}
 std::function<bool(const std::string&)> make_filter(const std::string& f) {
   if (f.empty()) return [](const std::string&) { return true; };
   std::string pattern;
@@ -89,7 +109,7 @@ conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   i.kind = u.scheme == "mbtls" ? "tls" : u.scheme;
   i.framing = u.scheme == "tcp" || u.scheme == "mbtls" ? conf::Framing::mbap : conf::Framing::rtu;
   i.live = u.scheme != "ref" && u.scheme != "plugin";
-  i.raw = u.scheme != "tcp";
+  i.raw = true;  // every kind sends raw frames in its own framing (tcp: raw MBAP), as the opened target says
   i.unit = uint8_t(std::stoi(u.param("unit").value_or(std::to_string(s.serial.slave_default.value_or(1)))));
   if (auto b = u.param("baud")) i.baud = std::stoi(*b);
   else if (u.scheme == "ref") i.baud = s.serial.baud_default;
@@ -141,7 +161,17 @@ int run(RunArgs& a) {
 
   std::function<bool(const std::string&)> keep;
   try {
-    keep = make_filter(a.filter);
+    keep = [](const std::string&) { return true; };
+    if (!a.filter.empty()) {
+      // The same selection as select_cases, for ids no generator makes (the TLS checks).
+      auto pattern = pattern_for(a.filter);
+      keep = [filter = a.filter, pattern](const std::string& id) {
+        conf::Case c;
+        c.id = id;
+        return !conf::select_cases({c}, filter, pattern).empty();
+      };
+      (void)keep("");  // a pattern RE2 does not take fails here, before anything is opened
+    }
   } catch (const std::exception& e) {
     fmt::print(stderr, "mbconform run: error: {}\n", e.what());
     return kExitUsage;
@@ -227,12 +257,10 @@ int run(RunArgs& a) {
     }
     if (map && (a.map != "auto" || target)) s = conf::map::apply(s, *map);
 
-    conf::GenContext g{s, info, a.t.policy, standard ? &*standard : nullptr};
+    conf::GenContext g{s, info, a.t.policy, standard ? &*standard : nullptr, std::nullopt};
+    if (map) g.map = conf::map::terms(*map, a.t.allow_writes);
     std::vector<conf::Case> cases;
-    for (auto& c : conf::all_cases(g))
-      if (keep(c.id)) cases.push_back(std::move(c));
-
-    if (map) conf::map::adapt_cases(cases, *map, a.t.allow_writes);
+    cases = conf::select_cases(conf::all_cases(g), a.filter, pattern_for(a.filter));
     bool security_kept = false;  // an mbtls:// target also runs conformance/security/'s checks
     if (info.kind == "tls")
       for (const auto& n : conf::security::check_names()) security_kept = security_kept || keep(s.device.id + "/security/" + n);
@@ -249,15 +277,14 @@ int run(RunArgs& a) {
       continue;
     }
     if (a.plan) {
-      // A frame script (conformance/script/README.md): `mbconform replay` runs it.
-      if (&uri == &targets.front()) fmt::print("{}\n", conf::script::kHeader);
+      // A frame script (conformance/check/README.md): `mbconform replay` runs it.
+      if (&uri == &targets.front()) fmt::print("{}\n", conf::check::kHeader);
       fmt::print("#\n# {}: {} cases, unit {}, {}\ndevice {}\n", info.uri, cases.size(), info.unit,
                  info.framing == conf::Framing::rtu ? "RTU frames" : "MBAP frames (transaction id * : the target numbers its own)",
                  s.device.id);
       for (const auto& c : cases) {
-        fmt::print("#\n# {}  [{}] {}\n", c.id, conf::to_string(c.level), c.clause);
-        if (!c.skip_reason.empty()) fmt::print("# (skip: {})\n", c.skip_reason);
-        for (const auto& l : conf::plan_lines(c, info)) fmt::print("{}\n", l);
+        fmt::print("#\n");
+        for (const auto& l : conf::check::case_lines(c, info.framing)) fmt::print("{}\n", l);
       }
       for (const auto& b : conf::cases::planned_broadcast_writes(cases)) fmt::print("# every drive on the line receives: {}\n", b);
       continue;
@@ -289,7 +316,7 @@ int run(RunArgs& a) {
       fmt::print(stderr, "mbconform run: error: {}\n", why);
       return kExitUsage;
     }
-    conf::DeviceRun dr = conf::run_cases(*target, s, cases, opt);
+    conf::DeviceRun dr = conf::run_cases(*session, s, cases, opt);
     // Modbus/TCP Security: what the server does around the TLS handshake
     // (conformance/security/), beside the standard cases run inside TLS.
     if (info.kind == "tls" && !conf::stop_requested())
@@ -354,8 +381,8 @@ void add_run_command(CLI::App& app, int& exit_code) {
   auto* cmd = app.add_subcommand("run", "Run the conformance cases generated from a spec against targets; write reports");
   add_target_options(*cmd, a->t, true, "DIR: report directory (default reports/run/<UTC date-time>/)");
   cmd->add_flag("--list", a->list, "print the cases (id, level, clause, title) and exit");
-  cmd->add_option("--filter", a->filter, "select cases by id: a substring (literal), a glob ('*/registers/*'), or an RE2 regex ('re:fc0[36]/gap$'; also any "
-                  "pattern with ^$()|[]{}\\)");
+  cmd->add_option("--filter", a->filter, "select cases by id: a part of the id, taken literally ('fc15/quantity-limit+1'); "
+                  "a glob ('*/registers/*'); or a regex after 're:' ('re:fc1[56]/')");
   cmd->add_flag("--plan", a->plan, "print every frame the cases would send, without sending anything");
   cmd->add_option("--summary", a->summary_dir, "also write the stable summary.md and summary.json into this directory");
   cmd->add_option("--map", a->map,

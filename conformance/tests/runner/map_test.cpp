@@ -26,10 +26,9 @@ std::vector<Case> cases_on(const map::Map& m) {
   static const spec::Spec applied_base = standard();
   spec::Spec s = map::apply(applied_base, m);
   auto t = open_target("ref:modbus-standard");
-  GenContext g{s, t->info(), {}, &standard()};
-  auto cases = all_cases(g);
-  map::adapt_cases(cases, m, false);
-  return cases;
+  GenContext g{s, t->info(), {}, &standard(), std::nullopt};
+  g.map = map::terms(m, false);
+  return all_cases(g);
 }
 
 bool has(const std::vector<Case>& cs, const std::string& suffix) {

@@ -27,7 +27,7 @@ const spec::Spec& standard() {
 }
 
 std::vector<Case> cases_for(const spec::Spec& s, const TargetInfo& info) {
-  GenContext g{s, info, {}, &standard()};
+  GenContext g{s, info, {}, &standard(), std::nullopt};
   return all_cases(g);
 }
 

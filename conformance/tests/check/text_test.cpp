@@ -1,13 +1,18 @@
-// The frame-script format (conformance/script/README.md): reading, writing,
+// The text form of checks, the frame script (conformance/check/README.md): reading, writing,
 // the errors a malformed file gets, where a script can run, and replaying it
 // on reference devices, correct and deliberately broken.
 #include <gtest/gtest.h>
 
 #include "loader.h"
-#include "script/script.h"
+#include "check/text.h"
+#include "runner/runner.h"
+#include "session/link.h"
 #include "targets/target.h"
 
-namespace mbc::conf::script {
+namespace mbc::conf::check {
+using conf::replay;
+using conf::ReplayResult;
+using conf::unsupported;
 namespace {
 
 std::string error_of(const std::string& text) {
@@ -64,7 +69,7 @@ TEST(ScriptFormat, ReadsEveryKindOfLine) {
 }
 
 TEST(ScriptFormat, MalformedLinesNameFileLineColumnAndRule) {
-  EXPECT_EQ(error_of("mbconform-script 2\n").rfind("t.txt:1:1: error: header:", 0), 0u);
+  EXPECT_EQ(error_of("mbconform-script 3\n").rfind("t.txt:1:1: error: header:", 0), 0u);
   EXPECT_EQ(error_of("").rfind("t.txt:1:1: error: header:", 0), 0u);
   // The CRC of 01 03 00 00 00 01 is 84 0A (MB-SL v1.02 Appendix B).
   EXPECT_EQ(error_of("mbconform-script 1\n\nrtu 01 03 00 00 00 01 84 0B\n").rfind("t.txt:3:1: error: crc:", 0), 0u);
@@ -81,7 +86,7 @@ TEST(ScriptFormat, MalformedLinesNameFileLineColumnAndRule) {
 TEST(ScriptFormat, FramesPrintInTheFramingSent) {
   Bytes pdu{0x03, 0x00, 0x20, 0x00, 0x01};
   EXPECT_EQ(line(frame(Framing::rtu, 1, pdu)), "rtu 01 03 00 20 00 01 85 C0");
-  EXPECT_EQ(line(frame(Framing::mbap, 1, pdu, Expect{Expect::Kind::silence, {}, 0})), "mbap * 00 00 00 06 01 03 00 20 00 01  -> silence");
+  EXPECT_EQ(line(frame(Framing::mbap, 1, pdu, Expect{.kind = Expect::Kind::silence})), "mbap * 00 00 00 06 01 03 00 20 00 01  -> silence");
   Step known = frame(Framing::mbap, 1, pdu);
   known.tid = 0x0102;
   EXPECT_EQ(line(known), "mbap 01 02 00 00 00 06 01 03 00 20 00 01");
@@ -119,17 +124,20 @@ TEST(ScriptReplay, MetOnTheCorrectDeviceNotOnTheBrokenOne) {
       "t.txt");
   spec::Spec spec = spec::load_spec_by_id("hsc60");
   auto good = open_target("ref:hsc60");
-  auto r = replay(*good, s, &spec);
+  DirectLink good_link(*good);
+  auto r = replay(good_link, s, &spec);
   EXPECT_EQ(r.outcome, ReplayResult::Outcome::met) << r.line << ": " << r.message;
   auto broken = open_target("ref:hsc60?fault=lost-write");
-  r = replay(*broken, s, &spec);
+  DirectLink broken_link(*broken);
+  r = replay(broken_link, s, &spec);
   EXPECT_EQ(r.outcome, ReplayResult::Outcome::failed);
   EXPECT_EQ(r.line, 4);
   auto crc = open_target("ref:hsc60?fault=accept-bad-crc");
-  r = replay(*crc, s, &spec);
+  DirectLink crc_link(*crc);
+  r = replay(crc_link, s, &spec);
   EXPECT_EQ(r.outcome, ReplayResult::Outcome::failed);
   EXPECT_EQ(r.line, 5);
 }
 
 }  // namespace
-}  // namespace mbc::conf::script
+}  // namespace mbc::conf::check
