@@ -77,6 +77,9 @@ class HostProcess {
     if (pipe2(req, O_CLOEXEC) != 0 || pipe2(resp, O_CLOEXEC) != 0)
       throw std::runtime_error(fmt::format("pipe: {}", std::strerror(errno)));
     std::string exe = host_path();
+    // A host that died between two requests closes the pipe: the next write
+    // must fail with EPIPE (a fault, named) rather than end mbconform by SIGPIPE.
+    ::signal(SIGPIPE, SIG_IGN);
     pid_t parent = getpid();
     pid_ = fork();
     if (pid_ < 0) throw std::runtime_error(fmt::format("fork: {}", std::strerror(errno)));
