@@ -20,11 +20,15 @@
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "loader.h"
+#include "check/check.h"
 #include "runner/runner.h"
 #include "targets/target.h"
 
 namespace mbc::conf {
 namespace {
+
+using check::Expect;
+using check::Step;
 
 using namespace std::chrono_literals;
 
