@@ -17,7 +17,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace mbc;
   static fuzz::LibmodbusServer server(1);
   if (size < 2) return 0;
-  Bytes adu{(data[0] & fuzz::kBroadcast) ? uint8_t(0) : uint8_t(1)};
+  Bytes adu;  // reserve + push_back: see differential_fuzzer.cc (gcc 12 -Warray-bounds)
+  adu.reserve(size + kRtuCrc);
+  adu.push_back((data[0] & fuzz::kBroadcast) ? uint8_t(0) : uint8_t(1));
   adu.insert(adu.end(), data + 1, data + size);
   Bytes probe = adu;
   if (probe.size() < 12) probe.resize(12, 0);
