@@ -140,8 +140,9 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
     spec::PolicyEntry p = facts::policy(e.relies, g.spec, *ex.exercises);
     for (const auto& r : p.readings) {
       bool same = (r.kind == spec::PolicyEntry::Kind::silent && e.kind == Expect::Kind::silence) ||
-                  (r.kind == spec::PolicyEntry::Kind::exception && e.kind == Expect::Kind::exact && e.pdu.size() == 2 &&
-                   (e.pdu[0] & 0x80) && e.pdu[1] == r.code);
+                  (r.kind == spec::PolicyEntry::Kind::exception && e.kind == Expect::Kind::reply && e.pdu.size() == 2 &&
+                   (e.pdu[0] & 0x80) && e.pdu[1] == r.code) ||
+                  (r.kind == spec::PolicyEntry::Kind::exception && e.kind == Expect::Kind::exception && e.code == r.code);
       if (same || r.kind == spec::PolicyEntry::Kind::unspecified) continue;
       if (e.reading.empty()) e.reading = e.text;
       Expect alt = r.kind == spec::PolicyEntry::Kind::silent
