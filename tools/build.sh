@@ -15,11 +15,10 @@ build() {
     -DMBCONFORM_WERROR="${MBCONFORM_WERROR:-OFF}" "$@" &&
     cmake --build "$BUILD_DIR" -j "$(nproc)"
 }
+rc=0
 if [ "${MBCONFORM_VERBOSE:-0}" = 1 ]; then
-  build "$@" 2>&1 | tee "$log"
-  rc=${PIPESTATUS[0]}
+  build "$@" 2>&1 | tee "$log" || rc=$?  # pipefail: the build's status
 else
-  rc=0
   build "$@" >"$log" 2>&1 || rc=$?
 fi
 if [ "$rc" != 0 ]; then
@@ -28,4 +27,6 @@ if [ "$rc" != 0 ]; then
   exit "$rc"
 fi
 warnings=$(grep -c 'warning:' "$log" || true)
-echo "build: $BUILD_DIR ok in $((SECONDS - start)) s${warnings:+$([ "$warnings" != 0 ] && echo ", $warnings compiler warning(s): see $log")}"
+note=""
+if [ "$warnings" != 0 ]; then note=", $warnings warning line(s): see $log"; fi
+echo "build: $BUILD_DIR ok in $((SECONDS - start)) s$note"
