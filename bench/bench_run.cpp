@@ -126,9 +126,9 @@ void bench_peers(const std::string& exe, const mbc::spec::Spec& standard) {
       auto map = mbc::conf::map::probe(*target);
       double probe_s = since(t0);
       auto spec = mbc::conf::map::apply(standard, map);
-      mbc::conf::GenContext g{spec, target->info(), {}, &standard};
+      mbc::conf::GenContext g{spec, target->info(), {}, &standard, std::nullopt};
+      g.map = mbc::conf::map::terms(map, true);
       auto cases = mbc::conf::all_cases(g);
-      mbc::conf::map::adapt_cases(cases, map, true);
       auto t1 = std::chrono::steady_clock::now();
       auto run = mbc::conf::run_cases(*target, spec, cases);
       double run_s = since(t1), total = probe_s + run_s;
@@ -173,7 +173,7 @@ int main(int argc, char** argv) {
       Child serve({exe, "serve", "--device", id + "@1", "--pty", pty, "--line-rate", rate, "--baud", rate}, "listening pty");
       auto spec = mbc::spec::load_spec_by_id(id);
       auto target = mbc::conf::open_target(fmt::format("rtu://{}?baud={}&unit=1", pty, baud));
-      mbc::conf::GenContext g{spec, target->info(), {}, &standard};
+      mbc::conf::GenContext g{spec, target->info(), {}, &standard, std::nullopt};
       auto cases = mbc::conf::all_cases(g);
       auto run = mbc::conf::run_cases(*target, spec, cases);
       double ratio = run.wire_time_bound_seconds > 0 ? run.wall_seconds / run.wire_time_bound_seconds : 0;

@@ -7,11 +7,20 @@
 //      fed its seed corpus and deterministic one-byte mutations of it. The
 //      harness bodies are the ones in fuzz/, compiled in under other names
 //      (fuzz/CMakeLists.txt), so this runs in any build, gcc included.
-//   2. with --fuzzers DIR (the bin/ of a -DMBCONFORM_FUZZ=ON build): every
+//   3. with --fuzzers DIR (the bin/ of a -DMBCONFORM_FUZZ=ON build): every
 //      libFuzzer binary run for a fixed -runs=N from its seeds, its exec/s
 //      and the edges it reached ("cov:" in libFuzzer's last status line).
 //
+//   2. with --mbconform BIN (default build/bin/mbconform when it exists): the
+//      black-box `mbconform fuzz` against `mbconform serve`, frames per
+//      second over TCP loopback pipelined (--pipeline 16) beside one exchange
+//      at a time (--pipeline 1), and on a pty at 115200 baud (serve
+//      --line-rate) its wall time against the wire-time bound of the frames
+//      it sent. Targets: >= 1000 frames/s over TCP; <= 1.2x the bound on the pty.
+//
 // Usage (from the source root): build/bin/mbc_fuzz_bench [--seconds S] [--fuzzers build-fuzz/bin] [--runs N]
+//                               [--mbconform BIN] [--device ID]
+#include <signal.h>
 #include <sys/wait.h>
 
 #include <unistd.h>
@@ -131,20 +140,94 @@ FuzzerRun run_fuzzer(const fs::path& bin, const fs::path& seeds, const fs::path&
   return r;
 }
 
+// `mbconform serve --device ID <endpoint...>` in the background; stopped with SIGTERM.
+struct Serve {
+  pid_t pid = -1;
+  std::string listening;  // the address of its first "listening" line
+  Serve(const std::string& exe, std::vector<std::string> args) {
+    int p[2];
+    if (pipe(p) != 0) return;
+    pid = fork();
+    if (pid == 0) {
+      dup2(p[1], 1);
+      close(p[0]);
+      close(p[1]);
+      std::vector<char*> argv{const_cast<char*>(exe.c_str()), const_cast<char*>("serve")};
+      for (auto& a : args) argv.push_back(a.data());
+      argv.push_back(nullptr);
+      execv(exe.c_str(), argv.data());
+      _exit(127);
+    }
+    close(p[1]);
+    FILE* f = fdopen(p[0], "r");
+    char line[512];
+    if (fgets(line, sizeof line, f)) {
+      std::string l = line;
+      auto sp = l.rfind(' ');
+      if (l.rfind("listening ", 0) == 0 && sp != std::string::npos) listening = l.substr(sp + 1, l.find_last_not_of("\r\n") - sp);
+    }
+    fclose(f);
+  }
+  ~Serve() {
+    if (pid > 0) {
+      kill(pid, SIGTERM);
+      waitpid(pid, nullptr, 0);
+    }
+  }
+};
+
+// Runs a shell command and returns its stdout.
+std::string capture(const std::string& cmd) {
+  std::string out;
+  FILE* p = popen(cmd.c_str(), "r");
+  if (!p) return out;
+  char buf[4096];
+  for (size_t n; (n = std::fread(buf, 1, sizeof buf, p)) > 0;) out.append(buf, n);
+  pclose(p);
+  return out;
+}
+
+struct FuzzRun {
+  double frames_per_second = -1, wire_ratio = -1;
+  std::string summary;
+};
+
+FuzzRun black_box(const std::string& exe, const std::string& target, const std::string& device, double seconds, int pipeline) {
+  fs::path out = fs::temp_directory_path() / ("mbc_fuzz_bench_out" + std::to_string(getpid()));
+  fs::remove_all(out);
+  std::string cmd = exe + " fuzz --target '" + target + "' --device " + device + " --duration " +
+                    std::to_string(int(seconds * 1000)) + "ms --seed 1 --pipeline " + std::to_string(pipeline) + " --out " +
+                    out.string() + " 2>&1";
+  std::string text = capture(cmd);
+  fs::remove_all(out);
+  FuzzRun r;
+  std::smatch m;
+  if (std::regex_search(text, m, std::regex(R"(\((\d+) frames/s)"))) r.frames_per_second = std::stod(m[1]);
+  if (std::regex_search(text, m, std::regex(R"(baud: ([0-9.]+)x)"))) r.wire_ratio = std::stod(m[1]);
+  auto nl = text.find_last_of('\n', text.size() >= 2 ? text.size() - 2 : 0);
+  r.summary = text.substr(nl == std::string::npos ? 0 : nl + 1);
+  if (!r.summary.empty() && r.summary.back() == '\n') r.summary.pop_back();
+  return r;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   double seconds = 3;
   long runs = 20000;
   fs::path fuzzers;
+  std::string mbconform = fs::exists("build/bin/mbconform") ? "build/bin/mbconform" : "";
+  std::string fuzz_device = "hsc60";
   fs::path src = MBCONFORM_SOURCE_DIR;
   for (int i = 1; i < argc; ++i) {
     std::string a = argv[i];
     if (a == "--seconds" && i + 1 < argc) seconds = std::atof(argv[++i]);
     else if (a == "--runs" && i + 1 < argc) runs = std::atol(argv[++i]);
     else if (a == "--fuzzers" && i + 1 < argc) fuzzers = argv[++i];
+    else if (a == "--mbconform" && i + 1 < argc) mbconform = argv[++i];
+    else if (a == "--device" && i + 1 < argc) fuzz_device = argv[++i];
     else {
-      std::fprintf(stderr, "usage: mbc_fuzz_bench [--seconds S] [--fuzzers DIR] [--runs N]\n");
+      std::fprintf(stderr, "usage: mbc_fuzz_bench [--seconds S] [--fuzzers DIR] [--runs N] [--mbconform BIN] [--device ID]\n");
       return 2;
     }
   }
@@ -167,11 +250,38 @@ int main(int argc, char** argv) {
   frames /= double(session.size());
   std::printf("   %-34s %12.0f exec/s  %.2fx baseline  (%.0f frames per input: %.0f frames/s, %.2fx)\n",
               "session (frames + time + power)", ses, ses / base, frames, ses * frames, ses * frames / base);
-  if (fuzzers.empty()) {
-    std::printf("2. libFuzzer runs: skipped (give --fuzzers build-fuzz/bin)\n");
-    return 0;
+  int status = 0;
+  if (mbconform.empty()) {
+    std::printf("2. black-box fuzzer: skipped (give --mbconform build/bin/mbconform)\n");
+  } else {
+    double fuzz_seconds = std::max(seconds, 5.0);
+    std::printf("2. black-box `mbconform fuzz` against `mbconform serve --device %s`, %.0f s each, seed 1\n", fuzz_device.c_str(),
+                fuzz_seconds);
+    {
+      Serve serve(mbconform, {"--device", fuzz_device + "@1", "--tcp", "127.0.0.1:0"});
+      std::string uri = "tcp://" + serve.listening + "?unit=1";
+      FuzzRun seq = black_box(mbconform, uri, fuzz_device, fuzz_seconds, 1);
+      FuzzRun pip = black_box(mbconform, uri, fuzz_device, fuzz_seconds, 16);
+      std::printf("   %-34s %12.0f frames/s  (one exchange at a time)\n", "tcp loopback, --pipeline 1", seq.frames_per_second);
+      std::printf("   %-34s %12.0f frames/s  %.2fx  target >= 1000 frames/s: %s\n", "tcp loopback, --pipeline 16",
+                  pip.frames_per_second, seq.frames_per_second > 0 ? pip.frames_per_second / seq.frames_per_second : 0,
+                  pip.frames_per_second >= 1000 ? "met" : "NOT met");
+      if (pip.frames_per_second < 1000) std::printf("     %s\n", pip.summary.c_str());
+    }
+    {
+      fs::path pty = fs::temp_directory_path() / ("mbc_fuzz_bench_pty" + std::to_string(getpid()));
+      Serve serve(mbconform, {"--device", fuzz_device + "@1", "--pty", pty.string(), "--baud", "115200", "--line-rate", "115200"});
+      FuzzRun rtu = black_box(mbconform, "rtu://" + pty.string() + "?baud=115200&parity=N&unit=1", fuzz_device, fuzz_seconds, 1);
+      std::printf("   %-34s %12.0f frames/s  wall %.2fx the wire-time bound  target <= 1.2x: %s\n", "pty 115200 baud, line rate",
+                  rtu.frames_per_second, rtu.wire_ratio, rtu.wire_ratio > 0 && rtu.wire_ratio <= 1.2 ? "met" : "NOT met");
+      if (rtu.wire_ratio < 0) std::printf("     %s\n", rtu.summary.c_str());
+    }
   }
-  std::printf("2. libFuzzer, -runs=%ld -seed=1 from the seeds: edges (cov) and features (ft) reached;\n"
+  if (fuzzers.empty()) {
+    std::printf("3. libFuzzer runs: skipped (give --fuzzers build-fuzz/bin)\n");
+    return status;
+  }
+  std::printf("3. libFuzzer, -runs=%ld -seed=1 from the seeds: edges (cov) and features (ft) reached;\n"
               "   exec/s over the whole run's wall time, start-up and seed loading included\n", runs);
   const char* harnesses[] = {"libmodbus_reply", "device", "session", "differential", "rtu_frame", "reply_parser", "spec_loader"};
   double base_execs = -1;

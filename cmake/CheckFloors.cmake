@@ -4,6 +4,13 @@
 # modbus/ further includes nothing but modbus/ and the C++ standard library
 # (its tests may add gtest).
 #
+# Inside conformance/, each part includes only the parts listed for it
+# (README.md, "Architecture"): the checks (check/) sit on the Link
+# (session/) and the targets; the makers of checks (cases/, properties/,
+# blackbox/) sit on check/; the runner orders and re-runs checks and never
+# reaches back into a maker. tests/ may include any part.
+#   conformance/runner/runner.cpp:9: includes "cases/case.h": runner/ may not include cases/
+#
 #   cmake -DSOURCE_DIR=<repo> -P cmake/CheckFloors.cmake
 # Exit status 1 and one line per offending include:
 #   spec/loader/x.cpp:7: includes "engine/device.h" (reference/engine/device.h): spec/ may not include reference/
@@ -28,6 +35,23 @@ set(roots_conformance "${SOURCE_DIR}/conformance")
 set(roots_tools "${SOURCE_DIR}/tools")
 set(roots_fuzz "${SOURCE_DIR}/fuzz")
 set(roots_bench "${SOURCE_DIR}/bench")
+
+# conformance/<part>/ may include these parts (its own included).
+set(conf_parts targets report plugin session safety check cases map quirks blackbox properties runner client peers)
+set(conf_may_targets targets)
+set(conf_may_report report)
+set(conf_may_plugin plugin)
+set(conf_may_session session safety targets)
+set(conf_may_safety safety targets)
+set(conf_may_check check session targets report)
+set(conf_may_cases cases check safety targets report)
+set(conf_may_map map cases check safety targets report)
+set(conf_may_quirks quirks report)
+set(conf_may_blackbox blackbox check session safety targets report)
+set(conf_may_properties properties check session safety targets report)
+set(conf_may_runner runner check session targets report)
+set(conf_may_client client quirks report targets)
+set(conf_may_peers peers)
 
 # The floor a file under SOURCE_DIR belongs to, or "" outside the floors.
 function(floor_of path out)
@@ -102,6 +126,14 @@ foreach(floor IN LISTS floors)
         list(APPEND violations "${rel_src}:${n}: includes \"${inc}\" (${rel_found}): modbus/ includes only modbus/ and the C++ standard library")
       elseif(NOT target STREQUAL "" AND rank_${target} GREATER rank_${floor})
         list(APPEND violations "${rel_src}:${n}: includes \"${inc}\" (${rel_found}): ${floor}/ may not include ${target}/")
+      elseif(floor STREQUAL "conformance" AND target STREQUAL "conformance")
+        string(REGEX MATCH "^conformance/([^/]+)/" _ "${rel_src}")
+        set(from "${CMAKE_MATCH_1}")
+        string(REGEX MATCH "^conformance/([^/]+)/" _ "${rel_found}")
+        set(to "${CMAKE_MATCH_1}")
+        if(from IN_LIST conf_parts AND to IN_LIST conf_parts AND NOT to IN_LIST conf_may_${from})
+          list(APPEND violations "${rel_src}:${n}: includes \"${inc}\" (${rel_found}): ${from}/ may not include ${to}/")
+        endif()
       endif()
     endforeach()
   endforeach()
@@ -111,5 +143,5 @@ if(violations)
   list(LENGTH violations count)
   list(JOIN violations "\n" text)
   message("${text}")
-  message(FATAL_ERROR "${count} include(s) reach a higher floor (modbus/README.md)")
+  message(FATAL_ERROR "${count} include(s) reach a higher floor or a part they may not (modbus/README.md, README.md Architecture)")
 endif()

@@ -47,7 +47,7 @@ uint8_t default_slave(const spec::Spec& s) { return uint8_t(s.serial.slave_defau
 namespace {
 struct Pooled {
   std::unique_ptr<ref::Device> device;
-  std::map<uint16_t, uint16_t> factory_stored;  // the stored image right after factory_reset
+  uint64_t writes_after_reset = 0;  // eeprom_writes() right after factory_reset
 };
 }  // namespace
 
@@ -57,11 +57,15 @@ ref::Device& fresh_device(size_t spec_index, uint8_t slave_id) {
   if (!p.device) {
     p.device = std::make_unique<ref::Device>(specs()[spec_index], slave_id);
     p.device->factory_reset();
-    p.factory_stored = p.device->stored_image();
+    p.writes_after_reset = p.device->eeprom_writes();
   } else {
-    // Only a save command changes the stored image; restoring it is the
-    // factory reset's work, so skip that when nothing was saved.
-    if (p.device->stored_image() != p.factory_stored) p.device->factory_reset();
+    // Only a stored write changes the stored image, and each one counts in
+    // eeprom_writes(); restoring it is the factory reset's work, so skip that
+    // (and comparing the images) when nothing was stored.
+    if (p.device->eeprom_writes() != p.writes_after_reset) {
+      p.device->factory_reset();
+      p.writes_after_reset = p.device->eeprom_writes();
+    }
   }
   p.device->power_cycle();
   p.device->set_slave_id(slave_id);

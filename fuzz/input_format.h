@@ -16,7 +16,7 @@
 //
 // These inputs stay binary (they are what libFuzzer mutates). Frame sequences
 // for people (plans, counterexamples, the black-box fuzzer's reproducers) are
-// frame scripts: conformance/script/README.md.
+// frame scripts: conformance/check/README.md.
 #pragma once
 
 #include <cstddef>

@@ -62,6 +62,18 @@ const char* function_name(uint8_t code) {
 
 bool is_standard_function(uint8_t code) { return find(kFunctions, code) != nullptr; }
 
+bool is_write_function(uint8_t code) {
+  switch (code) {
+    case fc::write_single_coil:
+    case fc::write_single_register:
+    case fc::write_multiple_coils:
+    case fc::write_multiple_registers:
+    case fc::mask_write_register:
+    case fc::read_write_multiple_registers: return true;
+    default: return false;
+  }
+}
+
 const char* exception_name(uint8_t code) {
   const char* n = find(kExceptions, code);
   return n ? n : "non-standard";

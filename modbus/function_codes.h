@@ -51,6 +51,10 @@ inline constexpr uint8_t gateway_target_failed = 0x0B;
 const char* function_name(uint8_t code);
 // True when §6 defines `code`.
 bool is_standard_function(uint8_t code);
+// True when a request of `code` changes the data model: FC 05, 06, 15, 16,
+// 22, 23 (§6.5, §6.6, §6.11, §6.12, §6.16, §6.17). FC 21 writes file
+// records, outside the four tables.
+bool is_write_function(uint8_t code);
 // §7's name of exception `code`: "illegal data address"; "non-standard" otherwise.
 const char* exception_name(uint8_t code);
 

@@ -1,6 +1,11 @@
 #!/usr/bin/env python3
 """Converts frame files of the formats used before the frame script
-(conformance/script/README.md) into frame scripts, in place.
+(conformance/check/README.md) into frame scripts of version 2, in place.
+
+A frame script of version 1 (`mbconform-script 1`) is version 2 without
+cases, flags and readings: its header is rewritten and every line kept. Its
+plan comments (`# ID  [LEVEL] CLAUSE`, `# (skip: REASON)`, written by
+`run --plan` of version 1) become `case` blocks.
 
     tools/convert-frame-scripts.py [--mbconform build/bin/mbconform] FILE...
 
@@ -21,7 +26,8 @@ import subprocess
 import sys
 import tempfile
 
-HEADER = "mbconform-script 1"
+HEADER = "mbconform-script 2"
+HEADER_V1 = "mbconform-script 1"
 
 
 def crc16(data):
@@ -77,6 +83,24 @@ def convert(text):
     return "\n".join(out) + "\n"
 
 
+def from_v1(text):
+    """A version 1 script as version 2: the header, and a v1 plan's case
+    comments as `case` blocks (a skipped case's steps stay commented out)."""
+    import re
+    out = [HEADER]
+    case_comment = re.compile(r"^# (\S+)  \[(MUST|SHOULD|OBSERVED)\] (.*)$")
+    for line in text.splitlines()[1:]:
+        m = case_comment.match(line)
+        if m:
+            out.append("case %s %s %s" % m.groups())
+            continue
+        if line.startswith("# (skip: ") and line.endswith(")"):
+            out.append("skip " + line[len("# (skip: "):-1])
+            continue
+        out.append(line)
+    return "\n".join(out) + "\n"
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--mbconform", help="the mbconform binary: add the property model's expectations")
@@ -86,7 +110,12 @@ def main():
         with open(path, encoding="utf-8") as f:
             text = f.read()
         if text.startswith(HEADER + "\n"):
-            print(f"{path}: already a frame script")
+            print(f"{path}: already a frame script of version 2")
+            continue
+        if text.startswith(HEADER_V1 + "\n"):
+            with open(path, "w", encoding="utf-8") as f:
+                f.write(from_v1(text))
+            print(f"{path}: version 1 -> 2")
             continue
         new = convert(text)
         with open(path, "w", encoding="utf-8") as f:

@@ -27,8 +27,13 @@ packages=(
   clang libfuzzer-14-dev libclang-rt-14-dev
   socat mbpoll python3 python3-pymodbus python3-serial python3-serial-asyncio python3-yaml
   libjson-c-dev
+  libssl-dev openssl  # Modbus/TCP Security: serve --tls, mbtls://, the test PKI (Debian)
   golang-go golang-github-goburrow-modbus-dev  # the goburrow/modbus client adapter, built offline
   zip unzip
+  libpcap-dev tshark  # check-capture reads captures with libpcap; tshark is the tests' independent decoder (Debian)
+  chromium poppler-utils  # Debian: report.html rendered, printed to PDF and its pages counted (conformance/tests/report)
+  fonts-wqy-zenhei        # Debian: a CJK font, so the manuals' Chinese names render in the report
+  libre2-dev  # run --filter: a linear-time regex matcher (Debian)
 )
 # Node for the npm peers (conformance/peers: npm ci into the build tree).
 # Debian's nodejs and npm only where no node is installed: a node from
@@ -54,6 +59,8 @@ step() {  # step WHAT COMMAND...
   fi
 }
 if [ "${#missing[@]}" -gt 0 ]; then
+  # tshark's wireshark-common asks whether non-root users may capture: no, without asking.
+  echo "wireshark-common wireshark-common/install-setuid boolean false" | $SUDO debconf-set-selections 2>/dev/null || true
   step "apt-get update" $SUDO apt-get update
   step "install ${missing[*]}" $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends "${missing[@]}"
 else

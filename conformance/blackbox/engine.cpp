@@ -4,6 +4,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -12,6 +13,7 @@
 #include "blackbox/spec_values.h"
 #include "modbus/bytes.h"
 #include "modbus/crc16.h"
+#include "modbus/function_codes.h"
 #include "modbus/judge.h"
 #include "modbus/limits.h"
 #include "modbus/pdu.h"
@@ -22,6 +24,9 @@ namespace mbc::conf::blackbox {
 namespace {
 
 constexpr const char* kProbeNote = "liveness probe: a read of a register the spec maps";
+// Probes a round starts with on a live target: as many replies as a silence
+// window needs timed before it is learnt (live::SilenceWindow::kMinSamples).
+constexpr int kWarmupProbes = 5;
 
 // After these the target may be gone: nothing more is learnt from it.
 bool target_may_be_gone(const Finding& f) { return f.kind == "no-answer" || f.kind == "target-error" || f.kind == "crash"; }
@@ -45,7 +50,7 @@ bool Plan::safe(std::span<const uint8_t> pdu, bool foreign_or_broadcast) const {
   // MB-SL v1.02 §6.1.2 (FC 08/04): Listen Only Mode is a legal way to stop
   // answering; the liveness probe would call it a finding.
   if (fc == 8 && pdu.size() >= 3 && be16(pdu, 1) == 4) return false;
-  bool write = fc == 5 || fc == 6 || fc == 15 || fc == 16 || fc == 22 || fc == 23;
+  bool write = is_write_function(fc);
   if (info.live) {
     // Only function codes the spec lists or the standard defines as reads:
     // a vendor may put anything behind an undocumented code.
@@ -97,7 +102,7 @@ Plan make_plan(const spec::Spec& s, const TargetInfo& info, const WritePolicy& p
   for (const auto& ex : s.examples) {
     auto adu = parse_hex(ex.resolved_request ? *ex.resolved_request : ex.request);
     if (!adu || adu->size() < 4) continue;
-    Bytes pdu(adu->begin() + 1, adu->end() - 2);
+    Bytes pdu = rtu_unframe(*adu).pdu;
     if (p.safe(pdu, false)) p.examples.push_back(pdu);
   }
   // The probe: a read of the first holding register (else any register) the
@@ -115,20 +120,20 @@ Plan make_plan(const spec::Spec& s, const TargetInfo& info, const WritePolicy& p
 
 // An expectation of a kind alone (a designated initializer would leave
 // pdu and code to -Wmissing-field-initializers).
-script::Expect expecting(script::Expect::Kind k) {
-  script::Expect e;
+check::Expect expecting(check::Expect::Kind k) {
+  check::Expect e;
   e.kind = k;
   return e;
 }
 
 Step probe_step(const Plan& p) {
-  return script::frame(p.info.framing, p.info.unit, p.probe, expecting(script::Expect::Kind::normal), kProbeNote);
+  return check::frame(p.info.framing, p.info.unit, p.probe, expecting(check::Expect::Kind::normal), kProbeNote);
 }
 
 bool is_probe(const Step& s) { return s.kind == Step::Kind::frame && s.note == kProbeNote; }
 
-script::Expect expect_for(const Plan& p, const Step& s) {
-  using K = script::Expect::Kind;
+check::Expect expect_for(const Plan& p, const Step& s) {
+  using K = check::Expect::Kind;
   // A fuzzed request may be one the device drops (its spec's policy, or a
   // request too broken to parse): silence is no finding, a bad reply is.
   if (s.kind == Step::Kind::frame) return expecting(s.unit == 0 ? K::silence : K::any_or_silence);
@@ -136,7 +141,7 @@ script::Expect expect_for(const Plan& p, const Step& s) {
   // MB-SL v1.02 §2.1: no reply to another slave id or to broadcast; §2.4.2:
   // none to a frame with a bad CRC, length or gap, unless the device's manual
   // says it answers corrupted frames (its crc_error policy).
-  if (script::request_pdu(s, p.info.unit)) return expecting(K::any_or_silence);
+  if (check::request_pdu(s, p.info.unit)) return expecting(K::any_or_silence);
   bool addressed = !s.bytes.empty() && s.bytes[0] == p.info.unit;
   auto pe = p.spec->profile.policy(spec::Violation::crc_error);
   if (addressed && pe.kind == spec::PolicyEntry::Kind::exception) return expecting(K::any_or_silence);
@@ -144,11 +149,11 @@ script::Expect expect_for(const Plan& p, const Step& s) {
 }
 
 std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r) {
-  auto m = script::check(s, p.info.unit, r, p.spec);
+  auto m = check::judge(s, r, check::JudgeContext{p.info.unit, p.info.framing, p.spec, {}});
   if (!m) return std::nullopt;
   std::string why = m->why;
   std::string kind;
-  using M = script::Mismatch::Kind;
+  using M = check::Mismatch::Kind;
   bool addressed = s.kind != Step::Kind::raw || (!s.bytes.empty() && s.bytes[0] == p.info.unit);
   switch (m->kind) {
     case M::answered:
@@ -183,7 +188,25 @@ std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r) {
   return Finding{kind, msg};
 }
 
-std::optional<Finding> execute(Target& t, const Plan& p, const Step& s) {
+std::optional<Finding> execute(Target& t, const Plan& p, const Step& s) { return execute(t, p, s, nullptr); }
+
+namespace {
+// What an exchange adds to the fuzzing's counts and, on a serial line, to the
+// wire-time bound: each frame's characters plus the t3.5 before it (MB-SL
+// v1.02 §2.5.1.1), a split frame's pause, the reply when one came.
+void account(Outcome& out, const Plan& p, const Step& s, const Reply& r) {
+  ++out.exchanges;
+  out.silences += r.silent();
+  if (!p.info.baud) return;
+  const int baud = *p.info.baud;
+  auto b = wire_time(r.request.size(), baud) + frame_gap(baud);
+  if (s.gap) b += frame_gap(baud);
+  if (!r.silent()) b += wire_time(r.frame.size(), baud) + frame_gap(baud);
+  out.wire_time_bound_seconds += std::chrono::duration<double>(b).count();
+}
+}  // namespace
+
+std::optional<Finding> execute(Target& t, const Plan& p, const Step& s, Outcome* out) {
   try {
     Reply r;
     switch (s.kind) {
@@ -193,9 +216,10 @@ std::optional<Finding> execute(Target& t, const Plan& p, const Step& s) {
       case Step::Kind::raw: r = t.send_raw(s.bytes, s.gap); break;
       case Step::Kind::frame: r = t.transact(s.unit, s.pdu); break;
     }
+    if (out) account(*out, p, s, r);
     return judge(p, s, r);
   } catch (const std::exception& e) {
-    return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), script::line(s))};
+    return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(s))};
   }
 }
 
@@ -204,7 +228,7 @@ std::optional<Finding> execute(Target& t, const Plan& p, const Step& s) {
 Step Generator::next() {
   Step s = [&] {
     const auto& info = p_.info;
-    if (info.virtual_clock && pick(20) == 0) return script::advance(uint64_t(pick(500'000)));
+    if (info.virtual_clock && pick(20) == 0) return check::advance(uint64_t(pick(500'000)));
     for (int attempt = 0; attempt < 20; ++attempt) {
       int strategy = int(pick(info.raw ? 5 : 4));
       Bytes pdu;
@@ -221,9 +245,9 @@ Step Generator::next() {
         }
       }
       if (pdu.empty() || pdu.size() > kMaxPdu || !p_.safe(pdu, false)) continue;
-      return script::frame(info.framing, info.unit, pdu);
+      return check::frame(info.framing, info.unit, pdu);
     }
-    return script::frame(info.framing, info.unit, valid_read());
+    return check::frame(info.framing, info.unit, valid_read());
   }();
   s.expect = expect_for(p_, s);
   return s;
@@ -325,7 +349,7 @@ std::optional<Step> Generator::malformed(const Bytes& pdu) {
   if (p_.info.framing != Framing::rtu) return std::nullopt;
   const bool stream = p_.info.kind == "tcp" || p_.info.kind == "rtu-tcp";
   uint8_t unit = p_.info.unit;
-  Step s = script::raw_rtu(rtu_frame(unit, pdu));
+  Step s = check::raw_rtu(rtu_frame(unit, pdu));
   Bytes& a = s.bytes;
   static const int kStreamCases[] = {0, 3, 4};
   switch (stream ? kStreamCases[pick(3)] : int(pick(6))) {
@@ -412,24 +436,63 @@ using Clock = std::chrono::steady_clock;
 using Known = std::function<bool(const Finding&, const Step&)>;
 
 
-std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch, Clock::time_point deadline,
+// How long each exchange waits: a generated frame may be dropped (its
+// expectation allows silence), so it waits the target's silence window,
+// learnt from its latency as the runner's is (targets/live_link.h); the
+// probe must be answered, so it waits for the reply.
+std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch, size_t depth, Clock::time_point deadline,
                              const std::function<void(const Step&)>& journal, const Known& known, Outcome& out) {
   Generator gen(p, seed);
   const Step probe = probe_step(p);
-  auto send = [&](const Step& st) -> std::optional<Finding> {
-    journal(st);
-    auto f = execute(t, p, st);
+  auto keep = [&](std::optional<Finding> f, const Step& st) -> std::optional<Finding> {
     if (f && !target_may_be_gone(*f) && known(*f, st)) return std::nullopt;
     return f;
   };
-  if (auto f = send(probe)) return f;
+  auto send = [&](const Step& st) -> std::optional<Finding> {
+    journal(st);
+    return keep(execute(t, p, st, &out), st);
+  };
+  const bool pipelined = depth > 1 && t.pipelines();
+  auto send_probe = [&]() {
+    t.set_wait(Target::Wait::reply);
+    auto f = send(probe);
+    t.set_wait(Target::Wait::window);
+    return f;
+  };
+  // A live target's silence window is its timeout until a few replies were
+  // timed (targets/live_link.h): the probe, answered, teaches it before the
+  // first fuzzed frame that may go unanswered has to wait for it.
+  for (int i = 0; i < (t.info().live ? kWarmupProbes : 1); ++i)
+    if (auto f = send_probe()) return f;
+  std::vector<Step> steps;
+  std::vector<Target::Request> requests;
   while (Clock::now() < deadline) {
-    for (int i = 0; i < batch; ++i) {
-      ++out.frames;
-      if (auto f = send(gen.next())) return f;
+    steps.clear();
+    for (int i = 0; i < batch; ++i) steps.push_back(gen.next());
+    out.frames += batch;
+    bool all_frames = std::all_of(steps.begin(), steps.end(), [](const Step& s) { return s.kind == Step::Kind::frame; });
+    if (pipelined && all_frames) {
+      // Modbus TCP: the batch goes out pipelined, every reply is judged in order.
+      requests.clear();
+      for (const auto& st : steps) {
+        journal(st);
+        requests.push_back({st.unit, st.pdu});
+      }
+      std::vector<Reply> replies;
+      try {
+        replies = t.transact_all(requests, depth);
+      } catch (const std::exception& e) {
+        return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(steps.back()))};
+      }
+      for (size_t i = 0; i < steps.size(); ++i) account(out, p, steps[i], replies[i]);
+      for (size_t i = 0; i < steps.size(); ++i)
+        if (auto f = keep(judge(p, steps[i], replies[i]), steps[i])) return f;
+    } else {
+      for (const auto& st : steps)
+        if (auto f = send(st)) return f;
     }
     ++out.batches;
-    if (auto f = send(probe)) return f;
+    if (auto f = send_probe()) return f;
   }
   return std::nullopt;
 }
@@ -440,7 +503,7 @@ std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch,
 // bad FC 16 reply are two).
 std::string signature(const Finding& f, const Plan& p, const Step& last) {
   if (f.kind != "malformed-reply" && f.kind != "unknown-exception-code") return f.kind;
-  auto pdu = script::request_pdu(last, p.info.unit);
+  auto pdu = check::request_pdu(last, p.info.unit);
   if (!pdu || pdu->empty()) return f.kind;
   return fmt::format("{} fc{:02X}", f.kind, (*pdu)[0]);
 }
@@ -484,6 +547,7 @@ Reported reduce(const Open& open, const Plan& p, const Options& o, const Finding
 Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, const Options& o,
              const std::function<void(const Reported&)>& on_finding) {
   Outcome out;
+  const auto started = Clock::now();
   std::set<std::string> seen;
   auto declared = [&](const std::string& sig) { return o.declared && o.declared(sig); };
   Known known = [&](const Finding& f, const Step& st) {
@@ -497,6 +561,7 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
     return true;
   };
   const auto deadline = Clock::now() + o.duration;
+  Clock::duration reducing{};
   std::unique_ptr<Target> target = std::move(first);
   for (uint64_t r = 0; r == 0 || Clock::now() < deadline; ++r) {
     ++out.rounds;
@@ -518,18 +583,18 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
       Outcome child_counts;
       f = isolated([&]() -> std::optional<Finding> {
         std::ofstream j(o.journal, std::ios::trunc);
-        j << script::kHeader << "\n";
-        return round(*target, p, seed, o.batch, deadline, [&](const Step& s) { j << script::line(s) << std::endl; },
+        j << check::kHeader << "\n";
+        return round(*target, p, seed, o.batch, o.depth, deadline, [&](const Step& s) { j << check::line(s) << std::endl; },
                      known, child_counts);
       });
       try {
-        history = script::parse_file(o.journal).steps;
+        history = check::parse_file(o.journal).steps;
       } catch (const std::exception&) {
       }
       std::remove(o.journal.c_str());
       for (const auto& s : history) out.frames += !is_probe(s);
     } else {
-      f = round(*target, p, seed, o.batch, deadline, [&](const Step& s) {
+      f = round(*target, p, seed, o.batch, o.depth, deadline, [&](const Step& s) {
         // A bounded history: findings that need state older than this are
         // reported with what is kept (and said not to reproduce, if so).
         if (history.size() > o.history_cap) history.erase(history.begin(), history.end() - long(o.history_cap / 2));
@@ -551,14 +616,18 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
       ++out.repeats;  // one that may have taken the target with it: on a fresh one
       continue;
     }
+    // Reduction is not fuzzing: its time is left out of the frames/s.
+    auto reduce_from = Clock::now();
     out.findings.push_back(reduce(open, p, o, *f, history));
+    reducing += Clock::now() - reduce_from;
     if (on_finding) on_finding(out.findings.back());
   }
+  out.seconds = std::chrono::duration<double>(Clock::now() - started - reducing).count();
   return out;
 }
 
-script::Script reproducer(const Plan& p, const Reported& r, const std::string& replay_command) {
-  script::Script s;
+check::Script reproducer(const Plan& p, const Reported& r, const std::string& replay_command) {
+  check::Script s;
   s.device = p.spec->device.id;
   s.comment = fmt::format("mbconform fuzz reproducer: {}\n", r.signature);
   std::istringstream msg(r.finding.message);

@@ -1,7 +1,7 @@
 // The black-box fuzzer behind `mbconform fuzz`: structure-aware frames from
 // a device's spec sent to any Target, every reply judged from the standard,
 // each distinct finding reduced by delta debugging to a minimal reproducer
-// in the frame-script format (conformance/script/README.md).
+// in the frame-script format (conformance/check/README.md).
 //
 // Frames come from the spec: reads of its registers, writes of each
 // register's valid and boundary values, the manual's example requests, and
@@ -29,13 +29,14 @@
 #include <vector>
 
 #include "safety/safety.h"
-#include "script/script.h"
+#include "check/judge.h"
+#include "check/text.h"
 #include "spec.h"
 #include "targets/target.h"
 
 namespace mbc::conf::blackbox {
 
-using Step = script::Step;
+using Step = check::Step;
 
 struct Finding {
   std::string kind;     // stable name: no-answer, malformed-reply, answered-broadcast, ...
@@ -66,12 +67,15 @@ bool is_probe(const Step& s);
 // The expectation the standard gives a generated step on this plan's target:
 // silence for broadcast, another slave id or a corrupted frame (unless the
 // spec's crc_error policy answers), else any well-formed reply.
-script::Expect expect_for(const Plan& p, const Step& s);
+check::Expect expect_for(const Plan& p, const Step& s);
 
-// Judges one exchange from the standard (script::check) and names the finding.
+// Judges one exchange from the standard (check::judge) and names the finding.
 std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r);
 // Runs one step; a target that throws (connection lost, plugin error) is a finding too.
 std::optional<Finding> execute(Target& t, const Plan& p, const Step& s);
+struct Outcome;
+// The same, counting the exchange in `out` (frames, silences, wire time).
+std::optional<Finding> execute(Target& t, const Plan& p, const Step& s, Outcome* out);
 
 class Generator {
  public:
@@ -137,6 +141,9 @@ struct Options {
   std::chrono::milliseconds duration{10'000};
   uint64_t seed = 0;
   int batch = 50;          // frames between two liveness probes
+  // Requests out at once where the target pairs replies by itself (Modbus
+  // TCP transaction ids; Target::transact_all); 1: one exchange at a time.
+  size_t depth = 16;
   bool isolate = false;    // each round in a child process (plugin targets)
   std::string journal;     // isolate: the file the child writes each step to before sending it
   int reduce_budget = 400; // fresh-target runs per reduction; each costs a connection on live targets
@@ -157,6 +164,12 @@ struct Reported {
 
 struct Outcome {
   long frames = 0, batches = 0, rounds = 0;
+  double seconds = 0;  // time spent fuzzing (reductions left out)
+  long exchanges = 0, silences = 0;  // probes included
+  // Serial line at a known baud: the least the exchanges could take on the
+  // wire (characters + t3.5 per frame, MB-SL v1.02 §2.5.1.1); 0 otherwise.
+  double wire_time_bound_seconds = 0;
+  double frames_per_second() const { return seconds > 0 ? double(frames) / seconds : 0; }
   std::vector<Reported> findings;  // each distinct finding once, in the order found
   long repeats = 0;                // findings of a signature already reported
   long declared = 0;               // findings Options::declared left aside
@@ -170,6 +183,6 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
              const std::function<void(const Reported&)>& on_finding);
 
 // The reproducer of a finding as a frame script (comments say what was found).
-script::Script reproducer(const Plan& p, const Reported& r, const std::string& replay_command);
+check::Script reproducer(const Plan& p, const Reported& r, const std::string& replay_command);
 
 }  // namespace mbc::conf::blackbox

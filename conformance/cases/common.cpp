@@ -61,7 +61,7 @@ std::optional<Step> read_range_step(const GenContext& g, Table t, uint16_t addre
   Step s;
   s.unit = g.target.unit;
   s.pdu = read_request(uint8_t(fc), address, quantity);
-  s.what = fmt::format("read {} x{} (FC {:02})", hex16(address), quantity, fc);
+  s.note = fmt::format("read {} x{} (FC {:02})", hex16(address), quantity, fc);
   s.expect = std::move(e);
   return s;
 }
@@ -72,7 +72,7 @@ std::optional<Step> read_step(const GenContext& g, const Register& r, Expect e) 
 
 Expect write_echo(const Bytes& req) {
   Expect e;
-  e.kind = Expect::Kind::exact;
+  e.kind = Expect::Kind::reply;
   uint8_t fc = req.empty() ? 0 : req[0];
   if (fc == 5 || fc == 6 || fc == 22) {
     e.pdu = req;  // MBAP v1.1b3 §6.5, §6.6, §6.16: the response is an echo of the request
@@ -113,7 +113,7 @@ std::optional<Step> write_step(const GenContext& g, const Register& r, const std
   }
   std::string vals;
   for (auto w : words) vals += fmt::format("{}{:04X}", vals.empty() ? "" : " ", w);
-  s.what = fmt::format("write {} = [{}] (FC {:02})", hex16(r.address), vals, s.pdu[0]);
+  s.note = fmt::format("write {} = [{}] (FC {:02})", hex16(r.address), vals, s.pdu[0]);
   s.expect = e ? std::move(*e) : write_echo(s.pdu);
   return s;
 }
@@ -211,33 +211,12 @@ std::pair<int64_t, int64_t> plain_values(const Register& r) {
   return {0, 1};
 }
 
-std::optional<Step> fill_words(const Step& st, const std::optional<Bytes>& reply) {
-  if (st.words_from < 0) return st;
-  if (!reply || reply->size() < 2 || (*reply)[0] != 3 || reply->size() != size_t(2 + (*reply)[1])) return std::nullopt;
-  Step out = st;
-  size_t words = (*reply)[1] / 2;
-  // FC 06: address, value; FC 16: address, quantity, byte count, values.
-  size_t at = st.pdu.size() >= 1 && st.pdu[0] == 6 ? 3 : 6;
-  if (st.pdu.size() != at + 2 * words) return std::nullopt;
-  std::copy(reply->begin() + 2, reply->end(), out.pdu.begin() + ptrdiff_t(at));
-  std::string vals;
-  for (size_t i = 0; i < words; ++i) vals += fmt::format("{}{:02X}{:02X}", i ? " " : "", (*reply)[2 + 2 * i], (*reply)[3 + 2 * i]);
-  out.what += fmt::format(" [{}]", vals);
-  return out;
-}
-
-bool is_broadcast_write(const Step& st) {
-  if (st.kind == Step::Kind::pdu) return st.unit == 0 && !st.pdu.empty() && (st.pdu[0] < 1 || st.pdu[0] > 4);
-  if (st.kind == Step::Kind::raw) return st.adu.size() >= 2 && st.adu[0] == 0 && (st.adu[1] < 1 || st.adu[1] > 4);
-  return false;
-}
-
 std::vector<std::string> planned_broadcast_writes(const std::vector<Case>& cases) {
   std::vector<std::string> out;
   for (const auto& c : cases)
     if (c.skip_reason.empty())
       for (const auto& st : c.steps)
-        if (is_broadcast_write(st)) out.push_back(fmt::format("{}: {}", c.id, st.what));
+        if (is_broadcast_write(st)) out.push_back(fmt::format("{}: {}", c.id, st.note));
   return out;
 }
 
@@ -247,28 +226,9 @@ void plain_relies(std::vector<Reliance>& into, const Register& r) {
   facts::range(into, r);
 }
 
-std::string describe(const Expect& e) {
-  if (!e.text.empty()) return e.text;
-  switch (e.kind) {
-    case Expect::Kind::none: return "anything (recorded)";
-    case Expect::Kind::exact: return "exactly " + to_hex(e.pdu);
-    case Expect::Kind::exception: return fmt::format("exception {:02X}", e.code);
-    case Expect::Kind::silence: return "silence";
-    case Expect::Kind::normal: return "a well-formed normal reply";
-    case Expect::Kind::registers: {
-      std::string s;
-      for (auto w : e.words) s += fmt::format("{}{:04X}", s.empty() ? "" : " ", w);
-      return "registers [" + s + "]";
-    }
-    case Expect::Kind::unchanged: return "the value read before the write (unchanged)";
-    case Expect::Kind::answered: return "a reply: a normal one or an exception";
-  }
-  return "";
-}
-
 Expect exact(Bytes pdu, std::string text) {
   Expect e;
-  e.kind = Expect::Kind::exact;
+  e.kind = Expect::Kind::reply;
   e.pdu = std::move(pdu);
   e.text = std::move(text);
   return e;

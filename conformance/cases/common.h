@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "cases/case.h"
+#include "check/judge.h"
 
 namespace mbc::conf::cases {
 
@@ -68,20 +69,15 @@ std::pair<int64_t, int64_t> plain_values(const spec::Register&);
 // relies on (cases/facts.h): that it reads, writes, and its range.
 void plain_relies(std::vector<Reliance>&, const spec::Register&);
 
-// Step `st` with its value words taken from `read_reply` (an FC 03 reply)
-// when st.words_from is set; nullopt when the reply holds no usable words.
-std::optional<Step> fill_words(const Step& st, const std::optional<Bytes>& read_reply);
-
-// Whether a step sends a request to unit 0 that is not a read: every drive on
-// a serial line acts on it (MB-SL v1.02 §2.1).
-bool is_broadcast_write(const Step& st);
+// Whether a step sends a request to unit 0 that is not a read (check/check.h).
+using check::is_broadcast_write;
 
 // The broadcast writes the cases would send, one line each ("<case id>:
 // write 0x0048 = ..."): what every drive on the line would receive (--plan).
 std::vector<std::string> planned_broadcast_writes(const std::vector<Case>& cases);
 
-// "exception 03", "echo", ...
-std::string describe(const Expect&);
+// "exception 03", "echo", ... (check/judge.h)
+using check::describe;
 
 Expect exact(Bytes pdu, std::string text = "");
 Expect exception(uint8_t code, std::string text = "");

@@ -11,6 +11,7 @@
 
 #include "cases/common.h"
 #include "cases/facts.h"
+#include "modbus/function_codes.h"
 #include "errata.h"
 #include "modbus/crc16.h"
 #include "modbus/pdu.h"
@@ -97,8 +98,8 @@ std::optional<Step> provoke(const GenContext& g, Violation v) {
     case Violation::crc_error: {
       if (!first || !g.target.raw || g.target.framing != Framing::rtu) return std::nullopt;
       st.kind = Step::Kind::raw;
-      st.adu = rtu_frame(g.target.unit, read_request(3, first->address, 1));
-      st.adu.back() ^= 0xFF;
+      st.bytes = rtu_frame(g.target.unit, read_request(3, first->address, 1));
+      st.bytes.back() ^= 0xFF;
       return st;
     }
     case Violation::wrong_byte_count: {
@@ -139,7 +140,7 @@ std::vector<Case> deviation_cases(const GenContext& g) {
           st->expect = cases::exception(uint8_t(sp.code), fmt::format("the standard's exception {:02X}", sp.code));
         else
           st->expect = cases::silence("the standard's silence");
-        st->what = fmt::format("provoke {}", kind);
+        st->note = fmt::format("provoke {}", kind);
         spec::PolicyEntry dp = g.spec.profile.policy(v);
         st->may_go_unanswered = dp.kind == spec::PolicyEntry::Kind::silent ||
                                 std::any_of(dp.readings.begin(), dp.readings.end(), [](const auto& r) { return r.kind == spec::PolicyEntry::Kind::silent; });
@@ -160,7 +161,7 @@ std::vector<Case> deviation_cases(const GenContext& g) {
             Step st;
             st.unit = g.target.unit;
             st.pdu = read_request(uint8_t(fc), r.address, uint16_t(*sf->max_quantity));
-            st.what = fmt::format("read {} x{} (the standard's limit)", hex16(r.address), *sf->max_quantity);
+            st.note = fmt::format("read {} x{} (the standard's limit)", hex16(r.address), *sf->max_quantity);
             st.expect.text = "recorded (the standard allows this many; the map may not have them)";
             c.steps.push_back(std::move(st));
             break;
@@ -171,6 +172,23 @@ std::vector<Case> deviation_cases(const GenContext& g) {
   }
   return out;
 }
+
+namespace {
+
+// A case on a map (GenContext::map): which public function codes the server
+// implements is its own choice (MBAP v1.1b3 §5.1), so an exception 01 to a
+// code the case did not mean to refuse makes it not apply (function-codes
+// sets this itself for the codes the map's spec leaves out); and a probe
+// cannot tell what is writable.
+void on_map(Case& c, const OnMap& m) {
+  if (c.family != "function-codes") c.functions_optional = true;
+  bool writing = std::any_of(c.steps.begin(), c.steps.end(),
+                             [](const Step& st) { return !st.pdu.empty() && is_write_function(st.pdu[0]); });
+  if (writing && !m.allow_writes && !m.access_known && c.skip_reason.empty())
+    c.skip_reason = "writes on a map whose access is not stated (a probe cannot tell what is writable): needs --allow-writes";
+}
+
+}  // namespace
 
 std::vector<Case> all_cases(const GenContext& g) {
   std::vector<Case> out;
@@ -189,6 +207,7 @@ std::vector<Case> all_cases(const GenContext& g) {
       for (const auto& st : c.steps)
         if (const auto* f = st.pdu.empty() ? nullptr : g.spec.profile.function(st.pdu[0])) facts::supported(c.relies, *f);
     facts::settle_level(c);
+    if (g.map) on_map(c, *g.map);
   }
   return out;
 }

@@ -70,7 +70,7 @@ void add_given(const GenContext& g, const spec::Example& ex, Built& b, std::vect
       continue;
     }
     st->setup = true;
-    st->what = "given: " + st->what;
+    st->note = "given: " + st->note;
     if (r->table == spec::Table::holding) touches.push_back({r->address, r->words});
     b.steps.push_back(std::move(*st));
   }
@@ -100,11 +100,11 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
     }
     if (auto bw = broadcast_forbidden(g.target, g.policy, (*req)[1]); !bw.empty() && b.skip.empty()) b.skip = bw;
     if (crc_valid && cases::has_fc(g.spec, 3))
-      for (auto range : written_by(Bytes(req->begin() + 1, req->end() - 2))) {
+      for (auto range : written_by(rtu_unframe(*req).pdu)) {
         held.push_back({b.steps.size(), range});
         auto rd = cases::read_range_step(g, spec::Table::holding, range.first, uint16_t(range.second),
                                          cases::normal("what the target holds, broadcast back at the end"));
-        rd->what = "first: " + rd->what;
+        rd->note = "first: " + rd->note;
         b.steps.push_back(std::move(*rd));
       }
   }
@@ -122,7 +122,7 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
       b.skip = "the printed response is not a frame";
       return;
     }
-    Bytes pdu(resp->begin() + 1, resp->end() - 2);
+    Bytes pdu = rtu_unframe(*resp).pdu;
     e = cases::exact(pdu, "the printed response");
     if (crc_ok(*resp)) e.adu = rtu_frame(unit, pdu);
     else b.note += "printed response CRC is wrong; the PDU is compared; ";
@@ -134,22 +134,42 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
   }
 
   facts::example(e.relies, ex);
+  if (ex.exercises && !g.spec.profile.policy(*ex.exercises).readings.empty()) {
+    // An example inherits the `either` of the policy it exercises: each of
+    // the policy's other readings is accepted too.
+    spec::PolicyEntry p = facts::policy(e.relies, g.spec, *ex.exercises);
+    for (const auto& r : p.readings) {
+      bool same = (r.kind == spec::PolicyEntry::Kind::silent && e.kind == Expect::Kind::silence) ||
+                  (r.kind == spec::PolicyEntry::Kind::exception && e.kind == Expect::Kind::reply && e.pdu.size() == 2 &&
+                   (e.pdu[0] & 0x80) && e.pdu[1] == r.code) ||
+                  (r.kind == spec::PolicyEntry::Kind::exception && e.kind == Expect::Kind::exception && e.code == r.code);
+      if (same || r.kind == spec::PolicyEntry::Kind::unspecified) continue;
+      if (e.reading.empty()) e.reading = e.text;
+      Expect alt = r.kind == spec::PolicyEntry::Kind::silent
+                       ? cases::silence(fmt::format("silence (the other reading of exception_policy.{})", spec::to_string(*ex.exercises)))
+                       : cases::exception(uint8_t(r.code), fmt::format("exception {:02X} (the other reading of exception_policy.{})", r.code,
+                                                                      spec::to_string(*ex.exercises)));
+      alt.reading = alt.text;
+      e.text += " or " + alt.text;
+      e.either.push_back(std::move(alt));
+    }
+  }
   if (ex.basis.basis == spec::Basis::either && ex.response && ex.has_resolution()) {
     // The manual prints two readings: the resolved one above, or the frame as printed.
     if (auto printed = parse_hex(*ex.response); printed && printed->size() >= 4) {
       e.reading = e.text;
-      Expect alt = cases::exact(Bytes(printed->begin() + 1, printed->end() - 2), "the printed response");
+      Expect alt = cases::exact(rtu_unframe(*printed).pdu, "the printed response");
       alt.reading = alt.text;
       e.text += " or the printed response (printed two ways)";
       e.either.push_back(std::move(alt));
     }
   }
   Step s;
-  s.what = fmt::format("{} ({})", ex.id, ex.does.empty() ? "printed frame" : ex.does.substr(0, 80));
+  s.note = fmt::format("{} ({})", ex.id, ex.does.empty() ? "printed frame" : ex.does.substr(0, 80));
   if (crc_valid) {
-    s.kind = Step::Kind::pdu;
+    s.kind = Step::Kind::frame;
     s.unit = unit;
-    s.pdu.assign(req->begin() + 1, req->end() - 2);
+    s.pdu = rtu_unframe(*req).pdu;
   } else {
     // A frame the manual corrupts on purpose: it goes out raw, re-addressed to
     // the target with the same CRC error (the XOR from the correct CRC is kept).
@@ -167,14 +187,14 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
       adu.back() = uint8_t(now >> 8);
     }
     s.kind = Step::Kind::raw;
-    s.adu = std::move(adu);
+    s.bytes = std::move(adu);
   }
   s.expect = std::move(e);
   // A write of part of a multi-word value (FC 06 to one word of a u32): the
   // words it does not write are read first and expected unchanged after, so
   // the case does not assume what a live drive holds there.
   std::map<uint16_t, size_t> untouched;  // word address -> the step that read it before
-  if (s.kind == Step::Kind::pdu) {
+  if (s.kind == Step::Kind::frame) {
     for (auto [addr, n] : written_by(s.pdu)) {
       touches.push_back({addr, n});
       if (const spec::Register* r = g.spec.register_covering(addr))
@@ -187,7 +207,7 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
           auto rd = cases::read_range_step(g, spec::Table::holding, uint16_t(w), 1,
                                            cases::normal("the word the write leaves alone"));
           if (!rd) continue;
-          rd->what = fmt::format("first: {} (the other word of {})", rd->what, hex16(r->address));
+          rd->note = fmt::format("first: {} (the other word of {})", rd->note, hex16(r->address));
           untouched[uint16_t(w)] = b.steps.size();
           b.steps.push_back(std::move(*rd));
         }
@@ -214,7 +234,7 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
       uint16_t at = uint16_t(r->address + i);
       Expect one;
       if (auto it = untouched.find(at); it != untouched.end()) {
-        one.kind = Expect::Kind::unchanged;
+        one.kind = Expect::Kind::same;
         one.memo = int(it->second);
         one.text = fmt::format("{} unchanged (the write covers only part of {})", hex16(at), hex16(r->address));
       } else {
@@ -233,7 +253,7 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
     back.pdu = range.second == 1 && cases::has_fc(g.spec, 6) ? write_single_register(range.first, 0)
                                                              : write_multiple_registers(range.first, placeholder);
     back.words_from = int(at);
-    back.what = fmt::format("broadcast back what the target held at {} (every drive on the line)", hex16(range.first));
+    back.note = fmt::format("broadcast back what the target held at {} (every drive on the line)", hex16(range.first));
     back.expect.text = "no check (put back)";
     b.steps.push_back(std::move(back));
   }

@@ -90,37 +90,6 @@ const spec::Example& example(Relies& into, const spec::Example& e) {
   return e;
 }
 
-Relies all_relies(const Case& c) {
-  Relies out;
-  auto add = [&](const Relies& rs) {
-    for (const auto& r : rs) note(out, r.fact, r.basis);
-  };
-  add(c.relies);
-  for (const auto& st : c.steps) {
-    add(st.expect.relies);
-    for (const auto& alt : st.expect.either) add(alt.relies);
-  }
-  return out;
-}
-
-std::string describe(const Reliance& r) {
-  const FactBasis& b = r.basis;
-  switch (b.basis) {
-    case Basis::stated:
-      return fmt::format("{}: stated{}", r.fact, b.section.empty() ? "" : " (§" + b.section + ")");
-    case Basis::inferred:
-      return fmt::format("{}: inferred ({}{})", r.fact, b.why, b.searched.empty() ? "" : "; searched " + b.searched);
-    case Basis::observed:
-      return fmt::format("{}: observed ({})", r.fact, b.why);
-    case Basis::either: {
-      std::string rs;
-      for (const auto& x : b.readings) rs += (rs.empty() ? "" : " or ") + x;
-      return fmt::format("{}: printed two ways, {}{}", r.fact, rs, b.erratum.empty() ? "" : " (erratum " + b.erratum + ")");
-    }
-  }
-  return r.fact;
-}
-
 void settle_level(Case& c) {
   if (c.requirement.find(" [relies on ") != std::string::npos) return;
   std::vector<std::string> inferred;

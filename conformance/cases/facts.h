@@ -40,14 +40,14 @@ spec::PolicyEntry policy(Relies&, const spec::Spec&, spec::Violation);
 // A printed example frame (either: printed or resolved).
 const spec::Example& example(Relies&, const spec::Example&);
 
-// Every reliance of a case: its own and its steps' expectations'.
-Relies all_relies(const Case&);
+// Every reliance of a case (its own and its steps' expectations'), and one
+// described: check/check.h.
+using check::all_relies;
+using check::describe;
 
 // The case's level from what it relies on; names inferences in the
 // requirement. Idempotent.
 void settle_level(Case&);
 
-// "register 0x0BB8 read: inferred (表 14 lists ...; searched 6.1)".
-std::string describe(const Reliance&);
 
 }  // namespace mbc::conf::facts

@@ -37,7 +37,7 @@ struct Gen {
     Step s;
     s.unit = g.target.unit;
     s.pdu = probe_pdu();
-    s.what = fmt::format("read {} with a good frame ({})", hex16(probe->address), why);
+    s.note = fmt::format("read {} with a good frame ({})", hex16(probe->address), why);
     s.expect = cases::normal("a normal reply: the device still answers good frames");
     return s;
   }
@@ -45,9 +45,9 @@ struct Gen {
   Step raw(Bytes adu, std::string what, Expect e, std::optional<size_t> gap = std::nullopt) const {
     Step s;
     s.kind = Step::Kind::raw;
-    s.adu = std::move(adu);
-    s.gap_after = gap;
-    s.what = std::move(what);
+    s.bytes = std::move(adu);
+    s.gap = gap;
+    s.note = std::move(what);
     s.expect = std::move(e);
     return s;
   }
@@ -92,7 +92,7 @@ struct Gen {
         Step s;
         s.unit = other;
         s.pdu = probe_pdu();
-        s.what = fmt::format("read {} addressed to slave {}", hex16(probe->address), other);
+        s.note = fmt::format("read {} addressed to slave {}", hex16(probe->address), other);
         s.expect = cases::silence("silence (not addressed)");
         c.steps.push_back(std::move(s));
         c.steps.push_back(good_request("addressed to the target"));
@@ -134,12 +134,12 @@ struct Gen {
           Step b;
           b.unit = bcast;
           b.pdu = write_single_register(r->address, value);
-          b.what = fmt::format("broadcast write {} = {}", hex16(r->address), what);
+          b.note = fmt::format("broadcast write {} = {}", hex16(r->address), what);
           b.expect = std::move(e);
           return b;
         };
         Expect unchanged;  // for the no-reply case
-        unchanged.kind = Expect::Kind::unchanged;
+        unchanged.kind = Expect::Kind::same;
         unchanged.memo = 0;
         unchanged.text = "the value the target held before";
         c.steps.push_back(*cases::read_step(g, *r, cases::normal("the value the target holds")));
@@ -151,7 +151,7 @@ struct Gen {
         } else {
           auto set = cases::write_step(g, *r, lo);
           set->setup = true;
-          set->what = "first: " + set->what;
+          set->note = "first: " + set->note;
           c.steps.push_back(std::move(*set));
           Expect none;
           none.text = "no check (the no-reply case checks silence)";
@@ -236,17 +236,17 @@ struct Gen {
     } else {
       Step before = *cases::read_step(g, *r, Expect{});
       before.setup = true;
-      before.what = "before: " + before.what;
+      before.note = "before: " + before.note;
       c.steps.push_back(before);
       Step s;
       s.unit = g.target.unit;
       auto w = cases::encode(*r, cases::plain_values(*r).second);
       s.pdu = {16, uint8_t(r->address >> 8), uint8_t(r->address & 0xFF), 0, 2, 2, uint8_t(w[0] >> 8), uint8_t(w[0] & 0xFF)};
-      s.what = "write multiple registers, quantity 2, byte count 2";
+      s.note = "write multiple registers, quantity 2, byte count 2";
       s.expect = pe.expect;
       c.steps.push_back(std::move(s));
       Expect same;
-      same.kind = Expect::Kind::unchanged;
+      same.kind = Expect::Kind::same;
       same.memo = 0;
       same.text = "the value read before (unchanged)";
       c.steps.push_back(*cases::read_step(g, *r, same));

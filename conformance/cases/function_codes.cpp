@@ -38,6 +38,7 @@ struct Gen {
     c.family = "function-codes";
     c.id = fmt::format("{}/function-codes/fc{:02}/{}", g.spec.device.id, fc, what);
     c.clause = clause(g.spec, section);
+    c.functions_optional = g.map.has_value();  // on a map every function is optional (MBAP v1.1b3 §5.1)
     return c;
   }
 
@@ -153,7 +154,24 @@ struct Gen {
       o.relies = lim;
       o.title = fmt::format("FC {:02} reads {} items, one over the limit", f.code, limit + 1);
       o.requirement = fmt::format("Over the limit of {}: {}.", limit, pe.expect.text);
-      add(std::move(o), cases::read_range_step(g, t, at.value_or(*first), uint16_t(limit + 1), pe.expect));
+      // Over readable registers only, where the map has such a run; else the
+      // range also covers addresses the map leaves out, and the answer
+      // depends on the order of the checks, which only the standard's state
+      // diagram gives (MBAP v1.1b3 Figure 13: quantity first; SHOULD, as
+      // standard/order/* rates it).
+      // modbus-standard is the standard itself: its per-function diagrams
+      // state the order (quantity first), so the expectation holds whether
+      // or not the items are mapped, and rests on no register's readability.
+      bool order_stated = g.standard && g.spec.device.id == g.standard->device.id;
+      std::optional<uint16_t> over = readable_run(t, limit + 1, order_stated ? nullptr : &o.relies);
+      if (!over && o.level == Level::must && !order_stated) {
+        o.level = Level::should;
+        o.clause += "; MBAP v1.1b3 §6.3 Figure 13 (the order of the checks)";
+        o.requirement += fmt::format(" The {} items from {} also cover addresses the map leaves out, so this relies on the "
+                                     "quantity being checked before the addresses (MBAP v1.1b3 Figure 13), which the manual does "
+                                     "not state: SHOULD.", limit + 1, hex16(at.value_or(*first)));
+      }
+      add(std::move(o), cases::read_range_step(g, t, over.value_or(at.value_or(*first)), uint16_t(limit + 1), pe.expect));
     }
     address_cases(f.code, t, [&](uint16_t a, uint16_t n, Expect e) { return cases::read_range_step(g, t, a, n, e); });
   }
@@ -245,7 +263,7 @@ struct Gen {
       Step s;
       s.unit = g.target.unit;
       s.pdu = {16, uint8_t(run ? run->first >> 8 : 0), uint8_t(run ? run->first & 0xFF : 0), 0, 0, 0};
-      s.what = "write multiple registers, quantity 0";
+      s.note = "write multiple registers, quantity 0";
       s.expect = pe.expect;
       if (run) c.touches = touches(run->first, 1);
       add(std::move(c), s);
@@ -279,7 +297,7 @@ struct Gen {
       Step s;
       s.unit = g.target.unit;
       s.pdu = write_multiple_registers(run->first, words);
-      s.what = fmt::format("write {} x{} (FC 16)", hex16(run->first), words.size());
+      s.note = fmt::format("write {} x{} (FC 16)", hex16(run->first), words.size());
       s.expect = over ? pe.expect : cases::write_echo(s.pdu);
       add(std::move(c), s);
     }
@@ -288,7 +306,7 @@ struct Gen {
       s.unit = g.target.unit;
       std::vector<uint16_t> zeros(n, 0);
       s.pdu = write_multiple_registers(a, zeros);
-      s.what = fmt::format("write {} x{} (FC 16)", hex16(a), n);
+      s.note = fmt::format("write {} x{} (FC 16)", hex16(a), n);
       s.expect = e;
       return std::optional<Step>(s);
     });
@@ -299,7 +317,7 @@ struct Gen {
       Step s;
       s.unit = g.target.unit;
       s.pdu = write_single_register(a, 0);
-      s.what = fmt::format("write {} = 0 (FC 06)", hex16(a));
+      s.note = fmt::format("write {} = 0 (FC 06)", hex16(a));
       s.expect = e;
       return std::optional<Step>(s);
     });
@@ -343,8 +361,17 @@ struct Gen {
       c.requirement = fmt::format("A function code the device does not support: {}.", pe.expect.text);
       Step s;
       s.unit = g.target.unit;
-      std::tie(s.pdu, s.what) = unsupported_request(fc);
+      std::tie(s.pdu, s.note) = unsupported_request(fc);
       s.expect = pe.expect;
+      if (g.map) {
+        // A server on a map chooses which public function codes it implements
+        // (MBAP v1.1b3 §5.1): a code the map's spec leaves out is answered
+        // either way, never judged by that spec's policy.
+        c.functions_optional = false;
+        s.expect.kind = Expect::Kind::answered;
+        s.expect.text = "a reply, normal or exception: the server chooses which public function codes it implements (MBAP v1.1b3 §5.1)";
+        c.requirement = "A server answers every request it receives: with a normal reply, or with an exception (MBAP v1.1b3 §7).";
+      }
       add(std::move(c), s);
     }
   }

@@ -17,6 +17,7 @@
 //   fc08/...                  FC 08 sub-functions 00 and reserved (serial line only, §6.8)
 //   fc43/...                  FC 43 / MEI 14 read device id codes and object ids (§6.21)
 //   fc22/mask                 FC 22's result and echo (§6.16)
+//   fc23/write-before-read    FC 23 reading the register it writes: the value just written (§6.17)
 //   fcNN/reserved             the reserved function codes of MBAP Annex A (§7 code 01)
 //   mbap/...                  short and over-long PDUs, protocol id 1, no PDU (TCP IG §3.1.3)
 //   order/fcNN                the quantity is checked before the address (SHOULD: the diagrams)
@@ -82,7 +83,7 @@ struct Gen {
     Step s;
     s.unit = g.target.unit;
     s.pdu = std::move(pdu);
-    s.what = std::move(what);
+    s.note = std::move(what);
     s.expect = std::move(e);
     return s;
   }
@@ -341,6 +342,35 @@ struct Gen {
     add(std::move(c), *cases::read_step(g, *r, want));
   }
 
+  // MBAP v1.1b3 §6.17: "The write operation is performed before the read."
+  // An FC 23 whose read range overlaps its write range reads the values it
+  // has just written, not the ones before it.
+  void write_before_read() {
+    const spec::Register* r = cases::plain_register(g);
+    if (!cases::has_fc(g.spec, 23) || !r) return;
+    Case c = base("fc23", "write-before-read", "MBAP v1.1b3 §6.17", Level::must);
+    c.register_address = r->address;
+    c.title = fmt::format("FC 23 reading {} and writing it in the same request", hex16(r->address));
+    c.requirement = "MBAP v1.1b3 §6.17: \"This function code performs a combination of one read operation and one write "
+                    "operation in a single MODBUS transaction. The write operation is performed before the read.\"";
+    c.touches.push_back({r->address, 1});
+    cases::plain_relies(c.relies, *r);
+    auto [before, after] = cases::plain_values(*r);
+    auto wb = cases::encode(*r, before), wa = cases::encode(*r, after);
+    auto set = cases::write_step(g, *r, wb);
+    if (!set || wb == wa) return;
+    set->setup = true;
+    set->note = "first: " + set->note;
+    c.steps.push_back(std::move(*set));
+    Bytes rw = rw_pdu(r->address, 1, r->address, 1, 2);
+    rw[10] = uint8_t(wa[0] >> 8);
+    rw[11] = uint8_t(wa[0]);
+    Bytes want{23, 2, uint8_t(wa[0] >> 8), uint8_t(wa[0])};
+    add(std::move(c), step(rw, fmt::format("read {} x1 and write {} = 0x{:04X} (FC 23)", hex16(r->address), hex16(r->address), wa[0]),
+                           cases::exact(want, fmt::format("the value just written, 0x{:04X} (the write is performed before "
+                                                          "the read)", wa[0]))));
+  }
+
   void reserved() {
     for (int fc : kReservedCodes) {
       if (cases::has_fc(g.spec, fc)) continue;
@@ -367,8 +397,9 @@ struct Gen {
       else if (!g.target.raw) c.skip_reason = "the target cannot send raw frames";
       Step s;
       s.kind = Step::Kind::raw;
-      s.adu = std::move(adu);
-      s.what = title;
+      s.framing = Framing::mbap;  // the bytes are an MBAP ADU (TCP IG v1.0b §3.1.3)
+      s.bytes = std::move(adu);
+      s.note = title;
       s.expect = std::move(e);
       c.steps.push_back(std::move(s));
       c.steps.push_back(step(good, fmt::format("read {} (FC 03), a good request after it", hex16(*reg)), cases::normal()));
@@ -436,6 +467,7 @@ struct Gen {
     diagnostics();
     identification();
     mask_write();
+    write_before_read();
     reserved();
     mbap();
     order();

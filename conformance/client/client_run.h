@@ -24,7 +24,14 @@ struct ClientOptions {
   int baud = 19200;          // pty: the nominal rate (t1.5 / t3.5); sent to the adapter
   std::chrono::milliseconds timeout{500};  // the master's response time-out (connect.timeout_ms)
   std::string pty_path;      // pty: where the link is made (default: a temporary directory)
+  // --transport tls (Modbus/TCP Security): make_pki.sh's files (tls_front.h).
+  // The scenarios run as over tcp, inside TLS; client-side security checks follow.
+  std::string tls_pki;
+  nlohmann::json tls_connect;  // set by run_client: the adapter's connect fields
   std::function<void(const conf::CaseResult&, size_t done, size_t total)> on_case;
+  // After each scenario: every request the server saw and every frame it
+  // sent (`mbconform client --pcap`, conformance/capture/pcap_tap.h).
+  std::function<void(const std::vector<SeenRequest>&, const std::vector<SentFrame>&)> on_wire;
 };
 
 struct ClientRun {

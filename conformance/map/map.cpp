@@ -3,6 +3,8 @@
 #include <fmt/core.h>
 
 #include <algorithm>
+#include <array>
+#include <chrono>
 #include <charconv>
 #include <filesystem>
 #include <fstream>
@@ -11,6 +13,7 @@
 
 #include "modbus/hex.h"
 #include "modbus/judge.h"
+#include "modbus/rtu.h"
 #include "modbus/limits.h"
 #include "modbus/pdu.h"
 #include "yaml_json.h"
@@ -57,41 +60,126 @@ void sort_blocks(Map& m) {
 
 // ---- probe ----
 
+// The probe (map.h): a table's state per address, filled by reads.
+enum class Seen : uint8_t { unknown, mapped, unmapped };
+
+// Where vendors put registers beyond the first few hundred: at round
+// decimal and hex bases, a few words in. The likeliest first: 1000s up to
+// 10000 and 0x1000s; then 100s up to 10000 and 0x100s up to 0x2000; then
+// the 1000s above 10000; then 10s and 0x10s. Each tier is tried in every
+// table before the next, so a budget or time bound that runs out loses the
+// least likely places first.
+struct SeedTier {
+  std::vector<uint32_t> bases;
+  uint32_t offsets;  // base + 0 .. base + offsets - 1
+};
+
+std::vector<SeedTier> seed_tiers() {
+  auto multiples = [](std::vector<uint32_t>& out, uint32_t step, uint32_t from, uint32_t upto) {
+    for (uint32_t b = from; b <= upto && b <= 0xFFFF; b += step) out.push_back(b);
+  };
+  std::vector<SeedTier> tiers(4);
+  multiples(tiers[0].bases, 1000, 1000, 10000);
+  multiples(tiers[0].bases, 0x1000, 0x1000, 0xFFFF);
+  tiers[0].offsets = 4;
+  multiples(tiers[1].bases, 100, 100, 10000);
+  multiples(tiers[1].bases, 0x100, 0x100, 0x2000);
+  tiers[1].offsets = 4;
+  multiples(tiers[2].bases, 1000, 11000, 0xFFFF);
+  tiers[2].offsets = 4;
+  multiples(tiers[3].bases, 10, 10, 1000);
+  multiples(tiers[3].bases, 0x10, 0x10, 0x400);
+  tiers[3].offsets = 2;
+  std::vector<uint32_t> earlier;
+  for (auto& t : tiers) {
+    std::sort(t.bases.begin(), t.bases.end());
+    t.bases.erase(std::unique(t.bases.begin(), t.bases.end()), t.bases.end());
+    // A base an earlier tier tried is not tried again.
+    std::erase_if(t.bases, [&](uint32_t b) { return std::binary_search(earlier.begin(), earlier.end(), b); });
+    earlier.insert(earlier.end(), t.bases.begin(), t.bases.end());
+    std::sort(earlier.begin(), earlier.end());
+  }
+  return tiers;
+}
+
 class Prober {
  public:
-  Prober(Target& t, int budget) : t_(t), budget_(budget) {}
+  Prober(Target& t, const ProbeLimits& limits) : t_(t), limits_(limits) {}
 
   Map run() {
     m_.source = "probe of " + t_.info().uri;
+    t0_ = std::chrono::steady_clock::now();
     // Replies are expected to reads; an unmapped address may be silent, so
     // a read waits the adaptive window, and a read whose reply came late is
     // read again.
     t_.set_wait(Target::Wait::window);
-    for (const auto& ti : kTables) {
-      if (!table(ti)) break;
-    }
+    explore();
     t_.set_wait(Target::Wait::automatic);
     m_.requests = used_;
+    m_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0_).count();
+    for (const auto& ti : kTables) {
+      const auto& s = seen_[int(ti.table)];
+      for (uint32_t a = 0; a <= 0xFFFF; ++a) {
+        if (s[a] != Seen::mapped) continue;
+        uint32_t b = a;
+        while (b < 0xFFFF && s[b + 1] == Seen::mapped) ++b;
+        m_.blocks.push_back({ti.table, uint16_t(a), uint16_t(b), std::nullopt});
+        a = b;
+      }
+    }
     sort_blocks(m_);
+    if (!ok_latency_.empty() || !exception_latency_.empty())
+      m_.notes.push_back(fmt::format("replies took {} (median of {}), exceptions {} (median of {})", median_ms(ok_latency_),
+                                     ok_latency_.size(), median_ms(exception_latency_), exception_latency_.size()));
     return std::move(m_);
   }
 
  private:
-  enum class Answer { mapped, unmapped, unsupported, budget };
+  enum class Answer { mapped, unmapped, unsupported, out };  // out: budget or time ran out
 
-  Answer read(const TableInfo& ti, uint32_t address, uint32_t quantity) {
+  struct Stop {};  // the budget or the time ran out
+
+  static std::string median_ms(std::vector<double> v) {
+    if (v.empty()) return "-";
+    std::nth_element(v.begin(), v.begin() + long(v.size() / 2), v.end());
+    return fmt::format("{:.1f} ms", v[v.size() / 2]);
+  }
+
+  bool out() {
+    if (used_ >= limits_.budget) return true;
+    if (limits_.time && std::chrono::steady_clock::now() - t0_ >= *limits_.time) return true;
+    return false;
+  }
+
+  void stop(const TableInfo& ti, uint32_t at) {
+    m_.partial = true;
+    bool by_time = used_ < limits_.budget;
+    m_.partial_at = fmt::format("{} 0x{:04X}", ti.name, at);
+    m_.partial_by = by_time ? "time" : "budget";
+    throw Stop{};
+  }
+
+  // A read of `quantity` items from `address`; throws Stop when out of budget or time.
+  Answer read(const TableInfo& ti, uint32_t address, uint32_t quantity, std::string* what = nullptr) {
+    Bytes req = read_request(ti.read_fc, uint16_t(address), uint16_t(quantity));
     for (int attempt = 0;; ++attempt) {
-      if (used_ >= budget_) return Answer::budget;
+      if (out()) stop(ti, address);
       ++used_;
       uint64_t late = t_.late_replies();
-      Reply r = t_.transact(t_.info().unit, read_request(ti.read_fc, uint16_t(address), uint16_t(quantity)));
+      Reply r = t_.transact(t_.info().unit, req);
       if (t_.late_replies() != late && attempt < 2) continue;  // the window widened: ask again
+      double ms = std::chrono::duration<double, std::milli>(r.latency).count();
       std::string answer;
       if (r.pdu && !r.pdu->empty() && !((*r.pdu)[0] & 0x80)) {
-        Judged j = judge_reply(read_request(ti.read_fc, uint16_t(address), uint16_t(quantity)), *r.pdu);
-        if (j.ok()) return Answer::mapped;
-        answer = "a malformed reply";
+        Judged j = judge_reply(req, *r.pdu);
+        if (j.ok()) {
+          ok_latency_.push_back(ms);
+          if (quantity == 1) seen_[int(ti.table)][address] = Seen::mapped;
+          return Answer::mapped;
+        }
+        answer = "a malformed reply (" + (j.problems.empty() ? std::string("unreadable") : j.problems.front()) + ")";
       } else if (r.pdu && r.pdu->size() >= 2) {
+        exception_latency_.push_back(ms);
         answer = fmt::format("exception {:02X}", (*r.pdu)[1]);
         if ((*r.pdu)[1] == 1) {
           note(ti.table, answer + " (function not supported)");
@@ -100,10 +188,137 @@ class Prober {
       } else {
         answer = r.silent() ? "silence" : "an unusable reply: " + r.framing_error;
       }
-      if (quantity == 1) note(ti.table, answer);
+      if (quantity == 1) {
+        note(ti.table, answer);
+        seen_[int(ti.table)][address] = Seen::unmapped;
+      }
+      if (what) *what = answer;
       return Answer::unmapped;
     }
   }
+
+  Seen& at(const TableInfo& ti, uint32_t a) { return seen_[int(ti.table)][a]; }
+
+  // A single read of `a` unless it is known; true when mapped.
+  bool single(const TableInfo& ti, uint32_t a) {
+    if (at(ti, a) != Seen::unknown) return at(ti, a) == Seen::mapped;
+    return read(ti, a, 1) == Answer::mapped;
+  }
+
+  // From `a`, a run of mapped addresses: reads of the standard's maximum
+  // quantity, the end found by bisection. Returns the last mapped address
+  // (a - 1 when `a` itself is not). A multi-item read says nothing of each
+  // item, so the end it gives is checked with a single read: a server that
+  // answers a read of bits in full though its last bits are past its table
+  // (MBAP v1.1b3 §6.1 wants exception 02) deviates, and is reported.
+  uint32_t grow(const TableInfo& ti, uint32_t a) {
+    uint32_t last = a - 1;  // a >= 1 here: address 0 is always read singly first
+    // Reads of 4, 8, 16, ... items up to the limit: a short run costs a few
+    // reads, a long one a read per limit.
+    for (uint32_t step = 4;; step = std::min<uint32_t>(step * 2, ti.max_read)) {
+      if (last == 0xFFFF) break;
+      uint32_t n = std::min<uint32_t>(step, 0xFFFF - last);
+      if (read(ti, last + 1, n) == Answer::mapped) {
+        last += n;
+        continue;
+      }
+      uint32_t lo = 0, hi = n;  // reads of lo items from last + 1 answer, of hi do not
+      while (hi - lo > 1) {
+        uint32_t mid = lo + (hi - lo) / 2;
+        (read(ti, last + 1, mid) == Answer::mapped ? lo : hi) = mid;
+      }
+      // The read that failed may have failed for its quantity (a device's
+      // own limit below the standard's), not for last + 1: that address is
+      // left to a single read.
+      last += lo;
+      break;
+    }
+    if (last + 1 == a) return last;
+    // Check the end singly, backing off over what a single read refuses.
+    uint32_t claimed = last;
+    std::string refused;
+    while (last >= a && at(ti, last) != Seen::mapped) {
+      at(ti, last) = Seen::unknown;
+      if (read(ti, last, 1, &refused) == Answer::mapped) break;
+      at(ti, last) = Seen::unmapped;
+      --last;
+    }
+    for (uint32_t x = a; x <= last; ++x) at(ti, x) = Seen::mapped;
+    if (last != claimed)
+      m_.deviations.push_back(fmt::format(
+          "{}: a read through 0x{:04X} answered in full, but a read of 0x{:04X} alone got {}: the server answers for "
+          "addresses past its table's end (MBAP v1.1b3 §6.{}: exception 02 when address + quantity is past the table); "
+          "the map ends at 0x{:04X}",
+          ti.name, claimed, claimed, refused, int(ti.read_fc), last));
+    return last;
+  }
+
+  // Single reads from `from` on: a run of `run_to_grow` mapped addresses is
+  // grown with full reads; stops after `gap` unmapped addresses in a row
+  // once past `min_end`.
+  void scan(const TableInfo& ti, uint32_t from, uint32_t min_end, uint32_t gap) {
+    uint32_t misses = 0, run = 0;
+    for (uint32_t a = from; a <= 0xFFFF && (a < min_end || misses < gap); ++a) {
+      if (run >= 3 && at(ti, a) == Seen::unknown) {
+        uint32_t last = grow(ti, a);
+        run = 0;
+        if (last + 1 != a) {
+          a = last;  // the loop steps past the unmapped address after the run
+          misses = 0;
+          continue;
+        }
+      }
+      if (single(ti, a)) {
+        ++run;
+        misses = 0;
+      } else {
+        run = 0;
+        ++misses;
+      }
+    }
+  }
+
+  // Around an address found by a seed: back to the start of its cluster,
+  // then on to its end.
+  void cluster(const TableInfo& ti, uint32_t a) {
+    uint32_t misses = 0;
+    for (uint32_t b = a; b-- > 0 && misses < kClusterGap;) misses = single(ti, b) ? 0 : misses + 1;
+    scan(ti, a + 1, a + 1, kClusterGap);
+  }
+
+  void explore() {
+    std::vector<const TableInfo*> tables;
+    try {
+      // Which tables answer at all (exception 01: the function is not supported).
+      for (const auto& ti : kTables)
+        if (read(ti, 0, 1) != Answer::unsupported) tables.push_back(&ti);
+      // The first few hundred addresses, one by one: where most drives keep their maps.
+      for (const auto* ti : tables) scan(*ti, 1, kDenseSpan, kDenseGap);
+      for (const auto& tier : seed_tiers())
+        for (const auto* ti : tables)
+          for (uint32_t base : tier.bases)
+            for (uint32_t o = 0; o < tier.offsets && base + o <= 0xFFFF; ++o) {
+              uint32_t a = base + o;
+              if (at(*ti, a) != Seen::unknown) continue;
+              if (single(*ti, a)) {
+                cluster(*ti, a);
+                break;
+              }
+            }
+    } catch (const Stop&) {
+    }
+  }
+
+  static constexpr uint32_t kDenseGap = 64, kClusterGap = 16;
+
+  Target& t_;
+  ProbeLimits limits_;
+  int used_ = 0;
+  std::chrono::steady_clock::time_point t0_;
+  std::array<std::vector<Seen>, 4> seen_{std::vector<Seen>(0x10000), std::vector<Seen>(0x10000), std::vector<Seen>(0x10000),
+                                         std::vector<Seen>(0x10000)};
+  std::vector<double> ok_latency_, exception_latency_;
+  Map m_;
 
   void note(Table t, const std::string& answer) {
     for (auto& u : m_.unmapped)
@@ -113,76 +328,6 @@ class Prober {
       }
     m_.unmapped.push_back({t, answer, 1});
   }
-
-  bool out_of_budget(const TableInfo& ti, uint32_t at) {
-    m_.partial = true;
-    m_.partial_at = fmt::format("{} 0x{:04X}", ti.name, at);
-    return false;
-  }
-
-  // Walks the table; false when the budget ran out.
-  bool table(const TableInfo& ti) {
-    std::optional<uint32_t> last_unmapped;
-    for (uint32_t a = 0; a <= 0xFFFF;) {
-      Answer s = read(ti, a, 1);
-      if (s == Answer::budget) return out_of_budget(ti, a);
-      if (s == Answer::unsupported) return true;
-      if (s == Answer::unmapped) {
-        last_unmapped = a;
-        a = (a / kStride + 1) * kStride;
-        continue;
-      }
-      // A mapped sample: its block starts after the last unmapped address
-      // seen (bisected), and runs on as far as full reads go (bisected).
-      uint32_t first = a;
-      if (last_unmapped && *last_unmapped + 1 < a) {
-        uint32_t lo = *last_unmapped, hi = a;  // lo unmapped, hi mapped
-        while (hi - lo > 1) {
-          uint32_t mid = lo + (hi - lo) / 2;
-          Answer m = read(ti, mid, 1);
-          if (m == Answer::budget) return out_of_budget(ti, mid);
-          (m == Answer::mapped ? hi : lo) = mid;
-        }
-        first = hi;
-      }
-      uint32_t last = a;
-      for (;;) {
-        if (last == 0xFFFF) break;
-        uint32_t n = std::min<uint32_t>(ti.max_read, 0xFFFF - last);
-        Answer m = read(ti, last + 1, n);
-        if (m == Answer::budget) {
-          m_.blocks.push_back({ti.table, uint16_t(first), uint16_t(last), std::nullopt});
-          return out_of_budget(ti, last + 1);
-        }
-        if (m == Answer::mapped) {
-          last += n;
-          continue;
-        }
-        uint32_t lo = 0, hi = n;  // reads of lo items from last + 1 answer, of hi do not
-        while (hi - lo > 1) {
-          uint32_t mid = lo + (hi - lo) / 2;
-          Answer k = read(ti, last + 1, mid);
-          if (k == Answer::budget) {
-            m_.blocks.push_back({ti.table, uint16_t(first), uint16_t(last + lo), std::nullopt});
-            return out_of_budget(ti, last + 1 + lo);
-          }
-          (k == Answer::mapped ? lo : hi) = mid;
-        }
-        last += lo;
-        break;
-      }
-      m_.blocks.push_back({ti.table, uint16_t(first), uint16_t(last), std::nullopt});
-      last_unmapped = last + 1;
-      a = (last + 1) / kStride * kStride + kStride;
-      if (last + 1 < a && last + 1 <= 0xFFFF) last_unmapped = last + 1;
-    }
-    return true;
-  }
-
-  Target& t_;
-  int budget_;
-  int used_ = 0;
-  Map m_;
 };
 
 // ---- text ----
@@ -238,9 +383,24 @@ std::string Map::describe() const {
 
 int planned_requests(int budget) { return budget; }
 
+std::vector<std::string> probe_notes(const Map& m) {
+  std::vector<std::string> out;
+  out.push_back(fmt::format("map probed in {} requests, {:.2f} s: {}", m.requests, m.seconds, m.describe()));
+  for (const auto& u : m.unmapped)
+    out.push_back(fmt::format("unmapped {} addresses answered: {} ({} probes)", table_name(u.table), u.answer, u.seen));
+  if (m.partial)
+    out.push_back(fmt::format("PARTIAL MAP: the probe's {} ran out at {}; nothing past it was probed (--map-{})", m.partial_by,
+                              m.partial_at, m.partial_by));
+  for (const auto& d : m.deviations) out.push_back("DEVIATION while probing: " + d);
+  for (const auto& n : m.notes) out.push_back("probe: " + n);
+  return out;
+}
+
 const char* table_name(Table t) { return info_of(t).name; }
 
-Map probe(Target& target, int budget) { return Prober(target, budget).run(); }
+Map probe(Target& target, const ProbeLimits& limits) { return Prober(target, limits).run(); }
+
+Map probe(Target& target, int budget) { return probe(target, ProbeLimits{budget, std::nullopt}); }
 
 Map parse_inline(const std::string& text) {
   Map m;
@@ -350,7 +510,11 @@ std::string skeleton_yaml(const Map& m, const std::string& id, uint8_t unit) {
       "profile:\n"
       "  function_codes:  # the reads that answered; writes were not probed\n",
       m.source, m.requests,
-      m.partial ? fmt::format("# PARTIAL: the probe budget ran out at {}; nothing past it was probed.\n", m.partial_at) : "",
+      [&] {
+        std::string s = m.partial ? fmt::format("# PARTIAL: the probe's {} ran out at {}; nothing past it was probed.\n", m.partial_by, m.partial_at) : "";
+        for (const auto& d : m.deviations) s += "# DEVIATION: " + d + "\n";
+        return s;
+      }(),
       id, "mbconform spec discover, " + m.source, unit ? unit : 1);
   bool any = false;
   for (const auto& ti : kTables) {
@@ -400,28 +564,7 @@ std::string skeleton_yaml(const Map& m, const std::string& id, uint8_t unit) {
   return y;
 }
 
-void adapt_cases(std::vector<Case>& cases, const Map& map, bool allow_writes) {
-  for (auto& c : cases) {
-    bool writing = std::any_of(c.steps.begin(), c.steps.end(), [](const Step& st) { return writes(st.pdu); });
-    if (writing && !allow_writes && !map.access_known() && c.skip_reason.empty())
-      c.skip_reason = "writes on a map whose access is not stated (a probe cannot tell what is writable): needs --allow-writes";
-    c.functions_optional = !(c.family == "function-codes" && c.id.ends_with("/unsupported"));
-    if (c.family == "function-codes" && c.id.ends_with("/unsupported"))
-      for (auto& st : c.steps) {
-        st.expect.kind = Expect::Kind::answered;
-        st.expect.text = "a reply, normal or exception: the server chooses which public function codes it implements (MBAP v1.1b3 §5.1)";
-        c.requirement = "A server answers every request it receives: with a normal reply, or with an exception (MBAP v1.1b3 §7).";
-      }
-  }
-}
-
-bool writes(const Bytes& pdu) {
-  if (pdu.empty()) return false;
-  switch (pdu[0]) {
-    case 5: case 6: case 15: case 16: case 22: case 23: return true;
-    default: return false;
-  }
-}
+OnMap terms(const Map& map, bool allow_writes) { return OnMap{map.access_known(), allow_writes}; }
 
 namespace {
 
@@ -440,7 +583,7 @@ bool example_inside(const spec::Example& ex, const Map& m) {
   auto parsed = parse_hex(ex.resolved_request.value_or(ex.request));
   if (!parsed || parsed->size() < 4) return false;
   const Bytes& adu = *parsed;
-  Bytes pdu(adu.begin() + 1, adu.end() - 2);
+  Bytes pdu = rtu_unframe(adu).pdu;
   if (pdu.size() < 5) return false;
   auto be = [&](size_t at) { return uint32_t(pdu[at] << 8 | pdu[at + 1]); };
   // The most addresses one request can touch in a table: its read's limit.

@@ -7,6 +7,7 @@
 // tell whether an address is writable (write cases then need --allow-writes).
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -35,9 +36,15 @@ struct Map {
   std::string source;             // "probe of tcp://...", "file x.yaml", "inline"
   std::vector<Block> blocks;      // sorted by table, then address
   std::vector<Unmapped> unmapped; // probe only
-  bool partial = false;           // the probe ran out of budget: addresses past `partial_at` were not probed
+  bool partial = false;           // the probe ran out of budget or time: addresses past `partial_at` were not probed
   std::string partial_at;
+  std::string partial_by;         // "budget" or "time"
   int requests = 0;               // probe requests sent
+  double seconds = 0;             // how long the probe took
+  // Probe only: how the server departed from the standard while probed
+  // (a read answered in full though its last items are past the table).
+  std::vector<std::string> deviations;
+  std::vector<std::string> notes;  // probe only: what the probe learned (reply and exception latency)
   bool access_known() const;      // every block states its access
   bool covers(spec::Table t, uint16_t address) const;
   std::string describe() const;   // "holding 0x0000-0x00C7, coils 0x0000-0x00C7, ..."
@@ -50,13 +57,29 @@ inline constexpr int kDefaultBudget = 2000;
 // bounded by the budget whatever the target answers).
 int planned_requests(int budget);
 
+struct ProbeLimits {
+  int budget = kDefaultBudget;                     // the most requests (--map-budget)
+  std::optional<std::chrono::milliseconds> time;   // the longest the probe runs (--map-time)
+};
+
 // Probes `target` at info().unit with bounded reads (FC 01/02/03/04, never a
-// write): one read every kStride addresses of each table, each mapped sample
-// grown with reads of the standard's maximum quantity and its edges found by
-// bisection. An address is unmapped when a read of it gets an exception or
-// silence; `unmapped` records which. Stops at `budget` requests (partial).
+// write). Which tables answer (exception 01: not supported); then each
+// table's first kDenseSpan addresses one by one, a run of mapped ones grown
+// with multi-item reads (4, 8, ... up to the standard's maximum quantity);
+// then seeds where vendors put registers (round decimal and hex bases, a few
+// words in: 1000s and 0x1000s, then 100s and 0x100s, then 10s and 0x10s),
+// each hit followed back and on to the ends of its cluster. A real map has
+// gaps (single registers among unmapped addresses), and a multi-item read
+// over a gap fails, so single reads find what block reads cannot. An address
+// is unmapped when a read of it gets an exception or silence; `unmapped`
+// records which. Stops when the budget or the time runs out (partial).
+Map probe(Target& target, const ProbeLimits& limits);
 Map probe(Target& target, int budget = kDefaultBudget);
-inline constexpr uint32_t kStride = 256;
+inline constexpr uint32_t kDenseSpan = 256;
+
+// What a probe found and learned, one line each, for the run's notes and
+// the terminal: requests and time, the unmapped answers, partial, deviations.
+std::vector<std::string> probe_notes(const Map& map);
 
 // 'holding=0-199,coils=0-199,discrete=0-199,input=0-199'; several ranges of
 // a table are joined with '+' ('holding=0-99+200-299'); ':rw' or ':ro' after
@@ -92,15 +115,8 @@ const char* table_name(spec::Table);
 // unspecified or marked as a placeholder to state from the manual.
 std::string skeleton_yaml(const Map& map, const std::string& device_id, uint8_t unit);
 
-// What a map cannot tell, applied to the cases generated on it:
-//  - the cases that write are skipped unless `allow_writes` or the map states
-//    every block's access (a probe cannot tell what is writable);
-//  - which public function codes the server implements is its own choice
-//    (MBAP v1.1b3 §5.1), so a code the spec's device leaves out
-//    ("<fc>/unsupported") expects a reply, normal or exception, not exception 01.
-void adapt_cases(std::vector<Case>& cases, const Map& map, bool allow_writes);
-
-// Whether a request PDU writes (FC 05, 06, 15, 16, 22, 23).
-bool writes(const Bytes& pdu);
+// What a map cannot tell is an input to generating the cases on it
+// (GenContext::map, cases/case.h): the terms for this map.
+OnMap terms(const Map& map, bool allow_writes);
 
 }  // namespace mbc::conf::map

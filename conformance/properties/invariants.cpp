@@ -107,9 +107,12 @@ void rejection_changes_nothing(Session& s) {
 
 void foreign_or_corrupt_ignored(Session& s) {
   const SpecView& v = s.view();
-  Request req = pick_bool() || v.writable().empty() ? pick_valid_read(v) : pick_valid_write(v);
-  Image before = image_or_fail(s, "before");
   bool corrupt = s.target().info().raw && pick_bool();
+  // A valid frame to another slave is a read: a write would change a drive
+  // on the line that nothing restores (the session's gate refuses it). A
+  // write goes out only corrupted, which no receiver takes.
+  Request req = !corrupt || pick_bool() || v.writable().empty() ? pick_valid_read(v) : pick_valid_write(v);
+  Image before = image_or_fail(s, "before");
   if (corrupt) {
     Bytes frame = rtu_frame(s.unit(), req.pdu);
     size_t at = pick<size_t>(0, frame.size());
@@ -265,6 +268,8 @@ void persistence(Session& s) {
       continue;  // whether a save stores what the do-not-persist switch held back is not stated (57HS-R §6.1)
     } else if (r.basis_of(spec::Fact::persistence).basis != spec::Basis::stated) {
       continue;  // an inferred persistence is not held against the device (spec/README.md)
+    } else if (held_back.count(a) && r.basis_of(spec::Fact::persistence_unless).basis != spec::Basis::stated) {
+      continue;  // that the switch held the write back is inferred (57HS-R 0x00E0, erratum pv-autosave)
     } else if (r.persistence.store == spec::Store::none) {
       want = v.default_raw(r), why = "volatile: its default";
     } else if (stored.count(a)) {

@@ -17,15 +17,15 @@
 
 namespace mbc::conf::props {
 
-script::Step Step::script() const {
+check::Step Step::script() const {
   switch (kind) {
-    case Kind::advance: return script::advance(advance_us);
-    case Kind::power_cycle: return script::power_cycle();
+    case Kind::advance: return check::advance(advance_us);
+    case Kind::power_cycle: return check::power_cycle();
     case Kind::frame: break;
   }
-  script::Step s = frame.size() >= 4 && crc_ok(frame)
-                       ? script::frame(framing, frame[0], Bytes(frame.begin() + 1, frame.end() - 2))
-                       : script::raw_rtu(frame);
+  check::Step s = frame.size() >= 4 && crc_ok(frame)
+                       ? check::frame(framing, frame[0], rtu_unframe(frame).pdu)
+                       : check::raw_rtu(frame);
   s.tid = tid;
   s.expect = expect;
   s.note = note;
@@ -33,9 +33,9 @@ script::Step Step::script() const {
 }
 
 std::string Step::line() const {
-  script::Step s = script();
+  check::Step s = script();
   s.note.clear();
-  return script::line(s);
+  return check::line(s);
 }
 
 namespace {
@@ -95,8 +95,8 @@ std::vector<FrameRecord> records_of(const std::vector<Step>& steps) {
     FrameRecord f;
     f.step = s.note.empty() ? s.line() : s.note;
     if (s.kind == Step::Kind::frame) {
-      script::Step sc = s.script();
-      f.request = script::wire_bytes(sc, sc.kind == script::Step::Kind::raw ? Framing::rtu : s.framing);
+      check::Step sc = s.script();
+      f.request = check::wire_bytes(sc, sc.kind == check::Step::Kind::raw ? Framing::rtu : s.framing);
       f.actual = s.reply;
       if (s.frame.size() >= 4) f.request_decoded = describe_pdu(std::span(s.frame).subspan(1, s.frame.size() - 3), true);
       if (s.reply_pdu) f.actual_decoded = describe_pdu(*s.reply_pdu, false);

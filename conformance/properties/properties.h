@@ -6,7 +6,7 @@
 // `mbconform props --target URI`.
 //
 // A failing property is shrunk by RapidCheck to a minimal case; the frames of
-// that case are kept as a frame script (conformance/script/README.md), with
+// that case are kept as a frame script (conformance/check/README.md), with
 // the seed, so it can be replayed with `mbconform replay` or any master, or
 // added to regressions/.
 #pragma once
@@ -22,14 +22,15 @@
 #include "properties/spec_view.h"
 #include "report/result.h"
 #include "safety/safety.h"
-#include "script/script.h"
+#include "check/judge.h"
+#include "check/text.h"
 #include "spec.h"
 #include "targets/target.h"
 
 namespace mbc::conf::props {
 
 // One thing done to the target, as kept in a counterexample and in a
-// regression file (a frame script: conformance/script/README.md).
+// regression file (a frame script: conformance/check/README.md).
 struct Step {
   enum class Kind { frame, advance, power_cycle } kind = Kind::frame;
   Bytes frame;          // the frame as an RTU ADU (slave, PDU, CRC; possibly corrupted): what the model reads
@@ -38,12 +39,12 @@ struct Step {
   uint64_t advance_us = 0;
   std::optional<Bytes> reply;      // as received, in the target's framing; nullopt = silence (frames only)
   std::optional<Bytes> reply_pdu;  // the reply's PDU, when its framing was valid
-  script::Expect expect;           // what the model (from the spec) predicted for it
+  check::Expect expect;           // what the model (from the spec) predicted for it
   std::string note;                // what the step meant ("write 0x0020 = 1000")
   // As a frame-script step: a frame with a valid CRC is a unit and a PDU,
   // printed in the framing it was sent in; a corrupted one is raw RTU bytes.
-  script::Step script() const;
-  std::string line() const;        // script::line(script()), without the note
+  check::Step script() const;
+  std::string line() const;        // check::line(script()), without the note
 };
 
 // The target a property case runs on, plus the record of what was done.
@@ -63,7 +64,7 @@ class Session {
   void power_cycle();
   const std::vector<Step>& steps() const { return steps_; }
   // The expectation the model gave the last step sent (kept in counterexamples).
-  void expect_last(script::Expect e) {
+  void expect_last(check::Expect e) {
     if (!steps_.empty()) steps_.back().expect = std::move(e);
   }
   // send(), as the readers in spec_view.h take it.

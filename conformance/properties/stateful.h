@@ -24,9 +24,9 @@ struct Regression {
   std::string note;   // the comment lines
   std::vector<Step> steps;
 };
-// A regression file is a frame script (conformance/script/README.md) with a
+// A regression file is a frame script (conformance/check/README.md) with a
 // `device` line; `fault` names the broken device it was found with. Throws
-// script::ParseError (file:line:col) or std::runtime_error.
+// check::ParseError (file:line:col) or std::runtime_error.
 Regression parse_regression(const std::string& path);
 std::string format_regression(const std::string& device_id, const std::string& fault, const std::string& comment,
                               const std::vector<Step>& steps);

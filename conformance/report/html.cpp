@@ -1,8 +1,11 @@
-// report.html: one self-contained page (no scripts, no external files): the
-// summary per device, a register table coloured by the worst result of the
-// register's cases, every failing case with its frames in hex and decoded
-// beside the manual section, OBSERVED deviations, and a latency histogram
-// drawn with CSS bars.
+// report.html: one self-contained page (no scripts, no external files). It
+// opens with the qualification summary (html_summary.cpp: verdict, identity,
+// counts, failures by cause, errata, skipped families); below it, per
+// device: every failing case with its frames in hex, the bytes that differ
+// marked, and decoded beside the manual section; the register table with
+// names, coloured by the worst result of the register's cases; OBSERVED
+// deviations; a latency histogram drawn with CSS bars. Printed, the summary
+// takes at most two A4 pages and the details start on a page of their own.
 #include <fmt/core.h>
 #include <fmt/format.h>
 
@@ -10,24 +13,13 @@
 #include <cmath>
 #include <map>
 
+#include "report/html_util.h"
 #include "report/report.h"
 
 namespace mbc::conf {
 namespace {
 
-std::string esc(const std::string& s) {
-  std::string out;
-  for (char c : s) {
-    switch (c) {
-      case '&': out += "&amp;"; break;
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '"': out += "&quot;"; break;
-      default: out += c;
-    }
-  }
-  return out;
-}
+using html::esc;
 
 int severity(Outcome o) {
   switch (o) {
@@ -65,11 +57,22 @@ table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding
 .pass{background:#d7f5d7}.fail{background:#f8c8c8}.skip{background:#eee}.observed{background:#fff0c0}
 code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
 .bar{background:#4a7;height:1em}.hist td:nth-child(2){width:30em}.regs td{font-size:12px}
+.verdict{font-size:20px;padding:.6em 1em;border-radius:4px;margin-bottom:1em}.verdict b{font-size:26px;margin-right:.5em}
+.verdict.pass{background:#2e7d32;color:#fff}.verdict.fail{background:#c62828;color:#fff}.verdict.incomplete{background:#ef6c00;color:#fff}
+.verdict small{font-size:13px;opacity:.9}.facts th{width:12em;background:#f6f6f6}.counts td,.counts th{text-align:right}
+.device-summary{border-top:2px solid #999;margin-top:1em}.device-summary h2 small{font-weight:normal;color:#666}
+.causes code{font-size:11px;word-break:break-all}ul{margin:.3em 0}mark{background:#f44;color:#fff}
+.detail{border-top:3px double #999;margin-top:2em}
+@page{size:A4;margin:12mm}
+@media print{body{margin:0;font-size:10px;max-width:none}.verdict{font-size:14px;-webkit-print-color-adjust:exact;print-color-adjust:exact}
+ .verdict b{font-size:18px}.pass,.fail,.observed,.skip,mark{-webkit-print-color-adjust:exact;print-color-adjust:exact}
+ h2{font-size:14px;margin:.4em 0}h3{font-size:12px;margin:.4em 0}code,pre{font-size:9px}.causes code{font-size:8px}
+ tr,li{break-inside:avoid}h2,h3{break-after:avoid}.detail{break-before:page}}
 </style></head><body>)";
-  if (std::string inc = incomplete_line(rep); !inc.empty()) h += "<p class=fail><b>" + esc(inc) + "</b></p>";
-  h += fmt::format("<h1>mbconform {}</h1><p>Started {} · version {}{}</p>", esc(rep.command), esc(rep.started_at),
-                   esc(rep.version), rep.interrupted ? " · <b>interrupted: partial results</b>" : "");
-  h += "<h2>Summary</h2><table><tr><th>device</th><th>target</th><th>cases</th><th>pass</th><th>fail</th><th>MUST failed</th>"
+  h += html::summary(rep);
+  h += fmt::format("<div class=detail><h1>Details</h1><p>mbconform {} · started {} · version {}{}</p>", esc(rep.command),
+                   esc(rep.started_at), esc(rep.version), rep.interrupted ? " · <b>interrupted: partial results</b>" : "");
+  h += "<table><tr><th>device</th><th>target</th><th>cases</th><th>pass</th><th>fail</th><th>MUST failed</th>"
        "<th>observed</th><th>skip</th><th>wall</th><th>wire-time bound</th></tr>";
   for (const auto& d : rep.devices) {
     Counts c = count(d);
@@ -101,11 +104,29 @@ code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
       for (const auto& f : d.broadcast_writes) h += "<li>" + esc(f) + "</li>";
       h += "</ul>";
     }
+    h += "<h3 class=failures>Failing cases</h3>";
+    bool any = false;
+    for (const auto& r : d.cases) {
+      if (r.outcome != Outcome::fail || !r.quirk.empty()) continue;
+      any = true;
+      h += fmt::format("<div class=fail><p><b>{}</b> [{}] <i>{}</i><br>{}<br>Requirement: {}<br>{}{}</p>", esc(r.id),
+                       to_string(r.level), esc(r.clause), esc(r.title), esc(r.requirement), esc(r.message),
+                       r.errata.empty() ? "" : "<br>Errata: " + esc(fmt::format("{}", fmt::join(r.errata, ", "))));
+      h += "<table><tr><th>step</th><th>request</th><th>expected</th><th>actual</th><th>difference</th></tr>";
+      for (const auto& f : r.frames)
+        h += fmt::format("<tr><td>{}</td><td><code>{}</code><pre>{}</pre></td><td>{}<pre>{}</pre></td><td><code>{}</code><pre>{}</pre></td><td>{}</td></tr>",
+                         esc(f.step), to_hex(f.request), esc(f.request_decoded), esc(f.expected_text),
+                         f.expected ? to_hex(*f.expected) + "\n" + esc(f.expected_decoded) : "", f.actual ? to_hex(*f.actual) : "silence",
+                         esc(f.actual_decoded), f.expected ? html::byte_diff(*f.expected, f.actual) : "");
+      h += "</table></div>";
+    }
+    if (!any) h += "<p>None.</p>";
+
     // Registers: the worst outcome of each register's cases.
     std::map<uint16_t, std::vector<const CaseResult*>> by_reg;
     for (const auto& r : d.cases)
       if (r.register_address) by_reg[*r.register_address].push_back(&r);
-    h += "<h3>Registers</h3><table class=regs><tr><th>address</th><th>cases</th></tr>";
+    h += "<h3>Registers</h3><table class=regs><tr><th>address</th><th>name</th><th>cases</th></tr>";
     for (const auto& [addr, rs] : by_reg) {
       int worst = 0;
       for (auto* r : rs) worst = std::max(worst, severity(r->outcome));
@@ -115,27 +136,11 @@ code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
         std::string leaf = r->id.substr(r->id.rfind('/') + 1);
         cells += fmt::format("<span class={} title=\"{}\">{}</span> ", to_string(r->outcome), esc(r->title + ": " + r->message), esc(leaf));
       }
-      h += fmt::format("<tr><td class={}><code>0x{:04X}</code></td><td>{}</td></tr>", cls, addr, cells);
+      auto name = d.facts.register_names.find(addr);
+      h += fmt::format("<tr><td class={}><code>0x{:04X}</code></td><td>{}</td><td>{}</td></tr>", cls, addr,
+                       name == d.facts.register_names.end() ? "" : esc(name->second), cells);
     }
     h += "</table>";
-
-    h += "<h3>Failing cases</h3>";
-    bool any = false;
-    for (const auto& r : d.cases) {
-      if (r.outcome != Outcome::fail || !r.quirk.empty()) continue;
-      any = true;
-      h += fmt::format("<div class=fail><p><b>{}</b> [{}] <i>{}</i><br>{}<br>Requirement: {}<br>{}{}</p>", esc(r.id),
-                       to_string(r.level), esc(r.clause), esc(r.title), esc(r.requirement), esc(r.message),
-                       r.errata.empty() ? "" : "<br>Errata: " + esc(fmt::format("{}", fmt::join(r.errata, ", "))));
-      h += "<table><tr><th>step</th><th>request</th><th>expected</th><th>actual</th></tr>";
-      for (const auto& f : r.frames)
-        h += fmt::format("<tr><td>{}</td><td><code>{}</code><pre>{}</pre></td><td>{}<pre>{}</pre></td><td><code>{}</code><pre>{}</pre></td></tr>",
-                         esc(f.step), to_hex(f.request), esc(f.request_decoded), esc(f.expected_text),
-                         f.expected ? to_hex(*f.expected) + "\n" + esc(f.expected_decoded) : "", f.actual ? to_hex(*f.actual) : "silence",
-                         esc(f.actual_decoded));
-      h += "</table></div>";
-    }
-    if (!any) h += "<p>None.</p>";
 
     h += "<h3>Observed (behaviour the manual leaves open, deviations from the standard)</h3><table><tr><th>case</th><th>clause</th><th>what came</th></tr>";
     for (const auto& r : d.cases)
@@ -156,7 +161,7 @@ code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
         h += fmt::format("<tr><td>{}</td><td>{}{}</td></tr>", esc(r.id), r.outcome == Outcome::error ? "not run: " : "", esc(r.message));
     h += "</table><h3>Latency</h3>" + histogram(d.latencies_us);
   }
-  h += "</body></html>\n";
+  h += "</div></body></html>\n";
   return h;
 }
 

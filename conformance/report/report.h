@@ -12,11 +12,18 @@
 #include <nlohmann/json.hpp>
 
 #include "report/result.h"
+#include "spec.h"
 
 namespace mbc::conf {
 
+// Fills `d.facts` from the spec the run used (device_facts.cpp).
+void describe_device(DeviceRun& d, const spec::Spec& s);
+
 nlohmann::json report_json(const RunReport&);
 std::string junit_xml(const RunReport&);
+// "mbconform.<device>.<family>", each part an identifier ([A-Za-z0-9_], not
+// starting with a digit): what JUnit consumers split into packages.
+std::string junit_classname(const std::string& device, const std::string& family);
 std::string html_report(const RunReport&);
 
 // "  12/812 sihong-57hs-r/registers/0x0020/write-min  pass"

@@ -22,4 +22,9 @@ const char* to_string(Outcome o) {
   return "?";
 }
 
+bool fails_run(const CaseResult& r, const RunReport& rep) {
+  if (r.outcome != Outcome::fail || !r.quirk.empty()) return false;
+  return r.level == Level::must || (r.level == Level::should && rep.fail_on_should);
+}
+
 }  // namespace mbc::conf

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -54,6 +55,18 @@ struct CaseResult {
   nlohmann::json extra = nlohmann::json::object();  // e.g. props: cases, seed, counterexample
 };
 
+// What the report says of a device beyond its cases (report/device_facts.cpp
+// fills it from the spec; the report adds what the run's own frames read:
+// the FC 43 objects, the firmware registers' values).
+struct DeviceFacts {
+  std::string title;                                          // "SIHONG 57HS-R integrated stepper (57HS56JSR, ...)"
+  std::vector<std::pair<std::string, std::string>> identity;  // the spec's FC 43 objects: VendorName, ProductCode, ...
+  std::vector<uint16_t> firmware_registers;                   // holding registers whose names say firmware/version
+  std::string line;                                           // the spec's line settings: "19200 baud 8E1 (default), unit 1"
+  std::map<uint16_t, std::string> register_names;             // address -> name (holding first, then the other tables)
+  std::map<std::string, std::string> errata;                  // id -> "§6.2: printed X, read as Y (why)"
+};
+
 // One device (one target) in a run.
 struct DeviceRun {
   std::string device_id;
@@ -73,6 +86,7 @@ struct DeviceRun {
   // Every broadcast write sent (unit 0: every drive on the line took it).
   std::vector<std::string> broadcast_writes;
   std::vector<std::string> notes;   // how the run was set up (a probed map, a partial map)
+  DeviceFacts facts;
   bool interrupted = false;
   // Set when the run against this target had to stop (the target kept
   // throwing: a lost connection, a device that cannot go on); the cases it
@@ -86,6 +100,12 @@ struct RunReport {
   std::string version;
   std::vector<DeviceRun> devices;
   bool interrupted = false;
+  // --fail-on should: a failed SHOULD case fails the run (exit 1, a JUnit
+  // <failure>); by default it is reported, and fails neither.
+  bool fail_on_should = false;
 };
+
+// Whether a failed case fails the run: a MUST, or a SHOULD under --fail-on should.
+bool fails_run(const CaseResult&, const RunReport&);
 
 }  // namespace mbc::conf

@@ -26,8 +26,9 @@ std::string summary_table(const RunReport& rep) {
   }
   for (const auto& d : rep.devices)
     for (const auto& r : d.cases)
-      if (r.outcome == Outcome::fail && r.level == Level::must && r.quirk.empty())
-        s += fmt::format("FAIL {} [{}]\n     {}\n", r.id, r.clause, r.message);
+      if (r.outcome == Outcome::fail && r.quirk.empty())
+        s += fmt::format("FAIL {} [{}{}]\n     {}\n", r.id, r.clause,
+                         r.level == Level::must ? "" : fails_run(r, rep) ? ", SHOULD" : ", SHOULD: does not fail the run", r.message);
   for (const auto& d : rep.devices)
     for (const auto& r : d.cases)
       if (r.outcome == Outcome::fail && !r.quirk.empty())

@@ -1,8 +1,10 @@
-// Running conformance cases against a Target: each step is sent, its reply
-// judged against the step's expectation (exact bytes, exception code,
-// silence, register values), and everything kept for the reports (frames,
-// latencies, byte counts, the wire-time lower bound). Registers a case writes
-// are read before it and written back after it, so cases do not leak state.
+// Running checks against a Link: the runner orders the cases, runs one again
+// when the line says its verdict cannot stand (a late reply, a split frame a
+// busy host joined, a request that followed a silence), probes a target that
+// stopped answering, and keeps the run's counts. Each case itself is run by
+// check/exchange.h (send, judge, save and restore); the runner never calls
+// back into a generator, so a plan read back from its text (check/text.h)
+// runs exactly like the cases it was written from.
 #pragma once
 
 #include <atomic>
@@ -11,12 +13,15 @@
 #include <string>
 #include <vector>
 
-#include "cases/case.h"
+#include "check/check.h"
+#include "check/exchange.h"
+#include "check/text.h"
 #include "report/result.h"
-#include "script/script.h"
-#include "targets/target.h"
+#include "session/link.h"
 
 namespace mbc::conf {
+
+using check::Case;
 
 struct RunOptions {
   // Called after every case (progress on the terminal).
@@ -25,27 +30,44 @@ struct RunOptions {
   const std::atomic<bool>* stop = nullptr;
 };
 
-// Runs `cases` in order on `target`; the DeviceRun carries every result.
+// Runs `cases` in order on `link`; the DeviceRun carries every result.
+DeviceRun run_cases(Link& link, const spec::Spec& spec, const std::vector<Case>& cases, const RunOptions& = {});
+// The same on a Target with no gate (DirectLink): in-process reference
+// targets in tests and benchmarks.
 DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Case>& cases, const RunOptions& = {});
 
 // Whether a live target answers at all before a run: one read the spec says
-// is answered, retried with a reconnect (kMaxTargetErrors tries). Empty when
-// it answered, else why not (the run cannot be done: exit 2).
+// is answered, retried with a reconnect (3 tries). Empty when it answered,
+// else why not (the run cannot be done: exit 2).
+std::string unreachable(Link& link, const spec::Spec& spec);
 std::string unreachable(Target& target, const spec::Spec& spec);
 
-// The result a case gets without running (--list, --plan, skipped cases).
-CaseResult result_header(const Case& c);
+// The cases whose id `filter` selects (`run --filter`). A filter matches
+// literally, as a part of the id ("fc15/quantity-limit+1" selects that case
+// and no other: '+' is a character of ids), unless it asks for a pattern:
+// one holding '*' or '?' (which no id holds) is a glob, and "re:PATTERN" a
+// regular expression. `pattern` turns the glob or the text after "re:" into
+// a matcher (tools/mbconform/cmd_run.cpp's; default: fnmatch for a glob,
+// ECMAScript regex search otherwise).
+using Matcher = std::function<bool(const std::string&)>;
+std::vector<Case> select_cases(std::vector<Case> cases, const std::string& filter,
+                               const std::function<Matcher(const std::string&)>& pattern = {});
 
-// The wire-time lower bound of one frame of `bytes` at `baud`: its characters
-// plus the t3.5 silence that must precede it (MB-SL v1.02 §2.5.1.1).
-double frame_wire_seconds(size_t bytes, int baud);
-
-// A case's step as a frame-script step (conformance/script/README.md), framed
-// as it goes to a target of `info`, with its expectation.
-script::Step to_script(const Step& st, const TargetInfo& info);
-// Every step a case would send, as frame-script lines ("rtu 01 03 00 20 00 01
-// 85 C0  -> normal   # read 0x0020 x1 (FC 03) | expect ..."); commented out
-// when the case is skipped on this target.
-std::vector<std::string> plan_lines(const Case& c, const TargetInfo& info);
+// What replaying a script came to.
+struct ReplayResult {
+  enum class Outcome { met, failed, cannot_run } outcome = Outcome::met;  // exit 0, 1, 2
+  // Steps without a case (a reproducer, a regression): the step that failed
+  // or cannot run, and why; they stop at the first miss.
+  int line = 0;
+  std::string message;
+  std::vector<Reply> replies;
+  // Cases (a plan): every one run the way `run` runs it, OBSERVED and
+  // SHOULD outcomes recorded as such; `failed` when a MUST case failed.
+  DeviceRun run;
+};
+// Whether every caseless step can run on a target of `info` (raw bytes in
+// its framing, advance/power-cycle only in process); the first that cannot, with why.
+std::optional<std::pair<int, std::string>> unsupported(const check::Script& s, const TargetInfo& info);
+ReplayResult replay(Link& link, const check::Script& s, const spec::Spec* spec, const RunOptions& = {});
 
 }  // namespace mbc::conf

@@ -193,6 +193,18 @@ std::string ranges_line(std::vector<std::tuple<Table, std::string, uint16_t, int
 
 WriteDecision may_write(const spec::Spec& s, const Register& r, const TargetInfo& target, const WritePolicy& p) {
   if (!target.live) return {};
+  if (r.table == Table::holding) {
+    // A line setting cuts the command off from the drive (at once or at the
+    // next power-on, when the journal's restore could no longer reach it).
+    for (const auto& st : s.serial.settings)
+      if (st.register_address == r.address)
+        return {false, fmt::format("{}: sets the {}: never written on a live line", reg_name(r), st.setting)};
+    // The "do not persist" switch is held on by the session while it writes
+    // (session/session.h); turned off, every later write would wear EEPROM.
+    if (auto sw = persist_switch_of(s); sw && sw->first == r.address && !p.allow_eeprom_writes)
+      return {false, fmt::format("{}: the \"do not persist\" switch, held on while the command writes: needs "
+                                 "--allow-eeprom-writes", reg_name(r))};
+  }
   if (r.access == Access::command || r.command) {
     // A command starts motion, homes, resets or saves: never on a live drive by default.
     if (r.command && r.command->motion && !p.allow_motion)
@@ -308,5 +320,18 @@ std::vector<std::string> Snapshot::restore(Target& t) const {
   }
   return failed;
 }
+
+std::optional<std::vector<uint16_t>> read_table(Target& t, Table table, uint16_t address, int count, std::string& why) {
+  return read_items(t, table, address, count, why);
+}
+
+std::string write_table_verified(Target& t, const spec::Spec& s, Table table, uint16_t address,
+                                 std::span<const uint16_t> values, const std::string& what) {
+  return write_verified(t, s, table, address, values, what);
+}
+
+std::optional<std::pair<uint16_t, int64_t>> persist_switch(const spec::Spec& s) { return persist_switch_of(s); }
+
+std::string register_label(const Register& r) { return reg_name(r); }
 
 }  // namespace mbc::conf

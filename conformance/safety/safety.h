@@ -9,6 +9,7 @@
 
 #include <cstdint>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -52,6 +53,18 @@ std::string broadcast_forbidden(const TargetInfo& target, const WritePolicy&, in
 // target unit 0 is not a broadcast the target can be judged on. The reason a
 // broadcast case does not apply there, or empty on an RTU target.
 std::string broadcast_not_applicable(const TargetInfo& target);
+
+// `count` items of `table` (holding: FC 03, coils: FC 01; bits as 0/1) at
+// `address`; nullopt with `why` (no reply, an exception, a malformed reply).
+std::optional<std::vector<uint16_t>> read_table(Target&, spec::Table table, uint16_t address, int count, std::string& why);
+// Writes `values` (FC 06/05, or FC 16/15 for 2 words or where the single
+// write is not in the profile) and reads them back; the failure, or empty.
+std::string write_table_verified(Target&, const spec::Spec&, spec::Table table, uint16_t address,
+                                 std::span<const uint16_t> values, const std::string& what);
+// The "do not persist" switch the spec names (57HS-R 0x0016) and its "on" value.
+std::optional<std::pair<uint16_t, int64_t>> persist_switch(const spec::Spec&);
+// "holding 0x0010 pulse/direction signal polarity".
+std::string register_label(const spec::Register&);
 
 // The registers' values before the run, and putting them back.
 class Snapshot {

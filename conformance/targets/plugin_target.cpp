@@ -5,7 +5,14 @@
 // named), a hang past the per-request watchdog (timeout=, 3000 ms by
 // default), or a broken contract (a reply longer than the capacity, a write
 // past it, a failure without an error message) fails the request with a
-// message saying which; the host is then restarted and the run goes on.
+// message saying which (RecoveredFault: it fails that exchange and never
+// counts toward a lost target); the host is then restarted and the run goes on.
+// Between mbconform and the host sits a small intermediate process, so a
+// plugin that signals its parent (kill(getppid(), SIGKILL)) ends only that;
+// the intermediate, the host and every child either makes share one process
+// group of their own, killed as a whole when the host goes. The host runs
+// under a memory limit (mem=MIB, default $MBCONFORM_PLUGIN_MEM_MB or 1024)
+// and a CPU-time limit (kCpuSeconds).
 // What the target can do follows the hooks the plugin fills in: handle_rtu
 // gives raw frames, power_cycle a power cycle, advance_time_us a virtual clock.
 #include <fcntl.h>
@@ -35,6 +42,18 @@ namespace {
 
 namespace host = plugin_host;
 constexpr int kDefaultTimeoutMs = 3000;
+constexpr int kDefaultMemMiB = 1024;
+// A host process's CPU time: far beyond any run's requests (each is bounded
+// by the watchdog), short of a plugin that spins in a thread of its own forever.
+constexpr rlim_t kCpuSeconds = 3600;
+
+int default_mem_mib() {
+  if (const char* env = std::getenv("MBCONFORM_PLUGIN_MEM_MB"); env && *env) {
+    int v = std::atoi(env);
+    if (v >= 16) return v;
+  }
+  return kDefaultMemMiB;
+}
 
 // $MBCONFORM_PLUGIN_HOST, else mbconform-plugin-host beside the running executable.
 std::string host_path() {
@@ -53,11 +72,14 @@ std::string signal_text(int sig) {
 // One running host: its pid and the two pipe ends mbconform holds.
 class HostProcess {
  public:
-  HostProcess(const std::string& library, const std::string& config) {
+  HostProcess(const std::string& library, const std::string& config, int mem_mib) {
     int req[2], resp[2];
     if (pipe2(req, O_CLOEXEC) != 0 || pipe2(resp, O_CLOEXEC) != 0)
       throw std::runtime_error(fmt::format("pipe: {}", std::strerror(errno)));
     std::string exe = host_path();
+    // A host that died between two requests closes the pipe: the next write
+    // must fail with EPIPE (a fault, named) rather than end mbconform by SIGPIPE.
+    ::signal(SIGPIPE, SIG_IGN);
     pid_t parent = getpid();
     pid_ = fork();
     if (pid_ < 0) throw std::runtime_error(fmt::format("fork: {}", std::strerror(errno)));
@@ -69,14 +91,36 @@ class HostProcess {
       rlimit no_core{0, 0};  // a crashing vendor stack is a finding, not a core file
       setrlimit(RLIMIT_CORE, &no_core);
       if (getppid() != parent) _exit(127);
-      // dup2 onto the descriptor a pipe end already is keeps its O_CLOEXEC, and
-      // one end may sit on the other's target: move both clear of 3 and 4 first.
-      int rq = fcntl(req[0], F_DUPFD, 10), rs = fcntl(resp[1], F_DUPFD, 10);
-      dup2(rq, host::kRequestFd);
-      dup2(rs, host::kResponseFd);
-      ::close(rq), ::close(rs);
-      execl(exe.c_str(), exe.c_str(), library.c_str(), config.c_str(), static_cast<char*>(nullptr));
-      _exit(127);
+      // The intermediate: the host's parent, so a plugin that kills its
+      // parent kills this and not mbconform. It passes the host's end on.
+      pid_t intermediate = getpid();
+      pid_t h = fork();
+      if (h < 0) _exit(127);
+      if (h == 0) {
+        prctl(PR_SET_PDEATHSIG, SIGKILL);
+        if (getppid() != intermediate) _exit(127);
+        rlimit mem{rlim_t(mem_mib) << 20, rlim_t(mem_mib) << 20};
+        setrlimit(RLIMIT_AS, &mem);
+        rlimit cpu{kCpuSeconds, kCpuSeconds};
+        setrlimit(RLIMIT_CPU, &cpu);
+        // dup2 onto the descriptor a pipe end already is keeps its O_CLOEXEC, and
+        // one end may sit on the other's target: move both clear of 3 and 4 first.
+        int rq = fcntl(req[0], F_DUPFD, 10), rs = fcntl(resp[1], F_DUPFD, 10);
+        dup2(rq, host::kRequestFd);
+        dup2(rs, host::kResponseFd);
+        ::close(rq), ::close(rs);
+        execl(exe.c_str(), exe.c_str(), library.c_str(), config.c_str(), static_cast<char*>(nullptr));
+        _exit(127);
+      }
+      ::close(req[0]), ::close(req[1]), ::close(resp[0]), ::close(resp[1]);
+      int st = 0;
+      while (waitpid(h, &st, 0) < 0 && errno == EINTR) {
+      }
+      if (WIFSIGNALED(st)) {
+        signal(WTERMSIG(st), SIG_DFL);
+        kill(getpid(), WTERMSIG(st));
+      }
+      _exit(WIFEXITED(st) ? WEXITSTATUS(st) : 127);
     }
     ::close(req[0]);
     ::close(resp[1]);
@@ -87,10 +131,13 @@ class HostProcess {
     ::close(to_);  // the host destroys the instance and exits on EOF
     ::close(from_);
     for (int i = 0; i < 100; ++i) {
-      if (waitpid(pid_, nullptr, WNOHANG) == pid_) return;
+      if (waitpid(pid_, nullptr, WNOHANG) == pid_) {
+        kill(-pid_, SIGKILL);  // a child the plugin forked does not outlive the run
+        return;
+      }
       usleep(10000);
     }
-    kill(pid_, SIGKILL);
+    kill(-pid_, SIGKILL);
     waitpid(pid_, nullptr, 0);
   }
   HostProcess(const HostProcess&) = delete;
@@ -148,7 +195,7 @@ class HostProcess {
       int rc = left > 0 ? ::poll(&pf, 1, int(left)) : 0;
       if (rc < 0 && errno == EINTR) continue;
       if (rc == 0) {
-        kill(pid_, SIGKILL);
+        kill(-pid_, SIGKILL);
         waitpid(pid_, nullptr, 0);
         fault = fmt::format("the plugin hung: no answer to {} within {} ms (watchdog: timeout= in the URI); killed",
                             what, timeout_ms);
@@ -169,6 +216,7 @@ class HostProcess {
   std::string died(const char* what) {
     int st = 0;
     if (waitpid(pid_, &st, 0) != pid_) return fmt::format("the plugin host vanished during {}", what);
+    kill(-pid_, SIGKILL);
     if (WIFSIGNALED(st)) return fmt::format("the plugin crashed: {} during {}", signal_text(WTERMSIG(st)), what);
     if (WIFEXITED(st) && WEXITSTATUS(st) == 127) return "the plugin host could not start (" + host_path() + ")";
     return fmt::format("the plugin exited (status {}) during {}", WIFEXITED(st) ? WEXITSTATUS(st) : -1, what);
@@ -182,7 +230,7 @@ class PluginTarget final : public Target {
  public:
   explicit PluginTarget(const Uri& u) {
     const std::string base = "plugin:" + u.path;
-    live::check_params(u, base, {"device", "unit", "config", "timeout"});
+    live::check_params(u, base, {"device", "unit", "config", "timeout", "mem"});
     if (u.path.empty())
       throw std::invalid_argument("target 'plugin:': needs the library's path, e.g. plugin:./libmystack.so");
     int default_unit = 1;
@@ -196,6 +244,7 @@ class PluginTarget final : public Target {
     }
     int unit = live::int_param(u, base, "unit", default_unit, 1, 247);  // MB-SL v1.02 §2.2
     timeout_ms_ = live::int_param(u, base, "timeout", kDefaultTimeoutMs, 1, 3600 * 1000);
+    mem_mib_ = live::int_param(u, base, "mem", default_mem_mib(), 16, 1 << 20);
     config_ = u.param("config").value_or("");
     // A path without a slash would make dlopen search the library path.
     library_ = u.path.find('/') == std::string::npos ? "./" + u.path : u.path;
@@ -259,7 +308,7 @@ class PluginTarget final : public Target {
  private:
   // Starts a host and returns its create() answer; throws when there is none.
   std::string start() {
-    process_ = std::make_unique<HostProcess>(library_, config_);
+    process_ = std::make_unique<HostProcess>(library_, config_, mem_mib_);
     auto a = process_->call_hello(timeout_ms_);
     std::string text(a.payload.begin(), a.payload.end());
     if (!a.fault.empty() || a.head.status != 0) {
@@ -276,20 +325,19 @@ class PluginTarget final : public Target {
     auto a = process_->call(q, payload, timeout_ms_, what);
     if (!a.fault.empty()) {
       process_.reset();
-      std::string restarted;
       try {
         start();
-        restarted = "; host restarted";
       } catch (const std::exception& e) {
-        restarted = fmt::format("; restart failed: {}", e.what());
+        throw std::runtime_error(fmt::format("{}: {}; restart failed: {}", info_.uri, a.fault, e.what()));
       }
-      throw std::runtime_error(fmt::format("{}: {}{}", info_.uri, a.fault, restarted));
+      // The host answers again: this exchange failed, the target did not go.
+      throw RecoveredFault(fmt::format("{}: {}; host restarted", info_.uri, a.fault));
     }
     std::string text(a.payload.begin(), a.payload.end());
     if (a.head.status == host::kContract)
-      throw std::runtime_error(fmt::format("{}: the plugin broke its contract: {}", info_.uri, text));
+      throw RecoveredFault(fmt::format("{}: the plugin broke its contract: {}", info_.uri, text));
     if (a.head.status < 0)
-      throw std::runtime_error(fmt::format("{}: {} failed: {}", info_.uri, what, text.empty() ? "no message" : text));
+      throw RecoveredFault(fmt::format("{}: {} failed: {}", info_.uri, what, text.empty() ? "no message" : text));
     return a.payload;
   }
 
@@ -308,6 +356,7 @@ class PluginTarget final : public Target {
   TargetInfo info_;
   std::string base_, library_, config_;
   int timeout_ms_ = kDefaultTimeoutMs;
+  int mem_mib_ = kDefaultMemMiB;
   unsigned hooks_ = 0;
   std::unique_ptr<HostProcess> process_;
 };

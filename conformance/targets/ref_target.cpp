@@ -2,7 +2,9 @@
 // framing a serial master uses (so the ADU path, CRC and slave filtering are
 // exercised), on a virtual clock the caller advances. `fault=NAME[,NAME]`
 // serves a deliberately broken device (reference/faults/faults.h), the
-// target that shows a case or property can fail.
+// target that shows a case or property can fail. `reading=KEY` (tests) serves
+// a device that takes the other reading of one contested fact
+// (spec/loader/readings.h): no MUST case may fail against it.
 #include <fmt/core.h>
 
 #include <charconv>
@@ -13,7 +15,9 @@
 #include "engine/device.h"
 #include "faults/faults.h"
 #include "loader.h"
+#include "modbus/crc16.h"
 #include "modbus/rtu.h"
+#include "readings.h"
 #include "targets/kinds.h"
 
 namespace mbc::conf {
@@ -69,6 +73,12 @@ class RefTarget final : public Target {
     }
     info_.uri = fmt::format("ref:{}?unit={}", s.device.id, unit);
     if (!faults.empty()) info_.uri += "&fault=" + faults.names();
+    if (auto key = u.param("reading")) {
+      spec::Variant v = spec::other_reading(s, *key);  // std::invalid_argument names the contested facts
+      s = std::move(v.spec);
+      answers_ = std::move(v.answers);
+      info_.uri += "&reading=" + *key;
+    }
     ref::Bus bus;
     bus.add(std::make_unique<ref::Device>(std::move(s), uint8_t(unit)));
     bus_ = faults::FaultyBus(std::move(bus), faults);
@@ -103,7 +113,9 @@ class RefTarget final : public Target {
   Reply exchange(Bytes adu, uint8_t slave) {
     Reply r;
     auto t0 = std::chrono::steady_clock::now();
-    std::optional<Bytes> out = bus_.handle_rtu(adu);
+    std::optional<Bytes> out = answer_otherwise(adu);
+    if (!out) out = bus_.handle_rtu(adu);
+    else if (out->empty()) out.reset();
     r.latency = std::chrono::duration_cast<std::chrono::microseconds>(std::chrono::steady_clock::now() - t0);
     r.request = std::move(adu);
     if (out) r.frame = std::move(*out);
@@ -111,7 +123,18 @@ class RefTarget final : public Target {
     return r;
   }
 
+  // reading=: a printed frame the variant answers the other way (an empty
+  // frame stands for no reply); nullopt leaves the request to the device.
+  std::optional<Bytes> answer_otherwise(const Bytes& adu) const {
+    if (answers_.empty() || adu.size() < 4 || adu[0] != info_.unit || !crc_ok(adu)) return std::nullopt;
+    Bytes pdu(adu.begin() + 1, adu.end() - 2);
+    for (const auto& [req, reply] : answers_)
+      if (req == pdu) return reply ? rtu_frame(info_.unit, *reply) : Bytes{};
+    return std::nullopt;
+  }
+
   TargetInfo info_;
+  std::vector<std::pair<Bytes, std::optional<Bytes>>> answers_;
   faults::FaultyBus bus_;  // the correct device when no fault= was given
 };
 

@@ -276,6 +276,7 @@ class RtuTarget final : public Target {
     if (r.frame.empty()) silent_at_ = t0;
     if (rr.closed) {
       if (serial_) throw std::runtime_error(fmt::format("target '{}': the serial line closed", info_.uri));
+      r.closed = r.frame.empty();
       close(fd_);
       fd_ = -1;
     }

@@ -6,10 +6,18 @@
 #include <stdexcept>
 
 #include "modbus/crc16.h"
+#include "modbus/rtu.h"
 #include "modbus/limits.h"
 #include "targets/kinds.h"
 
 namespace mbc::conf {
+
+std::vector<Reply> Target::transact_all(std::span<const Request> requests, size_t) {
+  std::vector<Reply> out;
+  out.reserve(requests.size());
+  for (const auto& r : requests) out.push_back(transact(r.unit, r.pdu));
+  return out;
+}
 
 std::optional<std::string> Uri::param(const std::string& key) const {
   for (const auto& [k, v] : query)
@@ -62,8 +70,16 @@ Uri parse_uri(const std::string& text) {
     at = amp == std::string::npos ? query.size() : amp + 1;
     if (kv.empty()) continue;
     auto eq = kv.find('=');
-    u.query.emplace_back(kv.substr(0, eq), eq == std::string::npos ? "" : kv.substr(eq + 1));
+    std::string key = kv.substr(0, eq);
+    // One value per parameter: "unit=1&unit=2" must not pass as either.
+    if (u.param(key)) throw std::invalid_argument(fmt::format("target '{}': parameter '{}' given twice", text, key));
+    u.query.emplace_back(key, eq == std::string::npos ? "" : kv.substr(eq + 1));
   }
+  // rtu://dev/ttyUSB0 reads as host "dev": the device path follows three slashes.
+  if (u.scheme == "rtu" && !u.host.empty())
+    throw std::invalid_argument(fmt::format("target '{}': a serial line is rtu:///PATH (three slashes), e.g. rtu:///dev/ttyUSB0; "
+                                            "'{}' is not a path",
+                                            text, text.substr(0, text.find('?'))));
   return u;
 }
 
@@ -72,33 +88,20 @@ std::unique_ptr<Target> open_target(const std::string& text) {
   if (u.scheme == "ref") return make_ref_target(u);
   if (u.scheme == "tcp" || u.scheme == "rtu-tcp" || u.scheme == "rtu") return make_modbus_target(u);
   if (u.scheme == "plugin") return make_plugin_target(u);
+  if (u.scheme == "mbtls") return make_tls_target(u);
   throw std::invalid_argument(
-      fmt::format("target '{}': unknown scheme '{}' (ref, tcp, rtu-tcp, rtu, plugin)", text, u.scheme));
+      fmt::format("target '{}': unknown scheme '{}' (ref, tcp, rtu-tcp, rtu, plugin, mbtls)", text, u.scheme));
 }
 
 void decode_rtu_reply(Reply& r, uint8_t slave) {
   r.pdu.reset();
   r.framing_error.clear();
   if (r.frame.empty()) return;
-  if (r.frame.size() < 4) {
-    r.framing_error = fmt::format("reply of {} bytes is shorter than the 4 of an RTU frame", r.frame.size());
-    return;
-  }
-  if (r.frame.size() > kMaxRtuAdu) {
-    r.framing_error = fmt::format("reply of {} bytes exceeds the {} of MB-SL v1.02 §2.5.1.1", r.frame.size(), kMaxRtuAdu);
-    return;
-  }
-  if (!crc_ok(r.frame)) {
-    uint16_t want = crc16(std::span(r.frame).first(r.frame.size() - 2));
-    r.framing_error = fmt::format("reply CRC {:02X} {:02X}, correct is {:02X} {:02X}", r.frame[r.frame.size() - 2],
-                                  r.frame.back(), want & 0xFF, want >> 8);
-    return;
-  }
-  if (r.frame[0] != slave) {
-    r.framing_error = fmt::format("reply from slave {}, request went to {}", r.frame[0], slave);
-    return;
-  }
-  r.pdu = Bytes(r.frame.begin() + 1, r.frame.end() - 2);
+  // Address, PDU, CRC (MB-SL v1.02 §2.5.1): modbus/rtu.h unframes it.
+  Unframed u = rtu_unframe(r.frame);
+  if (!u.ok()) r.framing_error = "reply: " + u.error;
+  else if (u.unit != slave) r.framing_error = fmt::format("reply from slave {}, request went to {}", u.unit, slave);
+  else r.pdu = std::move(u.pdu);
 }
 
 }  // namespace mbc::conf

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <stdexcept>
 #include <span>
 #include <string>
 #include <vector>
@@ -45,7 +46,15 @@ struct Reply {
   std::optional<Bytes> pdu;
   std::string framing_error;
   std::chrono::microseconds latency{0};  // request sent -> last byte received (or timeout)
+  bool closed = false;  // the peer closed the connection instead of answering (TCP kinds)
   bool silent() const { return frame.empty(); }
+};
+
+// A fault of the thing under test that the target recovered from (a plugin
+// that crashed or hung; its host was restarted): that exchange failed, and
+// the target is usable again. It never counts toward a lost target.
+struct RecoveredFault : std::runtime_error {
+  using std::runtime_error::runtime_error;
 };
 
 class Target {
@@ -63,6 +72,20 @@ class Target {
   // malformed; `gap_after` splits it by an inter-character pause after that
   // many bytes). Only when info().raw; throws std::logic_error otherwise.
   virtual Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after = std::nullopt) = 0;
+
+  // Several well-formed requests, one Reply each, in order. Where the
+  // transport pairs replies with requests by itself (Modbus TCP transaction
+  // ids, MB Messaging on TCP/IP v1.0b §3.1.3 and Implementation Guide §4.2)
+  // up to `depth` requests are out before their replies come, and a silence
+  // costs one wait at the end of the batch instead of one per request;
+  // elsewhere one transact after another (the default). Waits as set_wait.
+  struct Request {
+    uint8_t unit = 0;
+    std::span<const uint8_t> pdu;
+  };
+  virtual std::vector<Reply> transact_all(std::span<const Request> requests, size_t depth = 16);
+  // Whether transact_all has requests out at once on this target.
+  virtual bool pipelines() const { return false; }
 
   // The pause `send_raw` makes inside a split frame, where the target chose
   // it (nullopt: no pause of its own, or one the user fixed with `gap=`). A
@@ -109,6 +132,7 @@ class Target {
 //   tcp://HOST:PORT?unit=N   rtu-tcp://HOST:PORT?unit=N
 //   rtu:///dev/ttyUSB0?baud=115200&parity=N&data=8&stop=1&unit=N
 //   plugin:PATH.so[?device=ID&unit=N&config=TEXT]
+//   mbtls://HOST[:802]?cert=FILE&key=FILE&ca=FILE[&unit=N]  (tls_target.cpp)
 // Live kinds also take timeout=MS (the longest wait for a reply and for the
 // connection, default 1000), silence=MS (a fixed silence window instead of
 // the measured one) and gap=MS (the pause of a split frame, RTU kinds).

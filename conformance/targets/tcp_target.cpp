@@ -93,6 +93,91 @@ class TcpTarget final : public Target {
     return exchange(Bytes(bytes.begin(), bytes.end()), parse_mbap(bytes), gap_after, false, false);
   }
 
+  bool pipelines() const override { return true; }
+
+  // Up to `depth` requests out at once, each with its own transaction id; a
+  // reply is matched by its id whatever the order (a gateway may answer
+  // units out of order). A request still unanswered once the connection
+  // stayed silent for the wait after the last request or reply is silent.
+  // Latency is timed from when the server could start on the request (its
+  // sending, or the reply before it), so queueing does not widen the window.
+  std::vector<Reply> transact_all(std::span<const Request> requests, size_t depth) override {
+    std::vector<Reply> out(requests.size());
+    if (requests.empty()) return out;
+    struct Pending {
+      size_t index;
+      Mbap sent;
+      Clock::time_point at;
+    };
+    std::deque<Pending> pending;  // in the order sent
+    depth = std::max<size_t>(depth, 1);
+    size_t next = 0;
+    if (!connected_) connect();
+    int fd = modbus_get_socket(ctx_);
+    if (drain(fd) > 0) window_.late_reply();
+    in_.clear();
+    Clock::time_point last_event = Clock::now(), last_reply{};
+    auto settle = [&](const Pending& p, Bytes frame, Clock::time_point at) {
+      Reply& r = out[p.index];
+      r.frame = std::move(frame);
+      r.latency = std::chrono::duration_cast<microseconds>(at - std::max(p.at, last_reply));
+      judge_mbap(r, p.sent);
+      if (r.frame.empty()) remember_stale(p.sent.transaction, p.at);
+      if (r.pdu && p.sent.unit != 0) window_.record(r.latency, !r.pdu->empty() && ((*r.pdu)[0] & 0x80));
+    };
+    while (next < requests.size() || !pending.empty()) {
+      while (next < requests.size() && pending.size() < depth) {
+        if (!connected_) {
+          connect();
+          fd = modbus_get_socket(ctx_);
+        }
+        const Request& q = requests[next];
+        uint16_t tid = next_tid_++;
+        out[next].request = mbap_frame(tid, q.unit, q.pdu);
+        write_all(fd, out[next].request, info_.uri);
+        last_event = Clock::now();
+        pending.push_back({next, Mbap{tid, 0, 0, q.unit}, last_event});
+        ++next;
+      }
+      auto wait = wait_ == Wait::reply ? microseconds(timeout_) : window_.window();
+      auto first_by = last_event + wait;
+      ReadResult rr = read_frame(fd, in_, first_by, kReplyEndSilence, first_by + timeout_, whole_adu);
+      auto now = Clock::now();
+      if (whole_adu(in_)) {
+        Mbap h = *parse_mbap(in_);
+        Bytes frame(in_.begin(), in_.begin() + ptrdiff_t(h.adu_size()));
+        in_.erase(in_.begin(), in_.begin() + ptrdiff_t(h.adu_size()));
+        auto it = std::find_if(pending.begin(), pending.end(), [&](const Pending& p) { return p.sent.transaction == h.transaction; });
+        if (it == pending.end() && is_stale(h, std::nullopt)) {
+          window_.late_reply(stale_latency(h.transaction));
+        } else {
+          if (it == pending.end()) it = pending.begin();  // an id nobody sent: the oldest request's reply, judged so
+          settle(*it, std::move(frame), rr.last_byte);
+          last_reply = rr.last_byte;
+          pending.erase(it);
+        }
+        last_event = now;
+      } else {
+        // Silence, or bytes that never made a whole ADU: those go to the
+        // oldest request (a framing error), the rest are silent.
+        if (!in_.empty() && !pending.empty()) {
+          settle(pending.front(), in_, rr.last_byte);
+          pending.pop_front();
+          in_.clear();
+        }
+        for (const auto& p : pending) settle(p, {}, now);
+        pending.clear();
+      }
+      if (rr.closed) {
+        for (const auto& p : pending) settle(p, {}, now);
+        pending.clear();
+        modbus_close(ctx_);
+        connected_ = false;
+      }
+    }
+    return out;
+  }
+
   void advance(std::chrono::microseconds) override {
     throw std::logic_error(info_.uri + ": a live device has no virtual clock");
   }
@@ -143,6 +228,7 @@ class TcpTarget final : public Target {
     in_.clear();
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (rr.closed) {
+      r.closed = r.frame.empty();
       modbus_close(ctx_);
       connected_ = false;
     }
@@ -171,20 +257,13 @@ class TcpTarget final : public Target {
   // protocol id is 0, the length counts the unit id and the PDU.
   static void judge_mbap(Reply& r, const std::optional<Mbap>& sent) {
     if (r.frame.empty()) return;
-    auto h = parse_mbap(r.frame);
-    if (!h) {
-      r.framing_error = fmt::format("reply of {} bytes is shorter than the 7-byte MBAP header", r.frame.size());
-    } else if (h->protocol != 0) {
-      r.framing_error = fmt::format("reply protocol id {}, Modbus is 0", h->protocol);
-    } else if (!h->length_ok() || h->adu_size() != r.frame.size()) {
-      r.framing_error = fmt::format("reply MBAP length {} but {} bytes follow it", h->length, r.frame.size() - 6);
-    } else if (sent && h->transaction != sent->transaction) {
-      r.framing_error = fmt::format("reply transaction id {}, request was {}", h->transaction, sent->transaction);
-    } else if (sent && h->unit != sent->unit) {
-      r.framing_error = fmt::format("reply unit id {}, request went to {}", h->unit, sent->unit);
-    } else {
-      r.pdu = Bytes(r.frame.begin() + kMbapHeader, r.frame.end());
-    }
+    Unframed u = mbap_unframe(r.frame);  // header whole, protocol 0, length right (modbus/mbap.h)
+    if (!u.ok()) r.framing_error = "reply: " + u.error;
+    else if (sent && u.transaction != sent->transaction)
+      r.framing_error = fmt::format("reply transaction id {}, request was {}", u.transaction, sent->transaction);
+    else if (sent && u.unit != sent->unit)
+      r.framing_error = fmt::format("reply unit id {}, request went to {}", u.unit, sent->unit);
+    else r.pdu = std::move(u.pdu);
   }
 
   TargetInfo info_;

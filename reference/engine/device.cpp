@@ -44,50 +44,30 @@ struct Engine {
     return Bytes{uint8_t(fc | 0x80), code};
   }
 
+  // The answer resolve_spec() found for `v` (the device's policy, else the standard's).
   std::optional<Bytes> violate(Violation v, uint8_t fc) {
-    PolicyEntry p = d.spec_.profile.policy(v);
-    // quantity_zero is optional in the language: the over-limit policy covers it.
-    if (v == Violation::quantity_zero && !d.spec_.profile.exception_policy.count(v))
-      p = d.spec_.profile.policy(Violation::quantity_over_limit);
-    switch (p.kind) {
-      case PolicyEntry::Kind::exception: return exception(fc, uint8_t(p.code));
-      case PolicyEntry::Kind::silent: ++d.counters_.no_responses; return std::nullopt;
-      case PolicyEntry::Kind::unspecified: {
-        // The manual is silent: the standard's answer.
-        PolicyEntry sp = standard().profile.policy(v);
-        if (v == Violation::quantity_zero && !standard().profile.exception_policy.count(v))
-          sp = standard().profile.policy(Violation::quantity_over_limit);
-        if (sp.kind != PolicyEntry::Kind::exception) {
-          ++d.counters_.no_responses;
-          return std::nullopt;
-        }
-        return exception(fc, uint8_t(sp.code));
-      }
+    int16_t code = d.answers_[size_t(v)];
+    if (code < 0) {
+      ++d.counters_.no_responses;
+      return std::nullopt;
     }
-    return std::nullopt;
+    return exception(fc, uint8_t(code));
   }
 
-  const spec::Spec& standard() const { return d.spec_.device.id == "modbus-standard" ? d.spec_ : standard_spec(); }
+  int max_quantity(uint8_t fc) const { return d.functions_[fc & 0x7F].max_quantity; }
 
-  // A quantity limit of the device's profile, capped by the standard's
-  // (which the PDU size fixes: MBAP v1.1b3 §6).
-  int limit(int fc, std::optional<int> spec::FunctionCode::*which) const {
-    const spec::FunctionCode* s = standard().profile.function(fc);
-    int cap = s && s->*which ? *(s->*which) : int(kMaxPdu);
-    const spec::FunctionCode* f = d.spec_.profile.function(fc);
-    return f && f->*which ? std::min(*(f->*which), cap) : cap;
-  }
-  int max_quantity(int fc) const { return limit(fc, &spec::FunctionCode::max_quantity); }
-
-  // Address check of [start, start+qty) in `table`; nullopt when fine.
+  // Address check of [start, start+qty) in `table`, run by run of registers
+  // with the same access; the violation of the first address that fails.
   std::optional<Violation> check_addresses(Table table, uint32_t start, uint32_t qty, bool reading) {
     const auto& last = d.last_address_[int(table)];
-    for (uint32_t a = start; a < start + qty; ++a) {
+    const auto& runs = d.runs_[int(table)];
+    for (uint32_t a = start; a < start + qty;) {
       if (a > 0xFFFF || !last || a > *last) return Violation::address_past_map;
-      const Register* r = d.spec_.register_covering(uint16_t(a), table);
-      if (!r) return Violation::unmapped_address;
-      if (reading && r->access == Access::wo) return Violation::read_write_only;
-      if (!reading && r->access == Access::ro) return Violation::write_read_only;
+      auto it = std::upper_bound(runs.begin(), runs.end(), a, [](uint32_t x, const Device::MappedRun& r) { return x < r.first; });
+      if (it == runs.begin() || (--it)->last < a) return Violation::unmapped_address;
+      if (reading && !it->readable) return Violation::read_write_only;
+      if (!reading && !it->writable) return Violation::write_read_only;
+      a = uint32_t(it->last) + 1;
     }
     return std::nullopt;
   }
@@ -128,6 +108,7 @@ struct Engine {
   // Stores words, keeps the EEPROM image for registers persisted on write,
   // and runs the behaviour's on_write hook once for the whole write.
   void store(uint16_t start, std::span<const uint16_t> values) {
+    d.touched_[int(Table::holding)].mark(start, uint32_t(values.size()));
     for (size_t i = 0; i < values.size(); ++i) d.holding_[uint16_t(start + i)] = values[i];
     for (size_t i = 0; i < values.size(); ++i) {
       uint16_t a = uint16_t(start + i);
@@ -168,9 +149,16 @@ struct Engine {
 
   Bytes read_block(uint8_t fc, uint16_t start, uint16_t qty, Table table) {
     d.behaviour_->before_read(d, start, qty);
-    Bytes out{fc, uint8_t(qty * 2)};
+    Bytes out(2 + 2 * size_t(qty));
+    out[0] = fc;
+    out[1] = uint8_t(qty * 2);
     const auto& words = table == Table::input ? d.input_ : d.holding_;
-    for (uint32_t a = start; a < uint32_t(start) + qty; ++a) put_be16(out, words[a]);
+    uint8_t* o = out.data() + 2;
+    for (uint32_t a = start; a < uint32_t(start) + qty; ++a, o += 2) {
+      uint16_t w = words[uint16_t(a)];
+      o[0] = uint8_t(w >> 8);
+      o[1] = uint8_t(w);
+    }
     return out;
   }
 
@@ -195,6 +183,7 @@ struct Engine {
     // MBAP v1.1b3 §6.5: any value but 0x0000 / 0xFF00 is an ILLEGAL DATA VALUE.
     if (value != 0x0000 && value != 0xFF00) return exception(fc, 3);
     if (auto v = check_addresses(Table::coil, addr, 1, false)) return violate(*v, fc);
+    d.touched_[int(Table::coil)].mark(addr);
     d.coils_[addr] = value == 0xFF00;
     return Bytes(pdu.begin(), pdu.end());
   }
@@ -208,6 +197,7 @@ struct Engine {
     if (qty > max_quantity(fc)) return violate(Violation::quantity_over_limit, fc);
     if (bc != (qty + 7) / 8 || pdu.size() != size_t(6 + bc)) return violate(Violation::wrong_byte_count, fc);
     if (auto v = check_addresses(Table::coil, start, qty, false)) return violate(*v, fc);
+    d.touched_[int(Table::coil)].mark(start, qty);
     for (uint16_t i = 0; i < qty; ++i) d.coils_[uint16_t(start + i)] = (pdu[6 + i / 8] >> (i % 8)) & 1;
     Bytes out{fc};
     put_be16(out, start);
@@ -259,8 +249,7 @@ struct Engine {
     if (pdu.size() < 10) return violate(Violation::wrong_byte_count, fc);
     uint16_t rstart = be16(pdu, 1), rqty = be16(pdu, 3), wstart = be16(pdu, 5), wqty = be16(pdu, 7);
     uint8_t bc = pdu[9];
-    int rmax = limit(fc, &spec::FunctionCode::max_read_quantity);
-    int wmax = limit(fc, &spec::FunctionCode::max_write_quantity);
+    int rmax = d.functions_[fc].max_read, wmax = d.functions_[fc].max_write;
     if (rqty == 0 || wqty == 0) return violate(Violation::quantity_zero, fc);
     if (rqty > rmax || wqty > wmax) return violate(Violation::quantity_over_limit, fc);
     if (bc != wqty * 2 || pdu.size() != size_t(10 + bc)) return violate(Violation::wrong_byte_count, fc);
@@ -368,7 +357,7 @@ struct Engine {
 
   std::optional<Bytes> dispatch(std::span<const uint8_t> pdu) {
     uint8_t fc = pdu[0];
-    if (fc & 0x80 || !d.spec_.profile.function(fc)) return violate(Violation::unsupported_function, fc & 0x7F);
+    if (fc & 0x80 || !d.functions_[fc].supported) return violate(Violation::unsupported_function, fc & 0x7F);
     switch (fc) {
       case 1: return read_bits(fc, pdu, Table::coil);
       case 2: return read_bits(fc, pdu, Table::discrete_input);
@@ -401,8 +390,55 @@ Device::Device(spec::Spec s, uint8_t slave_id, std::unique_ptr<Behaviour> behavi
       discrete_(65536),
       slave_id_(slave_id),
       behaviour_(behaviour ? std::move(behaviour) : std::make_unique<Behaviour>()) {
-  for (Table t : {Table::holding, Table::input, Table::coil, Table::discrete_input}) last_address_[int(t)] = spec_.last_address(t);
+  resolve_spec();
   power_cycle();
+}
+
+void Device::resolve_spec() {
+  // The Modbus standard as the project states it (spec/devices/modbus-standard.yaml):
+  // its quantity limits and its answer to each violation are what a device
+  // falls back to where its manual is silent. Nothing of it is repeated here.
+  const spec::Spec& standard = spec_.device.id == "modbus-standard" ? spec_ : standard_spec();
+  for (Table t : {Table::holding, Table::input, Table::coil, Table::discrete_input}) {
+    last_address_[int(t)] = spec_.last_address(t);
+    auto& runs = runs_[int(t)];
+    runs.clear();
+    // registers are sorted by (table, address) and do not overlap (spec checks).
+    for (const auto& r : spec_.registers) {
+      if (r.table != t) continue;
+      MappedRun run{r.address, uint16_t(std::min<uint32_t>(r.last_address(), 0xFFFF)), r.access != Access::wo,
+                    r.access != Access::ro};
+      if (!runs.empty() && uint32_t(runs.back().last) + 1 == run.first && runs.back().readable == run.readable &&
+          runs.back().writable == run.writable)
+        runs.back().last = run.last;
+      else
+        runs.push_back(run);
+    }
+  }
+  // A quantity limit of the device's profile, capped by the standard's
+  // (which the PDU size fixes: MBAP v1.1b3 §6).
+  auto limit = [&](int fc, std::optional<int> spec::FunctionCode::*which) {
+    const spec::FunctionCode* s = standard.profile.function(fc);
+    int cap = s && s->*which ? *(s->*which) : int(kMaxPdu);
+    const spec::FunctionCode* f = spec_.profile.function(fc);
+    return f && f->*which ? std::min(*(f->*which), cap) : cap;
+  };
+  for (int fc = 0; fc < int(functions_.size()); ++fc)
+    functions_[size_t(fc)] = {spec_.profile.function(fc) != nullptr, limit(fc, &spec::FunctionCode::max_quantity),
+                              limit(fc, &spec::FunctionCode::max_read_quantity),
+                              limit(fc, &spec::FunctionCode::max_write_quantity)};
+  // quantity_zero is optional in the language: the over-limit policy covers it.
+  auto policy = [](const spec::Spec& s, Violation v) {
+    if (v == Violation::quantity_zero && !s.profile.exception_policy.count(v))
+      return s.profile.policy(Violation::quantity_over_limit);
+    return s.profile.policy(v);
+  };
+  static_assert(std::size(spec::kAllViolations) <= std::tuple_size_v<decltype(answers_)>);
+  for (Violation v : spec::kAllViolations) {
+    PolicyEntry p = policy(spec_, v);
+    if (p.kind == PolicyEntry::Kind::unspecified) p = policy(standard, v);  // the manual is silent: the standard's answer
+    answers_[size_t(v)] = p.kind == PolicyEntry::Kind::exception ? int16_t(uint8_t(p.code)) : int16_t(-1);
+  }
 }
 
 Device::~Device() = default;
@@ -449,13 +485,25 @@ std::optional<Bytes> Device::handle_pdu(std::span<const uint8_t> pdu, bool broad
 }
 
 uint16_t Device::word(uint16_t a) const { return holding_[a]; }
-void Device::set_word(uint16_t a, uint16_t v) { holding_[a] = v; }
+void Device::set_word(uint16_t a, uint16_t v) {
+  touched_[int(Table::holding)].mark(a);
+  holding_[a] = v;
+}
 uint16_t Device::input_word(uint16_t a) const { return input_[a]; }
-void Device::set_input_word(uint16_t a, uint16_t v) { input_[a] = v; }
+void Device::set_input_word(uint16_t a, uint16_t v) {
+  touched_[int(Table::input)].mark(a);
+  input_[a] = v;
+}
 bool Device::coil(uint16_t a) const { return coils_[a]; }
-void Device::set_coil(uint16_t a, bool on) { coils_[a] = on; }
+void Device::set_coil(uint16_t a, bool on) {
+  touched_[int(Table::coil)].mark(a);
+  coils_[a] = on;
+}
 bool Device::discrete_input(uint16_t a) const { return discrete_[a]; }
-void Device::set_discrete_input(uint16_t a, bool on) { discrete_[a] = on; }
+void Device::set_discrete_input(uint16_t a, bool on) {
+  touched_[int(Table::discrete_input)].mark(a);
+  discrete_[a] = on;
+}
 
 namespace {
 std::vector<uint16_t>& words_of(const Register& r, std::vector<uint16_t>& holding, std::vector<uint16_t>& input) {
@@ -476,6 +524,9 @@ int64_t Device::value(const Register& r) const {
 }
 
 void Device::set_value(const Register& r, int64_t v) {
+  auto& touched = touched_[int(r.table)];
+  touched.mark(r.address);
+  if (r.words == 2) touched.mark(uint16_t(r.address + 1));
   if (r.table == Table::coil) {
     coils_[r.address] = v != 0;
     return;
@@ -548,17 +599,22 @@ int64_t default_raw(const Register& r) {
 }  // namespace
 
 void Device::power_cycle() {
-  std::fill(holding_.begin(), holding_.end(), 0);
-  std::fill(input_.begin(), input_.end(), 0);
-  std::fill(coils_.begin(), coils_.end(), 0);
-  std::fill(discrete_.begin(), discrete_.end(), 0);
+  auto clear = [&](auto& table, Table t) {
+    Touched& w = touched_[int(t)];
+    if (w.lo < w.hi) std::fill(table.begin() + w.lo, table.begin() + w.hi, 0);
+    w = Touched{};
+  };
+  clear(holding_, Table::holding);
+  clear(input_, Table::input);
+  clear(coils_, Table::coil);
+  clear(discrete_, Table::discrete_input);
   for (const auto& r : spec_.registers) set_value(r, default_raw(r));
   // Persistent registers come back from the stored image.
   for (const auto& r : spec_.registers) {
     if (r.persistence.store == spec::Store::none || r.table != Table::holding) continue;
     for (int i = 0; i < r.words; ++i) {
       auto it = stored_.find(uint16_t(r.address + i));
-      if (it != stored_.end()) holding_[uint16_t(r.address + i)] = it->second;
+      if (it != stored_.end()) set_word(uint16_t(r.address + i), it->second);
     }
   }
   listen_only_ = false;

@@ -8,6 +8,8 @@
 // returns the reply, or nothing for silence. Transports live in reference/serve.
 #pragma once
 
+#include <algorithm>
+#include <array>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -136,7 +138,39 @@ class Device {
   spec::Spec spec_;
   std::vector<uint16_t> holding_, input_;  // 65536 words each
   std::vector<uint8_t> coils_, discrete_;  // 65536 bits each, one byte per bit
+  // What a request reads of the spec, resolved once at construction so that
+  // the hot path does no fact lookup, string compare or search per word:
+  // - per table, the mapped addresses as runs of neighbouring registers that
+  //   allow the same access (a read or write is checked run by run);
+  // - per function code (0..127), whether the profile lists it, and its
+  //   quantity limits capped by the standard's (MBAP v1.1b3 §6);
+  // - per violation, the answer: the device's policy, else the standard's
+  //   (spec/devices/modbus-standard.yaml), as an exception code or silence (-1).
+  struct MappedRun {
+    uint16_t first = 0, last = 0;
+    bool readable = true, writable = true;
+  };
+  struct FunctionLimits {
+    bool supported = false;
+    int max_quantity = 0, max_read = 0, max_write = 0;
+  };
+  void resolve_spec();
+  // The span of each table written since the last power cycle, so that a
+  // power cycle clears that instead of 4 x 64 Ki words (a fuzz harness power
+  // cycles its device before every input).
+  struct Touched {
+    uint32_t lo = 0x10000, hi = 0;  // [lo, hi); empty when lo >= hi
+    void mark(uint32_t address, uint32_t count = 1) {
+      if (address + count > 0x10000) address = 0, count = 0x10000;
+      lo = std::min(lo, address);
+      hi = std::max(hi, address + count);
+    }
+  };
+  std::array<Touched, 4> touched_{};
   std::optional<uint16_t> last_address_[4];  // per table, from the spec (hot path)
+  std::vector<MappedRun> runs_[4];
+  std::array<FunctionLimits, 128> functions_{};
+  std::array<int16_t, 16> answers_{};  // by Violation; -1: silence
   uint8_t slave_id_;
   std::unique_ptr<Behaviour> behaviour_;
   Axis axis_;

@@ -37,6 +37,9 @@ const std::vector<FaultInfo>& all_faults() {
       {Fault::ignore_broadcast, "ignore-broadcast", "drops broadcast writes the spec says are applied"},
       {Fault::bad_reply_crc, "bad-reply-crc", "every RTU reply carries a wrong CRC"},
       {Fault::wrong_byte_count, "wrong-byte-count", "FC 01-04/23 replies state a byte count 2 higher than sent"},
+      {Fault::read_before_write, "read-before-write",
+       "FC 23 reads its read range before it writes its write range (MBAP v1.1b3 §6.17: the write is performed first), "
+       "so an overlapping read returns the old values"},
       {Fault::forget_persistent, "forget-persistent",
        "a power cycle loses the stored (EEPROM/flash) values: persistent registers come back at their defaults"},
       {Fault::keep_volatile, "keep-volatile",
@@ -105,7 +108,8 @@ bool device_level(const FaultSet& f) {
 
 bool pdu_level(const FaultSet& f) {
   for (Fault x : {Fault::wrong_exception_code, Fault::off_by_one_limit, Fault::refuse_limit, Fault::swapped_words,
-                  Fault::accept_out_of_range, Fault::accept_read_only, Fault::lost_write, Fault::wrong_byte_count})
+                  Fault::accept_out_of_range, Fault::accept_read_only, Fault::lost_write, Fault::wrong_byte_count,
+                  Fault::read_before_write})
     if (f.has(x)) return true;
   return false;
 }
@@ -236,6 +240,17 @@ std::optional<Bytes> FaultyBus::device_pdu(ref::Device& d, std::span<const uint8
   if (!pdu_level(faults_) || pdu_in.empty()) return d.handle_pdu(pdu_in, broadcast);
   Bytes pdu(pdu_in.begin(), pdu_in.end());
   const uint8_t fc = pdu[0];
+  // read-before-write: the FC 23 reply carries the read range as it was
+  // before the write (the register image taken first), not after it.
+  if (faults_.has(Fault::read_before_write) && fc == 23 && pdu.size() >= 5) {
+    const uint16_t start = be16(pdu, 1), count = be16(pdu, 3);
+    Bytes before;
+    for (uint32_t a = start; a < uint32_t(start) + count && a <= 0xFFFF; ++a) put_be16(before, d.word(uint16_t(a)));
+    auto reply = d.handle_pdu(pdu, broadcast);
+    if (reply && reply->size() == 2 + before.size() && (*reply)[0] == 23)
+      std::copy(before.begin(), before.end(), reply->begin() + 2);
+    return reply;
+  }
   const bool read_words = (fc == 3 || fc == 4) && pdu.size() == 5;
   const bool write_words = (fc == 6 && pdu.size() == 5) || (fc == 16 && pdu.size() >= 6 && pdu.size() == size_t(6 + pdu[5]));
   uint16_t start = pdu.size() >= 3 ? be16(pdu, 1) : 0;

@@ -36,6 +36,7 @@ enum class Fault {
   ignore_broadcast,
   bad_reply_crc,
   wrong_byte_count,
+  read_before_write,
   forget_persistent,
   keep_volatile,
   overshoot,

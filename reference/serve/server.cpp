@@ -5,11 +5,11 @@
 #include <netdb.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
-#include <poll.h>
 
 #include <type_traits>
 #include <pty.h>
 #include <signal.h>
+#include <sys/epoll.h>
 #include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/socket.h>
@@ -46,6 +46,7 @@ const char* to_string(Transport t) {
     case Transport::tcp: return "tcp";
     case Transport::rtu_tcp: return "rtu-tcp";
     case Transport::pty: return "pty";
+    case Transport::tls: return "tls";
   }
   return "?";
 }
@@ -110,6 +111,13 @@ constexpr size_t kOutputBound = 64 * 1024;
 // After accept fails for want of descriptors (EMFILE, ENFILE), listeners rest
 // this long instead of waking the loop for the same failure again.
 constexpr milliseconds kAcceptBackoff{100};
+// Bytes read from one connection in one poll round, on every transport: a
+// client that streams cannot keep the loop from the others (nor from a stop
+// signal).
+constexpr size_t kReadPerRound = 16 * 1024;
+// Descriptors kept free beside the connections: listeners, ptys, stdio, the
+// EEPROM files written while serving.
+constexpr size_t kSpareDescriptors = 16;
 
 volatile sig_atomic_t g_stop = 0;
 extern "C" void on_stop_signal(int) { g_stop = 1; }
@@ -151,17 +159,27 @@ struct Link {
   Bytes in;
   size_t overflow = 0;  // bytes past kMaxRtuAdu in the current RTU frame
   Clock::time_point last_rx;
+  // An RTU frame past kMaxRtuAdu is noise until the line falls silent (MB-SL
+  // v1.02 §2.5.1.1): such a stream is read once per frame gap, so a client
+  // flooding bytes costs bounded time, not the loop's every round.
+  Clock::time_point rest_until{};
   std::deque<Outgoing> out;
   size_t out_offset = 0;  // bytes of out.front() already sent
   size_t out_bytes = 0;   // queued, not yet sent
   bool closed = false;
   bool eof = false;       // the peer shut its side: answer what came, then close
+  bool write_blocked = false;  // the last send said EAGAIN: wait for EPOLLOUT, never retry in a loop
+  bool registered = false;     // with the loop's epoll set
+  uint32_t armed = 0;          // the events it is registered for
+  std::optional<std::string> role;  // a TLS client's role, when a roles file decides (tls_door.h)
 
   bool rtu() const { return transport != Transport::tcp; }
   bool socket() const { return transport != Transport::pty; }
   // Its replies pile up unread: consume and read nothing more for now.
   bool backed_up() const { return out_bytes >= kOutputBound; }
-  bool wants_input() const { return !eof && !backed_up() && (rtu() || in.size() < kInputBound); }
+  bool wants_input(Clock::time_point now) const {
+    return !eof && !backed_up() && now >= rest_until && (rtu() || in.size() < kInputBound);
+  }
 };
 
 struct Listener {
@@ -181,17 +199,23 @@ struct Server::Impl {
   faults::FaultyBus bus;  // the correct devices when opt.faults is empty
   Options opt;
   std::vector<Listener> listeners;
+  std::unique_ptr<TlsDoor> tls_door;  // --tls: its wake_fd() is polled as a listener
   std::vector<PtyEndpoint> ptys;
   std::vector<Link> links;
   std::vector<std::string> listening;  // "listening ..." lines, in endpoint order
   std::vector<StoredImage> saved;      // per device: the image last written to disk
   Clock::time_point clock_at;          // the bus clock stands at this real time
-  sigset_t run_mask;                   // the mask ppoll waits with (stop signals open)
+  sigset_t run_mask;                   // the mask the loop waits with (stop signals open)
   Clock::time_point accept_resume;     // listeners rest until then after EMFILE
+  size_t max_links = 0;                // opt.max_connections, lowered to what RLIMIT_NOFILE leaves room for
+  std::unique_ptr<PcapTrace> pcap;     // --pcap
 
-  Impl(ref::Bus b, Options o) : bus(std::move(b), o.faults), opt(std::move(o)) {}
+  Impl(ref::Bus b, Options o) : bus(std::move(b), o.faults), opt(std::move(o)) {
+    if (!opt.pcap.empty()) pcap = std::make_unique<PcapTrace>(opt.pcap);
+  }
 
   ~Impl() {
+    if (epfd >= 0) ::close(epfd);
     for (auto& l : listeners) ::close(l.fd);
     for (auto& l : links)
       if (!l.closed) ::close(l.fd);
@@ -231,6 +255,15 @@ struct Server::Impl {
   }
 
   // ---- endpoints ----
+
+  static size_t open_descriptors() {
+    std::error_code ec;
+    size_t n = 0;
+    for (auto it = std::filesystem::directory_iterator("/proc/self/fd", ec); !ec && it != std::filesystem::directory_iterator();
+         it.increment(ec))
+      ++n;
+    return n ? n : 64;  // no /proc: assume a few dozen
+  }
 
   void open_socket(const Endpoint& e) {
     addrinfo hints{}, *res = nullptr;
@@ -278,8 +311,27 @@ struct Server::Impl {
     listening.push_back(fmt::format("listening pty {}", e.path));
   }
 
+  void open_tls(const Endpoint& e) {
+    if (!tls_door) {
+      tls_door = std::make_unique<TlsDoor>(opt.tls);
+      listeners.push_back({tls_door->wake_fd(), Transport::tls});
+    }
+    listening.push_back(tls_door->listen(e.host, e.port));
+  }
+
+  // TLS connections the door let in become Modbus TCP links.
+  void adopt_tls(Clock::time_point now) {
+    for (auto& a : tls_door->take()) {
+      Link l(a.fd, Transport::tcp, a.name);
+      l.role = a.role;
+      l.last_rx = now;
+      if (opt.trace) std::fputs((trace_time() + l.name + " connected\n").c_str(), stderr);
+      links.push_back(std::move(l));
+    }
+  }
+
   void open() {
-    // Stop signals are held until ppoll opens them, so one that arrives
+    // Stop signals are held until the wait opens them, so one that arrives
     // between two polls is never lost; a peer that closed must not kill us.
     sigset_t stop;
     sigemptyset(&stop);
@@ -308,9 +360,21 @@ struct Server::Impl {
     for (const auto& e : opt.endpoints) {
       if (e.transport == Transport::pty)
         open_pty(e);
+      else if (e.transport == Transport::tls)
+        open_tls(e);
       else
         open_socket(e);
     }
+    // The cap the descriptors allow: eviction of the connection unused the
+    // longest must happen before accept runs out of descriptors, or no
+    // newcomer is ever served once idle connections fill the table.
+    max_links = opt.max_connections;
+    if (getrlimit(RLIMIT_NOFILE, &nofile) == 0 && nofile.rlim_cur != RLIM_INFINITY) {
+      size_t in_use = open_descriptors();
+      size_t room = nofile.rlim_cur > in_use + kSpareDescriptors ? size_t(nofile.rlim_cur) - in_use - kSpareDescriptors : 1;
+      if (!max_links || room < max_links) max_links = room;
+    }
+    if (tls_door) tls_door->start();  // its thread inherits the blocked stop signals
     for (const auto& line : listening) std::fputs((line + "\n").c_str(), stdout);
     std::fflush(stdout);
   }
@@ -321,12 +385,13 @@ struct Server::Impl {
   // a tenth of a one-client exchange.
   template <class What>
   void trace(const Link& l, const char* dir, std::span<const uint8_t> bytes, What&& describe) {
+    if (pcap && !bytes.empty()) pcap->frame(l.fd, !l.rtu(), l.name, dir[0] == 't', bytes);
     if (!opt.trace) return;
     std::string what;
     if constexpr (std::is_invocable_v<What>) what = describe();
     else what = std::string(describe);
-    std::string line = bytes.empty() ? fmt::format("{} {} {}\n", l.name, dir, what)
-                                     : fmt::format("{} {} {} | {}\n", l.name, dir, to_hex(bytes), what);
+    std::string line = bytes.empty() ? fmt::format("{}{} {} {}\n", trace_time(), l.name, dir, what)
+                                     : fmt::format("{}{} {} {} | {}\n", trace_time(), l.name, dir, to_hex(bytes), what);
     std::fputs(line.c_str(), stderr);
   }
 
@@ -398,7 +463,12 @@ struct Server::Impl {
         trace(l, "rx", adu, [&] { return fmt::format("{}protocol {}: not Modbus, ignored", head(), h->protocol); });
       } else {
         trace(l, "rx", adu, [&] { return head() + describe_pdu(pdu, Direction::request); });
-        auto reply = guarded(l, [&] { return bus.handle_pdu(h->unit, pdu); });
+        std::string refused = l.role && tls_door ? tls_door->refusal(*l.role, pdu) : "";
+        if (!refused.empty()) trace(l, "!!", {}, [&] { return refused; });
+        // MB-TCP-Security v2.1 §8.3: a request the role may not make is
+        // refused with exception 01 (Illegal Function).
+        auto reply = !refused.empty() ? std::optional<Bytes>(Bytes{uint8_t(pdu[0] | 0x80), 0x01})
+                                      : guarded(l, [&] { return bus.handle_pdu(h->unit, pdu); });
         if (reply) {
           Bytes out = mbap_reply(*h, *reply);
           trace(l, "tx", out, [&] { return head() + describe_pdu(*reply, Direction::reply); });
@@ -456,8 +526,8 @@ struct Server::Impl {
 
   void read_link(Link& l, Clock::time_point now) {
     uint8_t buf[4096];
-    while (l.wants_input()) {
-      size_t room = l.rtu() ? sizeof buf : std::min(sizeof buf, kInputBound - l.in.size());
+    for (size_t budget = kReadPerRound; budget > 0 && l.wants_input(now);) {
+      size_t room = std::min(budget, l.rtu() ? sizeof buf : std::min(sizeof buf, kInputBound - l.in.size()));
       ssize_t n = ::read(l.fd, buf, room);
       if (n > 0) {
         // Bytes after a silence of t3.5 start a new frame (MB-SL v1.02
@@ -467,11 +537,16 @@ struct Server::Impl {
           save_changed_images();
         }
         l.last_rx = now;
+        budget -= size_t(n);
         for (ssize_t i = 0; i < n; ++i) {
           if (l.rtu() && l.in.size() >= kMaxRtuAdu)
             ++l.overflow;
           else
             l.in.push_back(buf[i]);
+        }
+        if (l.overflow) {
+          l.rest_until = now + rtu_gap(l);
+          return;
         }
         // A short read drained what the kernel held; poll is level-triggered
         // and reports anything newer, so skip the read that would say EAGAIN
@@ -492,13 +567,17 @@ struct Server::Impl {
   }
 
   void write_link(Link& l, Clock::time_point now) {
+    if (l.write_blocked) return;  // until the loop sees EPOLLOUT
     while (!l.out.empty() && l.out.front().not_before <= now) {
       const Bytes& b = l.out.front().bytes;
       ssize_t n = l.socket() ? ::send(l.fd, b.data() + l.out_offset, b.size() - l.out_offset, MSG_NOSIGNAL)
                              : ::write(l.fd, b.data() + l.out_offset, b.size() - l.out_offset);
       if (n < 0) {
         if (errno == EINTR) continue;
-        if (errno == EAGAIN || errno == EWOULDBLOCK) return;
+        if (errno == EAGAIN || errno == EWOULDBLOCK) {
+          l.write_blocked = true;
+          return;
+        }
         if (l.socket()) l.closed = true;
         l.out.clear();  // pty without a reader: the reply is lost, as on a bus nobody listens to
         l.out_offset = 0;
@@ -527,11 +606,16 @@ struct Server::Impl {
     for (auto& l : links)
       if (l.socket() && !l.closed && (!oldest || l.last_rx < oldest->last_rx)) oldest = &l;
     if (!oldest) return;
-    if (opt.trace) std::fputs((oldest->name + " closed: connection cap, unused the longest\n").c_str(), stderr);
+    if (opt.trace) std::fputs((trace_time() + oldest->name + " closed: connection cap, unused the longest\n").c_str(), stderr);
     oldest->closed = true;
+    // Its descriptor comes free now, for the newcomer of this same burst of accepts.
+    if (pcap) pcap->closed(oldest->fd);
+    ::close(oldest->fd);
+    oldest->fd = -1;
   }
 
   void accept_all(const Listener& s, Clock::time_point now) {
+    if (s.transport == Transport::tls) return adopt_tls(now);
     for (;;) {
       sockaddr_storage ss{};
       socklen_t len = sizeof ss;
@@ -546,13 +630,13 @@ struct Server::Impl {
         }
         return;  // EAGAIN, or an aborted connection
       }
-      if (opt.max_connections && socket_links() >= opt.max_connections) make_room();
+      if (max_links && socket_links() >= max_links) make_room();
       int one = 1;
       setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);  // replies are small and wanted now
       setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &one, sizeof one);  // Guide §4.3.2: find peers that vanished
       Link l(fd, s.transport, fmt::format("{} {}", to_string(s.transport), sockaddr_text(ss)));
       l.last_rx = now;
-      if (opt.trace) std::fputs((l.name + " connected\n").c_str(), stderr);
+      if (opt.trace) std::fputs((trace_time() + l.name + " connected\n").c_str(), stderr);
       links.push_back(std::move(l));
     }
   }
@@ -564,7 +648,7 @@ struct Server::Impl {
       if (l.closed || !l.socket()) continue;
       if (l.eof && l.out.empty() && (!l.rtu() || l.in.empty())) l.closed = true;
       if (opt.idle_timeout_s > 0 && now - l.last_rx >= std::chrono::seconds(opt.idle_timeout_s)) {
-        if (opt.trace) std::fputs((l.name + " closed: idle\n").c_str(), stderr);
+        if (opt.trace) std::fputs((trace_time() + l.name + " closed: idle\n").c_str(), stderr);
         l.closed = true;
       }
     }
@@ -573,8 +657,11 @@ struct Server::Impl {
   void drop_closed_links() {
     std::erase_if(links, [&](Link& l) {
       if (!l.closed) return false;
-      if (opt.trace) std::fputs((l.name + " closed\n").c_str(), stderr);
-      ::close(l.fd);
+      if (opt.trace) std::fputs((trace_time() + l.name + " closed\n").c_str(), stderr);
+      if (l.fd >= 0) {
+        if (pcap) pcap->closed(l.fd);
+        ::close(l.fd);
+      }
       return true;
     });
   }
@@ -586,7 +673,10 @@ struct Server::Impl {
     Clock::time_point wake = now + kMaxSleep;
     for (const auto& l : links) {
       if (l.rtu() && (!l.in.empty() || l.overflow)) wake = std::min(wake, l.last_rx + rtu_gap(l));
-      if (!l.out.empty()) wake = std::min(wake, l.out.front().not_before);
+      if (l.rest_until > now) wake = std::min(wake, l.rest_until);
+      // A reply already due waits for EPOLLOUT, not for a timer: a client that
+      // does not read must not turn the loop into a busy one.
+      if (!l.out.empty() && l.out.front().not_before > now) wake = std::min(wake, l.out.front().not_before);
     }
     auto us = std::max<int64_t>(0, duration_cast<microseconds>(wake - now).count());
     return timespec{time_t(us / 1000000), long(us % 1000000) * 1000L};
@@ -599,7 +689,61 @@ struct Server::Impl {
     clock_at += dt;
   }
 
-  std::vector<pollfd> poll_fds;
+  // ---- readiness ----
+  // epoll, level-triggered: a round costs the connections that are ready,
+  // not every connection (1000 idle ones made each poll() round scan them
+  // all). A listener's key is kListenerKey | its index; a link's, its fd,
+  // mapped to its index by `slot` (rebuilt as interest is updated).
+  static constexpr uint64_t kListenerKey = uint64_t(1) << 32;
+  int epfd = -1;
+  std::vector<epoll_event> ready = std::vector<epoll_event>(256);
+  std::vector<size_t> slot;  // fd -> index in links
+  bool listeners_armed = false;
+
+  void watch(int fd, uint64_t key, uint32_t events, bool add) {
+    epoll_event e{};
+    e.events = events;
+    e.data.u64 = key;
+    if (epoll_ctl(epfd, add ? EPOLL_CTL_ADD : EPOLL_CTL_MOD, fd, &e) != 0) fail("epoll_ctl");
+  }
+
+  // Registers each link for what it wants now (input while it may read, the
+  // socket's room while a reply is due), listeners unless they rest.
+  void update_interest(Clock::time_point now) {
+    if (epfd < 0) {
+      epfd = epoll_create1(EPOLL_CLOEXEC);
+      if (epfd < 0) fail("epoll_create1");
+      for (size_t i = 0; i < listeners.size(); ++i) watch(listeners[i].fd, kListenerKey | i, 0, true);
+    }
+    bool accepting = now >= accept_resume;
+    if (accepting != listeners_armed) {
+      for (size_t i = 0; i < listeners.size(); ++i) watch(listeners[i].fd, kListenerKey | i, accepting ? uint32_t(EPOLLIN) : 0u, false);
+      listeners_armed = accepting;
+    }
+    for (size_t k = 0; k < links.size(); ++k) {
+      Link& l = links[k];
+      bool due = !l.out.empty() && l.out.front().not_before <= now;
+      uint32_t want = (l.wants_input(now) ? uint32_t(EPOLLIN) : 0u) | (due ? uint32_t(EPOLLOUT) : 0u);
+      if (!l.registered || want != l.armed) {
+        watch(l.fd, uint64_t(l.fd), want, !l.registered);
+        l.registered = true;
+        l.armed = want;
+      }
+      if (size_t(l.fd) >= slot.size()) slot.resize(size_t(l.fd) + 1);
+      slot[size_t(l.fd)] = k;
+    }
+  }
+
+  // Waits until something is ready, a timer is due or a stop signal came.
+  int wait_ready(Clock::time_point now) {
+    timespec ts = poll_timeout(now);
+    int rc = epoll_pwait2(epfd, ready.data(), int(ready.size()), &ts, &run_mask);
+    if (rc < 0 && errno == ENOSYS) {  // a kernel before 5.11: whole milliseconds, rounded up
+      long ms = long(ts.tv_sec) * 1000 + (ts.tv_nsec + 999999) / 1000000;
+      rc = epoll_pwait(epfd, ready.data(), int(ready.size()), int(ms), &run_mask);
+    }
+    return rc;
+  }
 
   int run() {
     // Paced replies and RTU gaps are timers of a few hundred microseconds; the
@@ -619,31 +763,33 @@ struct Server::Impl {
       retire_links(now);
       drop_closed_links();
 
-      std::vector<pollfd>& fds = poll_fds;  // kept between rounds: no allocation per request
-      fds.clear();
-      // Resting listeners are polled for nothing (fd -1 is skipped) so the indexes stay.
-      bool accepting = now >= accept_resume;
-      for (const auto& s : listeners) fds.push_back({accepting ? s.fd : -1, POLLIN, 0});
-      for (const auto& l : links) {
-        bool due = !l.out.empty() && l.out.front().not_before <= now;
-        fds.push_back({l.fd, short((l.wants_input() ? POLLIN : 0) | (due ? POLLOUT : 0)), 0});
-      }
-      timespec ts = poll_timeout(now);
-      int rc = ppoll(fds.data(), fds.size(), &ts, &run_mask);
+      update_interest(now);
+      int rc = wait_ready(now);
       if (rc < 0) {
         if (errno == EINTR) continue;
-        fail("poll");
+        fail("epoll_wait");
       }
       now = Clock::now();
-      size_t i = 0;
-      for (const auto& s : listeners)
-        if (fds[i++].revents & POLLIN) accept_all(s, now);
-      // accept_all appended new links after the polled ones; index only those polled.
-      for (size_t k = 0; i < fds.size(); ++k, ++i) {
+      // accept_all appends links (registered next round) and may close one
+      // for a newcomer, whose descriptor a newcomer may reuse at once: a
+      // ready link is the one `slot` named when interest was updated.
+      const size_t polled = links.size();
+      for (int e = 0; e < rc; ++e) {
+        const uint64_t key = ready[size_t(e)].data.u64;
+        const uint32_t ev = ready[size_t(e)].events;
+        if (key & kListenerKey) {
+          if (ev & EPOLLIN) accept_all(listeners[size_t(key & 0xFFFFFFFF)], now);
+          continue;
+        }
+        size_t k = size_t(key) < slot.size() ? slot[size_t(key)] : polled;
+        if (k >= polled) continue;
         Link& l = links[k];
-        if (fds[i].revents & (POLLIN | POLLHUP | POLLERR)) read_link(l, now);
-        if ((fds[i].revents & POLLERR) && l.socket()) l.closed = true;
-        if (!l.closed && (fds[i].revents & POLLOUT)) write_link(l, now);
+        if (l.closed || l.fd != int(key)) continue;  // closed for a newcomer by accept_all above
+        if (ev & (EPOLLIN | EPOLLHUP | EPOLLERR)) read_link(l, now);
+        if ((ev & EPOLLERR) && l.socket()) l.closed = true;
+        // A hang-up or error: the next send says what happened (EPIPE closes it).
+        if (ev & (EPOLLOUT | EPOLLHUP | EPOLLERR)) l.write_blocked = false;
+        if (!l.closed && (ev & EPOLLOUT)) write_link(l, now);
       }
     }
     save_eeprom_images(true);

@@ -13,11 +13,13 @@
 
 #include "engine/device.h"
 #include "faults/faults.h"
+#include "serve/tls_door.h"
 
 namespace mbc::serve {
 
-enum class Transport { tcp, rtu_tcp, pty };
-const char* to_string(Transport t);  // "tcp", "rtu-tcp", "pty"
+// tls: Modbus/TCP Security (MBAP inside TLS, tls_door.h).
+enum class Transport { tcp, rtu_tcp, pty, tls };
+const char* to_string(Transport t);  // "tcp", "rtu-tcp", "pty", "tls"
 
 struct Endpoint {
   Transport transport = Transport::tcp;
@@ -42,7 +44,8 @@ struct Options {
   std::string eeprom_dir;        // empty: no persistence across restarts
   int baud = 19200;              // the pty's nominal rate: sets the frame gap
   std::optional<int> line_rate;  // pace RTU replies at this rate's wire time
-  bool trace = false;            // every frame to stderr
+  bool trace = false;            // every frame to stderr, timestamped (trace.h)
+  std::string pcap;              // every frame to this pcapng file (trace.h: PcapTrace)
   faults::FaultSet faults;       // injected into every device served (empty: correct devices)
   // A TCP connection that sent nothing for this long is closed (0: never).
   // The default is one no CI gate reaches.
@@ -51,6 +54,7 @@ struct Options {
   // closed for the newcomer (Modbus Messaging on TCP/IP Implementation Guide
   // V1.0b §4.2.1.2).
   size_t max_connections = 4096;
+  TlsOptions tls;  // for Transport::tls endpoints
 };
 
 class Server {

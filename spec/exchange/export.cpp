@@ -1,5 +1,11 @@
 // `mbconform spec export ID --format csv|home-assistant|edgex`.
 #include <fmt/core.h>
+#include <fmt/format.h>
+#include <fnmatch.h>
+
+#include <cctype>
+#include <cstdlib>
+#include <optional>
 #include <nlohmann/json.hpp>
 
 #include "csv.h"
@@ -83,15 +89,54 @@ std::string export_csv(const spec::Spec& s) {
 // fan, light, sensor and switch (there is no `number` platform), data types
 // int16/uint16/int32/uint32/float32, `swap: word` for the low word first.
 // spec/exchange/tests/export_test.py checks every key against that schema.
-std::string export_home_assistant(const spec::Spec& s) {
+bool register_matches(const spec::Register& r, const std::vector<std::string>& patterns) {
+  auto number = [](const std::string& t) -> std::optional<uint32_t> {
+    if (t.empty()) return std::nullopt;
+    char* end = nullptr;
+    unsigned long v = std::strtoul(t.c_str(), &end, t.size() > 2 && t[0] == '0' && (t[1] == 'x' || t[1] == 'X') ? 16 : 10);
+    if (*end != '\0' || v > 0xFFFF) return std::nullopt;
+    return uint32_t(v);
+  };
+  auto lower = [](std::string t) {
+    for (auto& c : t) c = char(std::tolower(static_cast<unsigned char>(c)));
+    return t;
+  };
+  for (const auto& p : patterns) {
+    if (auto a = number(p)) {
+      if (r.address <= *a && *a <= r.last_address()) return true;
+      continue;
+    }
+    if (auto dash = p.find('-'); dash != std::string::npos && dash > 0) {
+      auto lo = number(p.substr(0, dash)), hi = number(p.substr(dash + 1));
+      if (lo && hi) {
+        if (r.last_address() >= *lo && r.address <= *hi) return true;
+        continue;
+      }
+    }
+    std::string lp = lower(p);
+    if (fnmatch(lp.c_str(), lower(r.key).c_str(), 0) == 0 || fnmatch(lp.c_str(), lower(r.name.en).c_str(), 0) == 0) return true;
+  }
+  return patterns.empty();
+}
+
+std::string export_home_assistant(const spec::Spec& s, const HomeAssistantOptions& o) {
   int unit = s.serial.slave_default.value_or(1);
   std::string frame = s.serial.frame_default.value_or(s.serial.frame_formats.empty() ? "8E1" : s.serial.frame_formats[0]);
   int baud = s.serial.baud_default.value_or(s.serial.baud_rates.empty() ? 19200 : s.serial.baud_rates[0]);
   std::vector<std::string> sensors, binary, switches, writes;
+  size_t left_out = 0;
   for (const auto& r : s.registers) {
-    std::string head = fmt::format("      - name: {}\n        unique_id: {}\n        address: {}\n        device_address: {}\n",
+    if (!register_matches(r, o.only)) {
+      ++left_out;
+      continue;
+    }
+    // What the drive changes by itself is polled often; a setting changes
+    // only when written.
+    bool changes_by_itself = r.access == Access::ro;
+    std::string head = fmt::format("      - name: {}\n        unique_id: {}\n        address: {}\n        device_address: {}\n"
+                                   "        scan_interval: {}\n",
                                    yaml_str(fmt::format("{} {} (0x{:04X})", s.device.id, r.name.en, r.address)),
-                                   ident(s, r), r.address, unit);
+                                   ident(s, r), r.address, unit, changes_by_itself ? o.fast_scan : o.slow_scan);
     bool bits = r.table == Table::coil || r.table == Table::discrete_input;
     if (bits) {
       if (r.table == Table::coil && r.access != Access::ro) {
@@ -114,6 +159,14 @@ std::string export_home_assistant(const spec::Spec& s) {
     if (r.word_order == WordOrder::low_first) e += "        swap: word\n";
     if (r.scale != 1) e += fmt::format("        scale: {}\n        precision: {}\n", num(r.scale), precision(r.scale));
     if (!r.unit.empty()) e += fmt::format("        unit_of_measurement: {}\n", yaml_str(r.unit));
+    bool coded = r.type == DataType::enumeration || r.type == DataType::bitfield;
+    if (changes_by_itself && !coded) {
+      std::string n = r.name.en;
+      for (auto& c : n) c = char(std::tolower(static_cast<unsigned char>(c)));
+      bool counts_up = false;
+      for (const char* w : {"total", "count", "hours", "energy"}) counts_up |= n.find(w) != std::string::npos;
+      e += fmt::format("        state_class: {}\n", counts_up ? "total_increasing" : "measurement");
+    }
     sensors.push_back(e);
   }
   std::string y;
@@ -121,6 +174,12 @@ std::string export_home_assistant(const spec::Spec& s) {
                    s.device.title, s.device.id);
   y += "# by `mbconform spec export --format home-assistant`. Keys: the modbus integration's\n"
        "# schema of the Home Assistant 2024 releases. Set `port` to your adapter.\n#\n";
+  y += fmt::format("# scan_interval: {} s for read-only registers (status, measurements), {} s for\n"
+                   "# settings; state_class on numeric read-only sensors (long-term statistics).\n",
+                   o.fast_scan, o.slow_scan);
+  if (!o.only.empty())
+    y += fmt::format("# --only {}: {} of the spec's {} registers left out.\n", fmt::format("{}", fmt::join(o.only, ",")), left_out,
+                     s.registers.size());
   y += "# Writes to holding registers go through the modbus.write_register action (one\n"
        "# value: FC 06; a list: FC 16, one value per register in address order, so a\n"
        "# low_first register takes its low word first), e.g.\n";

@@ -1,4 +1,7 @@
 // `mbconform spec import --csv`: a CSV register map -> a spec skeleton.
+#include <iconv.h>
+
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
@@ -27,11 +30,26 @@ using spec::DataType;
 using spec::Table;
 using spec::WordOrder;
 
-// Lower case, letters and digits only: "Word Order" == "word_order" == "WORD-ORDER".
+// Lower case, letters and digits only: "Word Order" == "word_order" ==
+// "WORD-ORDER". Bytes of UTF-8 characters past ASCII are kept as they are
+// (地址 stays 地址), but full-width brackets and spaces, which vendor
+// sheets put around units (名称（中文）), are dropped like ASCII punctuation.
 std::string norm(std::string_view s) {
   std::string n;
-  for (unsigned char c : s)
-    if (std::isalnum(c)) n += char(std::tolower(c));
+  for (size_t i = 0; i < s.size(); ++i) {
+    unsigned char c = static_cast<unsigned char>(s[i]);
+    if (c < 0x80) {
+      if (std::isalnum(c)) n += char(std::tolower(c));
+      continue;
+    }
+    // U+3000 ideographic space (E3 80 80), U+FF08/U+FF09 full-width parentheses (EF BC 88/89).
+    std::string_view rest = s.substr(i);
+    if (rest.starts_with("\xE3\x80\x80") || rest.starts_with("\xEF\xBC\x88") || rest.starts_with("\xEF\xBC\x89")) {
+      i += 2;
+      continue;
+    }
+    n += char(c);
+  }
   return n;
 }
 
@@ -41,23 +59,35 @@ std::string trim(std::string_view s) {
 }
 
 // Header names and their aliases (normalised), by canonical column.
+// Chinese aliases are those of vendor sheets (Simplified Chinese, as the
+// drives' manuals print them: 地址, 名称, 读写, 范围, 单位, 默认值, 倍率, ...).
 const std::map<std::string, std::vector<std::string>>& column_aliases() {
   static const std::map<std::string, std::vector<std::string>> m = {
-      {"table", {"table", "registertype", "regtype", "objecttype", "area", "datatable", "space"}},
+      {"table", {"table", "registertype", "regtype", "objecttype", "area", "datatable", "space", "寄存器类型", "数据区",
+                 "功能区", "区域"}},
       {"address", {"address", "addr", "register", "reg", "registeraddress", "regaddress", "offset", "reference", "ref",
-                   "startaddress", "startingaddress"}},
-      {"name", {"name", "tag", "label", "parameter", "param", "signal", "point"}},
-      {"access", {"access", "rw", "readwrite", "mode", "permission", "permissions"}},
-      {"type", {"type", "datatype", "format", "valuetype", "dtype"}},
+                   "startaddress", "startingaddress", "地址", "寄存器地址", "通讯地址", "通信地址", "参数地址",
+                   "modbus地址", "起始地址", "地址hex", "地址十六进制", "地址十进制"}},
+      {"name", {"name", "tag", "label", "parameter", "param", "signal", "point", "parametername", "名称", "参数名称",
+                "参数名", "参数", "变量名", "变量名称", "功能", "功能名称"}},
+      {"access", {"access", "rw", "readwrite", "mode", "permission", "permissions", "attribute", "property", "读写",
+                  "读写属性", "属性", "访问", "访问权限", "权限", "操作"}},
+      {"type", {"type", "datatype", "format", "valuetype", "dtype", "数据类型", "类型", "数据格式", "格式"}},
       {"words", {"words", "wordcount", "registers", "length", "len", "size", "count", "quantity",
-                 "numberofregisters", "registercount"}},
-      {"word_order", {"wordorder", "wordswap", "swap", "order", "endianness", "endian"}},
-      {"min", {"min", "minimum", "minvalue", "low", "lowerlimit", "rangemin"}},
-      {"max", {"max", "maximum", "maxvalue", "high", "upperlimit", "rangemax"}},
-      {"default", {"default", "defaultvalue", "initial", "initialvalue", "factory", "factorydefault"}},
-      {"unit", {"unit", "units", "uom", "engineeringunit"}},
-      {"scale", {"scale", "factor", "scalefactor", "multiplier", "gain", "resolution"}},
-      {"description", {"description", "desc", "comment", "comments", "note", "notes", "remark", "remarks"}},
+                 "numberofregisters", "registercount", "长度", "字数", "寄存器数", "寄存器个数", "数据长度"}},
+      {"word_order", {"wordorder", "wordswap", "swap", "order", "endianness", "endian", "byteorder", "字节序",
+                      "字序", "字节顺序", "高低字", "大小端"}},
+      {"range", {"range", "valuerange", "settingrange", "setrange", "limits", "范围", "取值范围", "设定范围",
+                 "数据范围", "参数范围", "设置范围"}},
+      {"min", {"min", "minimum", "minvalue", "low", "lowerlimit", "rangemin", "最小值", "下限", "最小"}},
+      {"max", {"max", "maximum", "maxvalue", "high", "upperlimit", "rangemax", "最大值", "上限", "最大"}},
+      {"default", {"default", "defaultvalue", "initial", "initialvalue", "factory", "factorydefault", "factorysetting",
+                   "默认值", "默认", "出厂值", "出厂设定", "出厂设置", "缺省值", "初始值"}},
+      {"unit", {"unit", "units", "uom", "engineeringunit", "单位"}},
+      {"scale", {"scale", "factor", "scalefactor", "multiplier", "gain", "resolution", "倍率", "系数", "比例",
+                 "比例系数", "分辨率"}},
+      {"description", {"description", "desc", "comment", "comments", "note", "notes", "remark", "remarks", "描述",
+                       "说明", "备注", "注释", "参数说明"}},
   };
   return m;
 }
@@ -82,10 +112,10 @@ std::optional<Table> parse_table(const std::string& v) {
 
 std::optional<Access> parse_access(const std::string& v) {
   static const std::vector<std::pair<std::vector<const char*>, Access>> t = {
-      {{"ro", "r", "read", "readonly"}, Access::ro},
-      {{"rw", "readwrite", "wr"}, Access::rw},
-      {{"wo", "w", "write", "writeonly"}, Access::wo},
-      {{"command", "cmd", "action", "trigger"}, Access::command}};
+      {{"ro", "r", "read", "readonly", "只读", "读"}, Access::ro},
+      {{"rw", "readwrite", "wr", "读写", "可读写", "可读可写", "读写"}, Access::rw},
+      {{"wo", "w", "write", "writeonly", "只写", "写"}, Access::wo},
+      {{"command", "cmd", "action", "trigger", "命令", "指令"}, Access::command}};
   return lookup(t, v);
 }
 
@@ -102,14 +132,19 @@ std::optional<DataType> parse_type(const std::string& v) {
 
 std::optional<WordOrder> parse_word_order(const std::string& v) {
   static const std::vector<std::pair<std::vector<const char*>, WordOrder>> t = {
-      {{"highfirst", "high", "msw", "mswfirst", "big", "bigendian", "be", "abcd", "hilo"}, WordOrder::high_first},
-      {{"lowfirst", "low", "lsw", "lswfirst", "little", "littleendian", "le", "cdab", "lohi", "swapped"},
+      {{"highfirst", "high", "msw", "mswfirst", "big", "bigendian", "be", "abcd", "hilo", "高字在前", "大端"},
+       WordOrder::high_first},
+      {{"lowfirst", "low", "lsw", "lswfirst", "little", "littleendian", "le", "cdab", "lohi", "swapped", "低字在前",
+        "小端"},
        WordOrder::low_first}};
   return lookup(t, v);
 }
 
-std::optional<double> parse_number(const std::string& v) {
+// A number as a sheet writes it: decimal, 0x..., or with a decimal comma
+// (0,1: one comma and no point, as spreadsheets in most of Europe write it).
+std::optional<double> parse_number(std::string v) {
   if (v.empty()) return std::nullopt;
+  if (std::count(v.begin(), v.end(), ',') == 1 && v.find('.') == std::string::npos) v[v.find(',')] = '.';
   const char* b = v.c_str();
   char* end = nullptr;
   errno = 0;
@@ -122,8 +157,33 @@ std::optional<double> parse_number(const std::string& v) {
   return d;
 }
 
+// Byte orders that swap the two bytes of each word: the spec language
+// states word order only, because Modbus sends each register high byte
+// first (MBAP v1.1b3 §4.2).
+bool swaps_bytes(const std::string& v) {
+  std::string n = norm(v);
+  return n == "badc" || n == "dcba" || n == "byteswap" || n == "byteswapped";
+}
+
+// "0~3000", "0～3000", "-10~10", "0..3000", "0 to 3000", "0-3000": a range
+// as vendor sheets print one.
+std::optional<std::pair<double, double>> parse_range(std::string v) {
+  for (size_t at; (at = v.find("\xEF\xBD\x9E")) != std::string::npos;) v.replace(at, 3, "~");  // full-width tilde
+  size_t cut = std::string::npos, len = 1;
+  if ((cut = v.find('~')) == std::string::npos) {
+    if ((cut = v.find("..")) != std::string::npos) len = 2;
+    else if ((cut = v.find(" to ")) != std::string::npos) len = 4;
+    else if ((cut = v.find('-', 1)) != std::string::npos && v[cut - 1] != 'e' && v[cut - 1] != 'E') len = 1;
+  }
+  if (cut == std::string::npos) return std::nullopt;
+  auto lo = parse_number(trim(v.substr(0, cut))), hi = parse_number(trim(v.substr(cut + len)));
+  if (!lo || !hi) return std::nullopt;
+  return std::pair(*lo, *hi);
+}
+
 struct Row {
   int line = 0;
+  int count = 1;  // an address range "a~b": a block of b - a + 1 registers
   Table table = Table::holding;
   uint32_t address = 0;
   std::string name, unit, description;
@@ -187,27 +247,43 @@ class Importer {
     try {
       records = parse_csv(text);
     } catch (const std::runtime_error& e) {
-      return {"", {file_ + ":" + e.what()}};
+      return {"", {file_ + ":" + e.what()}, 0, {}, 1};
     }
-    if (records.empty()) return {"", {file_ + ":1: error: the file has no header row"}};
+    if (records.empty()) return {"", {file_ + ":1: error: the file has no header row"}, 0, {}, 1};
     header(records[0]);
-    if (errors_.empty())
+    if (!failed())
       for (size_t i = 1; i < records.size(); ++i) row(records[i]);
-    if (errors_.empty() && rows_.empty()) error(records[0].line, "the file has a header but no registers");
-    if (!errors_.empty()) return {"", errors_};
+    if (!failed() && rows_.empty()) error(records[0].line, "the file has a header but no registers");
+    if (failed()) return {"", errors(), 0, warnings_, error_count_};
     overlaps();
-    if (!errors_.empty()) return {"", errors_};
+    if (failed()) return {"", errors(), 0, warnings_, error_count_};
     std::string yaml = emit();
     // The skeleton must pass `spec check`; anything the rows did not catch
     // is reported here, against the generated text.
     auto r = spec::load_spec_text(yaml, id_ + ".yaml");
-    for (const auto& d : r.diagnostics) errors_.push_back(file_ + ": error: the skeleton does not pass spec check: " + d.str());
-    if (!errors_.empty()) return {"", errors_};
-    return {yaml, {}, rows_.size()};
+    for (const auto& d : r.diagnostics) {
+      ++error_count_;
+      errors_.push_back(file_ + ": error: the skeleton does not pass spec check: " + d.str());
+    }
+    if (failed()) return {"", errors(), 0, warnings_, error_count_};
+    return {yaml, {}, rows_.size(), warnings_, 0};
   }
 
  private:
-  void error(int line, const std::string& what) { errors_.push_back(fmt::format("{}:{}: error: {}", file_, line, what)); }
+  // At most kShownErrors errors are kept; the rest are counted (a bad file
+  // of 100,000 rows must not print 100,000 lines).
+  static constexpr size_t kShownErrors = 20;
+  void error(int line, const std::string& what) {
+    if (++error_count_ <= kShownErrors) errors_.push_back(fmt::format("{}:{}: error: {}", file_, line, what));
+  }
+  bool failed() const { return error_count_ > 0; }
+  std::vector<std::string> errors() const {
+    std::vector<std::string> out = errors_;
+    if (error_count_ > kShownErrors)
+      out.push_back(fmt::format("{}: {} more errors not shown ({} in all)", file_, error_count_ - kShownErrors, error_count_));
+    return out;
+  }
+  void warning(int line, const std::string& what) { warnings_.push_back(fmt::format("{}:{}: warning: {}", file_, line, what)); }
 
   void header(const CsvRecord& h) {
     width_ = h.fields.size();
@@ -219,9 +295,11 @@ class Importer {
         for (const auto& a : aliases)
           if (n == a) canon = c;
       if (canon.empty()) {
+        // A vendor sheet's own column (序号, No., 备注2): said once, then ignored.
         std::string known;
         for (const auto& c : kCsvColumns) known += (known.empty() ? "" : ", ") + c;
-        error(h.line, fmt::format("unknown column '{}' (columns: {}; spec/README.md lists the aliases)", trim(h.fields[i]), known));
+        warning(h.line, fmt::format("column '{}' is not one of the register map's ({}, range; spec/README.md lists the "
+                                    "aliases): ignored", trim(h.fields[i]), known));
         continue;
       }
       if (!seen.insert(canon).second) error(h.line, fmt::format("two columns mean '{}' ('{}' is the second)", canon, trim(h.fields[i])));
@@ -238,7 +316,7 @@ class Importer {
 
   void row(const CsvRecord& rec) {
     const int line = rec.line;
-    size_t before = errors_.size();
+    size_t before = error_count_;
     if (rec.fields.size() > width_) error(line, fmt::format("{} fields, the header has {}", rec.fields.size(), width_));
     Row r;
     r.line = line;
@@ -258,6 +336,14 @@ class Importer {
     } else if (auto a = parse_number(addr); a && *a >= 0 && *a <= 65535 && *a == std::floor(*a)) {
       r.table = table.value_or(Table::holding);
       r.address = uint32_t(*a);
+      r.hex = addr.size() > 2 && (addr[1] == 'x' || addr[1] == 'X');
+    } else if (auto block = parse_range(addr); block && block->first >= 0 && block->second <= 65535 &&
+                                               block->first == std::floor(block->first) && block->second == std::floor(block->second) &&
+                                               block->first < block->second) {
+      // "92~150": a block of registers under one name (the manual's reserved ranges).
+      r.table = table.value_or(Table::holding);
+      r.address = uint32_t(block->first);
+      r.count = int(block->second - block->first) + 1;
       r.hex = addr.size() > 2 && (addr[1] == 'x' || addr[1] == 'X');
     } else {
       error(line, addr.empty() ? std::string("no address")
@@ -300,14 +386,20 @@ class Importer {
       else if (int(*n) != r.words) error(line, fmt::format("{} words, but type {} takes {}", w, spec::to_string(r.type), r.words));
     }
     std::string wo = cell(rec, "word_order");
-    if (!wo.empty()) {
+    if (!wo.empty() && swaps_bytes(wo)) {
+      error(line, fmt::format("byte order '{}' swaps the bytes inside each word; Modbus sends every register high byte "
+                              "first (MBAP v1.1b3 §4.2) and the spec language states word order only (ABCD, CDAB)", wo));
+    } else if (!wo.empty() && r.words == 1) {
+      // A sheet's byte-order column is filled for every row; a 1-word
+      // register has no word order, and AB (high byte first) is the wire's.
+      if (!parse_word_order(wo)) error(line, fmt::format("word order '{}' is not high_first or low_first (ABCD, CDAB)", wo));
+    } else if (!wo.empty()) {
       if (auto o = parse_word_order(wo)) r.word_order = *o;
-      else error(line, fmt::format("word order '{}' is not high_first or low_first", wo));
-      if (r.words == 1) error(line, fmt::format("word order '{}' given for a 1-word register", wo));
+      else error(line, fmt::format("word order '{}' is not high_first or low_first (ABCD, CDAB)", wo));
     } else if (r.words == 2) {
       error(line, "a 2-word register needs a word order (high_first: the high word at the lower address, or low_first)");
     }
-    if (r.address + uint32_t(r.words) - 1 > 65535) error(line, "the register runs past address 0xFFFF");
+    if (r.address + uint32_t(r.words * r.count) - 1 > 65535) error(line, "the register runs past address 0xFFFF");
 
     auto number = [&](const char* c, std::optional<double>& out) {
       std::string v = cell(rec, c);
@@ -316,6 +408,17 @@ class Importer {
     };
     number("min", r.min);
     number("max", r.max);
+    if (std::string range = cell(rec, "range"); !range.empty()) {
+      if (r.min || r.max) error(line, fmt::format("range '{}' and min/max both given", range));
+      else if (auto rg = parse_range(range)) {
+        r.min = rg->first;
+        r.max = rg->second;
+      } else if (auto one = parse_number(range)) {
+        r.min = r.max = *one;
+      } else {
+        error(line, fmt::format("range '{}' is not MIN~MAX (0~3000, -10~10, 0..3000)", range));
+      }
+    }
     number("default", r.def);
     std::optional<double> scale;
     number("scale", scale);
@@ -338,13 +441,13 @@ class Importer {
     }
     r.unit = cell(rec, "unit");
     r.description = cell(rec, "description");
-    if (errors_.size() == before) rows_.push_back(r);
+    if (error_count_ == before) rows_.push_back(r);
   }
 
   void overlaps() {
     std::map<std::pair<Table, uint32_t>, int> used;  // (table, word address) -> line
     for (const auto& r : rows_)
-      for (int k = 0; k < r.words; ++k) {
+      for (int k = 0; k < r.words * r.count; ++k) {
         auto [it, fresh] = used.emplace(std::pair(r.table, r.address + k), r.line);
         if (!fresh)
           error(r.line, fmt::format("{} 0x{:04X} is also on line {}", csv_table_name(r.table), r.address + k, it->second));
@@ -403,9 +506,12 @@ class Importer {
     y += "\nregisters:\n";
     for (const auto& r : rows_) {
       std::string m = fmt::format("address: 0x{:04X}", r.address);
+      if (r.count > 1) m += fmt::format(", count: {}", r.count);
       if (r.table != Table::holding) m += fmt::format(", table: {}", spec::to_string(r.table));
-      m += fmt::format(", name: {{en: {}}}, access: {}, type: {}", yaml_str(r.name), spec::to_string(r.access),
-                       spec::to_string(r.type));
+      // A name in Chinese is the manual's (zh); `en` is required, and stays the same until someone translates it.
+      bool ascii = std::all_of(r.name.begin(), r.name.end(), [](char c) { return static_cast<unsigned char>(c) < 0x80; });
+      m += fmt::format(", name: {{{}en: {}}}, access: {}, type: {}", ascii ? "" : "zh: " + yaml_str(r.name) + ", ", yaml_str(r.name),
+                       spec::to_string(r.access), spec::to_string(r.type));
       if (r.words == 2) m += fmt::format(", words: 2, word_order: {}", spec::to_string(r.word_order));
       if (r.min) m += fmt::format(", range: {{min: {}, max: {}}}", num(*r.min), num(*r.max));
       if (r.def) m += fmt::format(", default: {}", num(*r.def));
@@ -425,13 +531,63 @@ class Importer {
   std::map<std::string, size_t> col_;
   size_t width_ = 0;
   std::vector<Row> rows_;
-  std::vector<std::string> errors_;
+  std::vector<std::string> errors_, warnings_;
+  size_t error_count_ = 0;
 };
 
 }  // namespace
 
+namespace {
+// The offset of the first byte that breaks UTF-8 (RFC 3629), or npos.
+size_t first_bad_utf8(const std::string& s) {
+  for (size_t i = 0; i < s.size();) {
+    unsigned char c = static_cast<unsigned char>(s[i]);
+    size_t n = c < 0x80 ? 1 : (c >> 5) == 0x6 && c >= 0xC2 ? 2 : (c >> 4) == 0xE ? 3 : (c >> 3) == 0x1E && c <= 0xF4 ? 4 : 0;
+    if (n == 0 || i + n > s.size()) return i;
+    for (size_t k = 1; k < n; ++k)
+      if ((static_cast<unsigned char>(s[i + k]) & 0xC0) != 0x80) return i;
+    i += n;
+  }
+  return std::string::npos;
+}
+}  // namespace
+
+std::optional<std::string> to_utf8(const std::string& text, int& line) {
+  size_t bad = first_bad_utf8(text);
+  if (bad == std::string::npos) return text;
+  line = 1 + int(std::count(text.begin(), text.begin() + long(bad), '\n'));
+  iconv_t cd = iconv_open("UTF-8", "GB18030");
+  if (cd == iconv_t(-1)) return std::nullopt;
+  std::string out(text.size() * 2 + 16, '\0');
+  char* in = const_cast<char*>(text.data());
+  size_t in_left = text.size();
+  char* o = out.data();
+  size_t out_left = out.size();
+  size_t rc = iconv(cd, &in, &in_left, &o, &out_left);
+  iconv_close(cd);
+  if (rc == size_t(-1) || in_left != 0) return std::nullopt;
+  out.resize(out.size() - out_left);
+  if (first_bad_utf8(out) != std::string::npos) return std::nullopt;
+  return out;
+}
+
 ImportResult import_csv(const std::string& text, const std::string& file, const std::string& id) {
-  return Importer(file, id).run(text);
+  int line = 0;
+  auto utf8 = to_utf8(text, line);
+  if (!utf8) {
+    size_t bad = first_bad_utf8(text);
+    return {"",
+            {fmt::format("{}:{}: error: the file is neither UTF-8 nor GB18030/GBK (byte 0x{:02X}); save it as CSV UTF-8", file,
+                         line, static_cast<unsigned char>(text[bad]))},
+            0,
+            {},
+            1};
+  }
+  ImportResult r = Importer(file, id).run(*utf8);
+  if (utf8->size() != text.size() || *utf8 != text)
+    r.warnings.insert(r.warnings.begin(), fmt::format("{}:{}: warning: not UTF-8: read as GB18030 (GBK, the default of "
+                                                      "Chinese Excel) and converted", file, line));
+  return r;
 }
 
 }  // namespace mbc::exchange

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <map>
 #include <set>
 
@@ -58,6 +59,7 @@ struct Checker {
     const auto& ops = s.operations;
     if (ops.save) write("/operations/save", *ops.save);
     if (ops.factory_reset) write("/operations/factory_reset", *ops.factory_reset);
+    for (size_t i = 0; i < ops.setup.size(); ++i) write("/operations/setup/" + std::to_string(i), ops.setup[i]);
     if (!ops.motion) return;
     const auto& m = *ops.motion;
     const std::string mp = "/operations/motion";
@@ -358,6 +360,113 @@ struct Checker {
     }
   }
 
+  // Rule erratum-contested (issue 26): a fact an erratum names, through the
+  // register, example, policy entry or function code that cites it, cannot
+  // support a MUST case unless the erratum is settled by a printed frame
+  // (`settled_by:`, or a bad CRC the routine settles): its basis is then
+  // either, inferred or observed. `contests:` narrows what is in doubt.
+  // An example inherits the `either` of the policy it exercises.
+  // Rule erratum-linked: every erratum is cited by what it touches, or says
+  // with `contests: []` that it touches no fact a case relies on.
+  void contested() {
+    auto open = [](const FactBasis& b) { return b.basis != Basis::stated; };
+    if (!s.device.manual.erratum.empty() && !s.find_erratum(s.device.manual.erratum))
+      error("/device/manual/erratum", "unknown-reference", "erratum '" + s.device.manual.erratum + "' is not in errata:");
+    for (size_t i = 0; i < s.errata.size(); ++i) {
+      const Erratum& e = s.errata[i];
+      for (size_t k = 0; k < e.settled_by.size(); ++k) {
+        const Example* x = nullptr;
+        for (const auto& ex : s.examples)
+          if (ex.id == e.settled_by[k]) x = &ex;
+        std::string p = "/errata/" + std::to_string(i) + "/settled_by/" + std::to_string(k);
+        if (!x) error(p, "unknown-reference", "erratum '" + e.id + "' is settled by example '" + e.settled_by[k] + "', which examples: does not define");
+        else if (open(x->basis))
+          error(p, "erratum-contested", "erratum '" + e.id + "' is settled by example '" + x->id + "', whose own frame is not stated (" + to_string(x->basis.basis) + ")");
+      }
+      if (e.settled()) continue;
+      auto why = [&](const std::string& what) {
+        return what + " is named by erratum '" + e.id + "': mark it either or inferred, or settle the erratum with a printed frame (settled_by:)";
+      };
+      for (const auto& r : s.registers) {
+        if (r.block_index > 0 || std::find(r.errata.begin(), r.errata.end(), e.id) == r.errata.end()) continue;
+        for (Fact f : kRegisterFacts) {
+          if (!e.contests_fact(to_string(f)) || !relied_on(r, f) || open(r.basis_of(f))) continue;
+          error(r.origin + "/erratum", "erratum-contested", why("register " + hex16(r.address) + " " + to_string(f)));
+        }
+      }
+      for (const auto& x : s.examples)
+        if (std::find(x.errata.begin(), x.errata.end(), e.id) != x.errata.end() && e.contests_fact("example") && !open(x.basis))
+          error(x.origin + "/erratum", "erratum-contested", why("example '" + x.id + "'"));
+      for (const auto& [v, pe] : s.profile.exception_policy)
+        if (pe.erratum == e.id && e.contests_fact("policy") && pe.kind != PolicyEntry::Kind::unspecified && !open(pe.basis))
+          error(std::string("/profile/exception_policy/") + to_string(v), "erratum-contested", why(std::string("exception_policy.") + to_string(v)));
+      for (size_t k = 0; k < s.profile.function_codes.size(); ++k) {
+        const auto& f = s.profile.function_codes[k];
+        if (f.erratum != e.id) continue;
+        for (const char* fact : {"supported", "max_quantity"}) {
+          if (!e.contests_fact(fact) || (std::string(fact) == "max_quantity" && !f.max_quantity) || open(f.basis_of(fact))) continue;
+          error("/profile/function_codes/" + std::to_string(k) + "/erratum", "erratum-contested",
+                why("FC " + std::to_string(f.code) + " " + fact));
+        }
+      }
+    }
+    for (const auto& x : s.examples) {
+      if (!x.exercises) continue;
+      PolicyEntry pe = s.profile.policy(*x.exercises);
+      if (pe.basis.basis == Basis::either && !open(x.basis))
+        error(x.origin, "erratum-contested",
+              "example '" + x.id + "' exercises exception_policy." + to_string(*x.exercises) +
+                  ", which is printed two ways: it inherits that either (basis: {either: [printed, policy], erratum: " + pe.basis.erratum + "})");
+      else if (pe.basis.is_inferred() && !open(x.basis))
+        error(x.origin, "erratum-contested",
+              "example '" + x.id + "' exercises exception_policy." + to_string(*x.exercises) +
+                  ", which is inferred: it inherits the inference (basis: {inferred: ..., searched: ...})");
+    }
+    // Which errata anything cites: every `erratum:` of the document, and the
+    // bases' own erratum references.
+    std::set<std::string> cited;
+    std::function<void(const nlohmann::json&, bool)> walk = [&](const nlohmann::json& j, bool top) {
+      if (j.is_object()) {
+        for (auto it = j.begin(); it != j.end(); ++it) {
+          if (top && it.key() == "errata") continue;
+          if (it.key() == "erratum") {
+            if (it->is_string()) cited.insert(it->get<std::string>());
+            else if (it->is_array())
+              for (const auto& x : *it)
+                if (x.is_string()) cited.insert(x.get<std::string>());
+          } else {
+            walk(*it, false);
+          }
+        }
+      } else if (j.is_array()) {
+        for (const auto& x : j) walk(x, false);
+      }
+    };
+    walk(doc.root, true);
+    for (size_t i = 0; i < s.errata.size(); ++i) {
+      const Erratum& e = s.errata[i];
+      if (cited.count(e.id) || (e.contests_given && e.contests.empty())) continue;
+      error("/errata/" + std::to_string(i) + "/id", "erratum-linked",
+            "erratum '" + e.id + "' is cited by nothing: cite it from the registers, examples, policy entries or function codes it touches, or say contests: [] (it touches no fact a case relies on)");
+    }
+  }
+
+  // Whether a register has the fact at all (a case can rely on it).
+  static bool relied_on(const Register& r, Fact f) {
+    switch (f) {
+      case Fact::read: return r.access != Access::wo && r.access != Access::command;
+      case Fact::write: return r.access != Access::ro;
+      case Fact::range: return r.range.has_value();
+      case Fact::default_value: return r.default_value.has_value();
+      case Fact::word_order: return r.words == 2;
+      case Fact::type: return true;
+      case Fact::takes_effect: return r.takes_effect != TakesEffect::immediate;
+      case Fact::persistence: return r.persistence.store != Store::none;
+      case Fact::persistence_unless: return r.persistence.unless_register.has_value();
+    }
+    return false;
+  }
+
   static std::string fmt(double d) {
     if (d == std::floor(d) && std::fabs(d) < 1e15) return std::to_string(int64_t(d));
     char buf[32];
@@ -379,6 +488,7 @@ void check_semantics(const Spec& spec, const JsonDocument& doc, const std::strin
   c.serial();
   c.examples();
   c.operations();
+  c.contested();
 }
 
 }  // namespace mbc::spec

@@ -13,6 +13,9 @@ nlohmann::json write_json(const std::optional<RegisterWrite>& w) {
 
 nlohmann::json operations_json(const Operations& o) {
   nlohmann::json j = {{"section", o.section}, {"save", write_json(o.save)}, {"factory_reset", write_json(o.factory_reset)}};
+  nlohmann::json setup = nlohmann::json::array();
+  for (const auto& w : o.setup) setup.push_back(write_json(w));
+  j["setup"] = setup;
   if (!o.motion) {
     j["motion"] = nullptr;
     return j;
@@ -234,6 +237,11 @@ nlohmann::json to_json(const Spec& s) {
     er.push_back({{"id", e.id}, {"section", e.section}, {"kind", e.kind}, {"printed", e.printed}, {"resolved", e.resolved}, {"why", e.why}});
   j["errata"] = er;
   j["operations"] = operations_json(s.operations);
+  auto opt = [](const std::optional<double>& v) { return v ? nlohmann::json(*v) : nlohmann::json(nullptr); };
+  j["timing"] = {{"response_timeout_ms", opt(s.timing.response_timeout_ms)},
+                 {"frame_timeout_ms", opt(s.timing.frame_timeout_ms)},
+                 {"guard_interval_us", opt(s.timing.guard_interval_us)},
+                 {"section", s.timing.section}};
   return j;
 }
 

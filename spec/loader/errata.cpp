@@ -177,7 +177,7 @@ json fact_bases(const Spec& d) {
 
 }  // namespace
 
-nlohmann::json errata_report(const Spec& d, const Spec& standard) {
+nlohmann::json errata_report(const Spec& d, const Spec& standard, const nlohmann::json& demoted) {
   json r;
   r["device"] = {{"id", d.device.id}, {"vendor", d.device.vendor}, {"title", d.device.title}, {"models", d.device.models}};
   r["manual"] = {{"file", d.device.manual.file}, {"address_notation", d.device.manual.address_notation},
@@ -196,18 +196,27 @@ nlohmann::json errata_report(const Spec& d, const Spec& standard) {
         refs.push_back("register " + std::to_string(reg.address));
     for (const auto& ex : d.examples)
       if (std::find(ex.errata.begin(), ex.errata.end(), e.id) != ex.errata.end()) refs.push_back("example " + ex.id);
-    contradictions.push_back({{"id", e.id}, {"section", e.section}, {"kind", e.kind}, {"printed", e.printed},
-                              {"resolved", e.resolved}, {"why", e.why}, {"affects", refs}});
+    if (d.device.manual.erratum == e.id) refs.push_back("every register address (device.manual.addressing_note)");
+    for (const auto& [v, p] : d.profile.exception_policy)
+      if (p.erratum == e.id || p.basis.erratum == e.id) refs.push_back(std::string("exception_policy.") + to_string(v));
+    for (const auto& f : d.profile.function_codes)
+      if (f.erratum == e.id) refs.push_back("FC " + std::to_string(f.code));
+    json c{{"id", e.id}, {"section", e.section}, {"kind", e.kind}, {"printed", e.printed},
+           {"resolved", e.resolved}, {"why", e.why}, {"affects", refs}};
+    if (e.contests_given) c["contests"] = e.contests;
+    if (!e.settled_by.empty()) c["settled_by"] = e.settled_by;
+    contradictions.push_back(std::move(c));
   }
   r["errata"] = contradictions;
   r["deviations"] = deviations(d, standard);
   r["facts"] = fact_bases(d);
+  r["observed_cases"] = demoted;
   size_t bad = std::count_if(frames.begin(), frames.end(), [](const json& f) { return !f["crc_ok"].get<bool>(); });
   size_t bad_len = std::count_if(frames.begin(), frames.end(), [](const json& f) { return !f.value("length_ok", true); });
   r["summary"] = {{"frames", frames.size()}, {"frames_bad_crc", bad}, {"frames_bad_length", bad_len}, {"errata", d.errata.size()},
                   {"deviations", r["deviations"].size()}, {"registers", d.registers.size()}, {"examples", d.examples.size()},
                   {"facts_stated", r["facts"]["stated"]}, {"facts_inferred", r["facts"]["inferred"].get<int>() + r["facts"]["observed"].get<int>()},
-                  {"facts_either", r["facts"]["either"]}};
+                  {"facts_either", r["facts"]["either"]}, {"cases_observed_by_inference", demoted.size()}};
   return r;
 }
 
@@ -248,6 +257,19 @@ std::string errata_markdown(const nlohmann::json& r) {
     o << "- **Printed:** " << e["printed"].get<std::string>() << "\n";
     o << "- **Resolved:** " << e["resolved"].get<std::string>() << "\n";
     o << "- **Why:** " << e["why"].get<std::string>() << "\n";
+    if (e.contains("settled_by")) {
+      o << "- **Settled by the printed frame" << (e["settled_by"].size() > 1 ? "s" : "") << ":** ";
+      bool first = true;
+      for (const auto& a : e["settled_by"]) o << (first ? "" : ", ") << "`" << a.get<std::string>() << "`", first = false;
+      o << " (a fact it names may support a MUST case)\n";
+    } else if (e.contains("contests") && e["contests"].empty()) {
+      o << "- **Contests:** nothing a case relies on (recorded only)\n";
+    } else if (e.contains("contests")) {
+      o << "- **Contests:** ";
+      bool first = true;
+      for (const auto& a : e["contests"]) o << (first ? "" : ", ") << a.get<std::string>(), first = false;
+      o << " of what cites it (either or inferred there; never a MUST)\n";
+    }
     if (!e["affects"].empty()) {
       o << "- **Affects:** ";
       bool first = true;
@@ -276,6 +298,23 @@ std::string errata_markdown(const nlohmann::json& r) {
       std::string rs;
       for (const auto& x : f["readings"]) rs += (rs.empty() ? "" : " / ") + x.get<std::string>();
       o << "| " << cell(f["fact"]) << " | " << cell(f["section"]) << " | " << cell(rs) << " | " << cell(f["erratum"]) << " |\n";
+    }
+    o << "\n";
+  }
+  if (r.contains("observed_cases") && !r["observed_cases"].empty()) {
+    o << "## Cases OBSERVED because a fact is inferred\n\n" << r["observed_cases"].size()
+      << " cases would be MUST or SHOULD if every fact they rely on were stated; each is run and recorded, never failed. "
+      << "The inferred facts, why, and the sections searched for a statement:\n\n";
+    o << "| case | would be | inferred fact | why | sections searched |\n|---|---|---|---|---|\n";
+    for (const auto& c : r["observed_cases"]) {
+      bool first = true;
+      for (const auto& f : c["facts"]) {
+        o << "| " << (first ? "`" + c["case"].get<std::string>() + "`" : std::string("")) << " | "
+          << (first ? c["level_if_stated"].get<std::string>() : std::string("")) << " | " << cell(f["fact"])
+          << (f["basis"] == "observed" ? " (observed)" : "") << " | " << cell(f.value("why", std::string())) << " | "
+          << cell(f.value("searched", std::string())) << " |\n";
+        first = false;
+      }
     }
     o << "\n";
   }

@@ -14,6 +14,7 @@
 #include <valijson/validator.hpp>
 
 #include "checks.h"
+#include "modbus/crc16.h"
 #include "modbus/hex.h"
 #include "yaml_json.h"
 
@@ -221,6 +222,7 @@ struct Builder {
     s.device.manual.file = str(d["manual"], "file");
     s.device.manual.address_notation = str(d["manual"], "address_notation");
     s.device.manual.addressing_note = str(d["manual"], "addressing_note");
+    s.device.manual.erratum = str(d["manual"], "erratum");
     s.device.manual.source = str(d["manual"], "source", "manual");
     s.device.section = str(d, "section");
     s.device.identification.vendor_name = s.device.vendor;
@@ -391,23 +393,82 @@ struct Builder {
         x.basis = fact_basis(e["basis"], x.origin + "/basis", "example " + x.id);
         if (x.basis.basis == Basis::either) {
           std::set<std::string> rs(x.basis.readings.begin(), x.basis.readings.end());
-          if (rs != std::set<std::string>{"\"printed\"", "\"resolved\""})
-            error(x.origin + "/basis/either", "either-readings", "example " + x.id + ": the readings of an example are [printed, resolved]");
-          if (!x.has_resolution() || !x.response)
+          std::set<std::string> known{"\"printed\"", "\"resolved\"", "\"policy\""};
+          bool ok = rs.size() >= 2 && rs.count("\"printed\"") &&
+                    std::all_of(rs.begin(), rs.end(), [&](const std::string& r) { return known.count(r) > 0; });
+          if (!ok)
+            error(x.origin + "/basis/either", "either-readings",
+                  "example " + x.id + ": the readings of an example are [printed, resolved] or [printed, policy]");
+          if (rs.count("\"resolved\"") && (!x.has_resolution() || !x.response))
             error(x.origin + "/basis/either", "either-readings", "example " + x.id + ": either needs a printed response and a resolved: reading");
         }
       }
       if (x.basis.section.empty()) x.basis.section = x.section;
+      if (e.contains("exercises")) {
+        for (Violation v : kAllViolations)
+          if (str(e, "exercises") == to_string(v)) x.exercises = v;
+      } else {
+        x.exercises = exercised(s, x);
+      }
+      if (x.basis.basis == Basis::either && x.basis.readings.size() >= 2) {
+        bool policy_reading = std::find(x.basis.readings.begin(), x.basis.readings.end(), "\"policy\"") != x.basis.readings.end();
+        if (policy_reading && !(x.exercises && s.profile.policy(*x.exercises).basis.basis == Basis::either))
+          error(x.origin + "/basis/either", "either-readings",
+                "example " + x.id + ": the reading `policy` needs an example that exercises a policy printed two ways (exercises:)");
+      }
       s.examples.push_back(x);
     }
     for (size_t i = 0; i < r["errata"].size(); ++i) {
       const json& e = r["errata"][i];
-      s.errata.push_back({str(e, "id"), str(e, "section"), str(e, "kind"), str(e, "printed"), str(e, "resolved"),
-                          str(e, "why"), at("/errata/" + std::to_string(i))});
+      Erratum x;
+      x.id = str(e, "id");
+      x.section = str(e, "section");
+      x.kind = str(e, "kind");
+      x.printed = str(e, "printed");
+      x.resolved = str(e, "resolved");
+      x.why = str(e, "why");
+      x.loc = at("/errata/" + std::to_string(i));
+      if (e.contains("contests")) {
+        x.contests_given = true;
+        for (const auto& c : e["contests"]) x.contests.push_back(c.get<std::string>());
+      }
+      if (e.contains("settled_by"))
+        for (const auto& c : e["settled_by"]) x.settled_by.push_back(c.get<std::string>());
+      s.errata.push_back(std::move(x));
     }
     if (r.contains("operations")) build_operations(s, r["operations"]);
+    if (r.contains("timing")) {
+      const json& t = r["timing"];
+      for (auto [key, field] : {std::pair{"response_timeout_ms", &Timing::response_timeout_ms},
+                                std::pair{"frame_timeout_ms", &Timing::frame_timeout_ms},
+                                std::pair{"guard_interval_us", &Timing::guard_interval_us}})
+        if (t.contains(key)) s.timing.*field = t[key].get<double>();
+      s.timing.section = str(t, "section");
+    }
     check_basis_errata(s);
     return s;
+  }
+
+  // The kind of violation a printed frame provokes, when the frame says so
+  // alone: a function code the profile lacks, a deliberately wrong request
+  // CRC, or an exception code that only one policy kind gives.
+  static std::optional<Violation> exercised(const Spec& s, const Example& x) {
+    auto req = parse_hex(x.request);
+    if (!req || req->size() < 4) return std::nullopt;
+    if (!s.profile.function((*req)[1] & 0x7F)) return Violation::unsupported_function;
+    if (!crc_ok(*req) && !x.resolved_request) return Violation::crc_error;
+    auto rsp = parse_hex(x.resolved_response.value_or(x.response.value_or("")));
+    if (!rsp || rsp->size() < 3 || !((*rsp)[1] & 0x80)) return std::nullopt;
+    int code = (*rsp)[2];
+    std::optional<Violation> found;
+    int n = 0;
+    for (Violation v : kAllViolations) {
+      PolicyEntry p = s.profile.policy(v);
+      bool gives = p.kind == PolicyEntry::Kind::exception && p.code == code;
+      for (const auto& r : p.readings) gives = gives || (r.kind == PolicyEntry::Kind::exception && r.code == code);
+      if (gives) found = v, ++n;
+    }
+    return n == 1 ? found : std::nullopt;
   }
 
   // Every erratum a basis cites exists (rule unknown-reference).
@@ -444,6 +505,9 @@ struct Builder {
     s.operations.section = str(o, "section");
     s.operations.save = optional_write(o, "save", p);
     s.operations.factory_reset = optional_write(o, "factory_reset", p);
+    if (o.contains("setup"))
+      for (size_t i = 0; i < o["setup"].size(); ++i)
+        s.operations.setup.push_back(register_write(o["setup"][i], p + "/setup/" + std::to_string(i)));
     if (!o.contains("motion")) return;
     const json& m = o["motion"];
     const std::string mp = p + "/motion";

@@ -151,6 +151,7 @@ const char* to_string(Fact f) {
     case Fact::type: return "type";
     case Fact::takes_effect: return "takes_effect";
     case Fact::persistence: return "persistence";
+    case Fact::persistence_unless: return "persistence_unless";
   }
   return "?";
 }
@@ -173,4 +174,13 @@ FactBasis FunctionCode::basis_of(const std::string& fact) const {
   return b;
 }
 
+}  // namespace mbc::spec
+
+namespace mbc::spec {
+bool Erratum::contests_fact(const std::string& what) const {
+  if (!contests_given) return true;
+  for (const auto& c : contests)
+    if (c == what) return true;
+  return false;
+}
 }  // namespace mbc::spec

@@ -57,9 +57,12 @@ struct FactBasis {
 const char* to_string(Basis);
 
 // The facts of a register a case can rely on (`basis:` keys).
-enum class Fact { read, write, range, default_value, word_order, type, takes_effect, persistence };
-inline constexpr Fact kRegisterFacts[] = {Fact::read, Fact::write, Fact::range, Fact::default_value,
-                                          Fact::word_order, Fact::type, Fact::takes_effect, Fact::persistence};
+// persistence_unless: that the do-not-persist switch (`persistence.unless`)
+// holds a write back; `persistence` itself is the storing with the switch off.
+enum class Fact { read, write, range, default_value, word_order, type, takes_effect, persistence, persistence_unless };
+inline constexpr Fact kRegisterFacts[] = {Fact::read,       Fact::write,        Fact::range,
+                                          Fact::default_value, Fact::word_order, Fact::type,
+                                          Fact::takes_effect, Fact::persistence,  Fact::persistence_unless};
 const char* to_string(Fact);  // the `basis:` key ("default" for default_value)
 
 struct EnumValue {
@@ -273,6 +276,11 @@ struct Example {
   std::optional<std::string> resolved_response;
   bool resolved_silent = false;
   bool no_reply = false;  // the source says the device does not answer this frame
+  // The kind of violation the frame provokes (`exercises:`, else derived by
+  // the loader: an unsupported function code, a deliberately bad CRC, or an
+  // exception reply whose code only one policy kind gives). An example
+  // inherits the `either` of the policy it exercises (rule erratum-contested).
+  std::optional<Violation> exercises;
   // either: the device may answer as printed or as `resolved` (readings
   // "printed", "resolved"); inferred/observed: the frame is not printed.
   FactBasis basis;
@@ -291,7 +299,21 @@ struct Erratum {
   std::string printed;
   std::string resolved;
   std::string why;
+  // What the contradiction puts in doubt, of what cites it (`contests:`):
+  // register fact keys (read, write, range, ...), `supported`,
+  // `max_quantity`, `policy`, `example`. Absent: everything that cites it;
+  // empty: nothing a case relies on (recorded only).
+  std::vector<std::string> contests;
+  bool contests_given = false;
+  // The printed frames (example ids) the resolution rests on (`settled_by:`):
+  // a fact the erratum contests may then stay stated. A bad CRC is settled
+  // by the CRC routine itself.
+  std::vector<std::string> settled_by;
   SourceLoc loc;
+
+  bool settled() const { return !settled_by.empty() || kind == "bad_crc"; }
+  // Whether this erratum puts `what` in doubt where cited ("range", "policy", ...).
+  bool contests_fact(const std::string& what) const;
 };
 
 struct Manual {
@@ -299,6 +321,7 @@ struct Manual {
   std::string source = "manual";  // manual | csv | discover (every unmarked fact observed)
   std::string address_notation;  // hex | decimal
   std::string addressing_note;
+  std::string erratum;  // the erratum recording how the addressing note is read (every register's address rests on it)
 };
 
 // What FC 17 and FC 43/14 return (MBAP v1.1b3 §6.13, §6.21).
@@ -358,9 +381,19 @@ struct MotionOperations {
 // how a move is made (`operations:`; absent when the manual documents none).
 struct Operations {
   std::string section;
+  // Writes a master makes, in order, before using the device (a template's
+  // `setup`): each a register write, so the safety rules gate it like any other.
+  std::vector<RegisterWrite> setup;
   std::optional<RegisterWrite> save;
   std::optional<RegisterWrite> factory_reset;
   std::optional<MotionOperations> motion;
+};
+
+// How long a master waits, as the source states it (`timing:`): for a
+// reply, for the rest of a frame, and between two frames.
+struct Timing {
+  std::optional<double> response_timeout_ms, frame_timeout_ms, guard_interval_us;
+  std::string section;
 };
 
 struct Spec {
@@ -374,6 +407,7 @@ struct Spec {
   std::vector<Example> examples;
   std::vector<Erratum> errata;
   Operations operations;
+  Timing timing;
 
   const Register* find_register(uint16_t address, Table table = Table::holding) const;
   // The register whose words cover `address` (a 2-word register covers two).

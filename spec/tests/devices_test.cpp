@@ -1,6 +1,10 @@
 // The five committed specs load cleanly and resolve as the manuals print them.
 #include <gtest/gtest.h>
 
+#include <fstream>
+
+#include <nlohmann/json.hpp>
+
 #include "dump.h"
 #include "loader.h"
 
@@ -101,4 +105,63 @@ TEST(Dump, ShowsWhereEachFactComesFrom) {
   const auto& crc = s["profile"]["exception_policy"]["crc_error"]["basis"];
   EXPECT_EQ(crc["basis"], "either");
   EXPECT_EQ(crc["readings"].size(), 2u);
+}
+
+// Issue 26: every inferred fact of every committed spec says which sections
+// were searched for a statement (the errata report lists them beside every
+// case they take off MUST), and the committed reports carry that list.
+TEST(Devices, EveryInferredFactNamesTheSectionsSearched) {
+  size_t inferred = 0;
+  for (const auto& id : spec_ids()) {
+    Spec s = load_spec_by_id(id);
+    auto check = [&](const FactBasis& b, const std::string& what) {
+      if (b.basis != Basis::inferred) return;
+      ++inferred;
+      EXPECT_FALSE(b.searched.empty()) << id << ": " << what << " is inferred but names no sections searched";
+      EXPECT_FALSE(b.why.empty()) << id << ": " << what << " is inferred but says not why";
+    };
+    for (const auto& r : s.registers)
+      for (const auto& [f, b] : r.basis) check(b, "register " + std::to_string(r.address) + " " + to_string(f));
+    for (const auto& f : s.profile.function_codes)
+      for (const auto& [k, b] : f.basis) check(b, "FC " + std::to_string(f.code) + " " + k);
+    for (const auto& [v, p] : s.profile.exception_policy) check(p.basis, std::string("exception_policy.") + to_string(v));
+    for (const auto& e : s.examples) check(e.basis, "example " + e.id);
+  }
+  EXPECT_GT(inferred, 20u);
+}
+
+TEST(Devices, ErrataReportsListTheCasesAnInferredFactTakesOffMust) {
+  size_t listed = 0;
+  for (const char* id : {"sihong-57hs-r", "hsc60", "hanstar-7trsm5740q", "rieding-dhe"}) {
+    std::ifstream in(std::string(MBCONFORM_SOURCE_DIR) + "/reports/manuals/" + id + ".json");
+    ASSERT_TRUE(in) << id;
+    nlohmann::json r = nlohmann::json::parse(in);
+    ASSERT_TRUE(r.contains("observed_cases")) << id;
+    for (const auto& c : r["observed_cases"]) {
+      ++listed;
+      EXPECT_FALSE(c["facts"].empty()) << c["case"];
+      for (const auto& f : c["facts"]) {
+        if (f["basis"] != "inferred") continue;
+        EXPECT_FALSE(f.value("searched", std::string()).empty()) << id << ": " << c["case"] << " relies on " << f["fact"]
+                                                               << " with no sections searched";
+      }
+    }
+  }
+  EXPECT_GT(listed, 10u);
+}
+
+// Issue 26: the rule erratum-contested holds on every committed spec, and
+// bites: dropping a settled_by puts the facts it settled back in doubt.
+TEST(Devices, AFactAnErratumNamesIsNotStatedUnlessAFrameSettlesIt) {
+  std::ifstream in(spec_path("sihong-57hs-r"));
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_TRUE(load_spec_text(text, "sihong-57hs-r.yaml").ok());
+  std::string unsettled = text;
+  auto at = unsettled.find("    settled_by: [write-total-pulses]\n");
+  ASSERT_NE(at, std::string::npos);
+  unsettled.erase(at, std::string("    settled_by: [write-total-pulses]\n").size());
+  auto r = load_spec_text(unsettled, "sihong-57hs-r.yaml");
+  bool found = false;
+  for (const auto& d : r.diagnostics) found = found || (d.rule == "erratum-contested" && d.message.find("FC 16 supported") != std::string::npos);
+  EXPECT_TRUE(found) << "FC 16 supported, named by supported-fc-list, stays stated without a printed frame";
 }

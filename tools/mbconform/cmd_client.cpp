@@ -16,18 +16,21 @@
 #include <filesystem>
 #include <fstream>
 
+#include "capture/pcap_tap.h"
 #include "client/client_run.h"
 #include "client/model.h"
 #include "commands.h"
+#include "conventions.h"
 #include "report/report.h"
 
 namespace mbc::cli {
 namespace {
 
 struct ClientArgs {
-  std::string adapter, transport = "tcp", filter, out, quirks, pty;
+  std::string adapter, transport = "tcp", filter, out, quirks, pty, pki, pcap;
   int baud = 19200, timeout_ms = 500;
   bool list = false, plan = false, junit_only = false, quiet = false;
+  bool fail_on_should = false;  // --fail-on should
 };
 
 // A glob ('client/reply/*') or a substring of the case id.
@@ -48,14 +51,27 @@ int run(const ClientArgs& a) {
   if (a.transport == "tcp") o.transport = client::Transport::tcp;
   else if (a.transport == "rtu-tcp") o.transport = client::Transport::rtu_tcp;
   else if (a.transport == "pty") o.transport = client::Transport::pty;
+  else if (a.transport == "tls") o.transport = client::Transport::tcp;  // MBAP inside TLS (client/tls_front.h)
   else {
-    fmt::print(stderr, "mbconform client: error: --transport {}: expected tcp, rtu-tcp or pty\n", a.transport);
+    fmt::print(stderr, "mbconform client: error: --transport {}: expected tcp, rtu-tcp, pty or tls\n", a.transport);
     return kExitUsage;
   }
+  if ((a.transport == "tls") != !a.pki.empty()) {
+    fmt::print(stderr, "mbconform client: error: --transport tls and --pki DIR go together\n");
+    return kExitUsage;
+  }
+  o.tls_pki = a.pki;
   o.adapter = a.adapter;
   o.baud = a.baud;
   o.timeout = std::chrono::milliseconds(a.timeout_ms);
   o.pty_path = a.pty;
+  if (!a.pcap.empty()) o.on_wire = [w = conf::capture::client_pcap(a.pcap, o.transport == client::Transport::tcp, "client " + a.transport)](
+                                      const auto& seen, const auto& sent) {
+    std::vector<conf::capture::ClientFrame> f;
+    for (const auto& q : seen) f.emplace_back(q.last, true, q.adu);
+    for (const auto& s : sent) f.emplace_back(s.at, false, s.bytes);
+    w(std::move(f));
+  };
   std::vector<client::Scenario> list;
   try {
     list = client::selected(o, [&](const std::string& id) { return a.filter.empty() || keep(a.filter, id); });
@@ -92,7 +108,7 @@ int run(const ClientArgs& a) {
   }
   bool tty = isatty(STDOUT_FILENO) && !a.quiet;
   o.on_case = [&](const conf::CaseResult& r, size_t done, size_t total) {
-    if (r.outcome == conf::Outcome::fail) fmt::print("{}{}\n", tty ? "\r\033[K" : "", conf::progress_line(r, done, total));
+    if (r.outcome == conf::Outcome::fail && tty) fmt::print("\r\033[K{}\n", conf::progress_line(r, done, total));  // else the summary lists it, once
     else if (tty) fmt::print("\r\033[K{}", conf::progress_line(r, done, total));
     std::fflush(stdout);
   };
@@ -100,6 +116,7 @@ int run(const ClientArgs& a) {
   report.command = "client";
   report.started_at = stamp("%Y-%m-%dT%H:%M:%SZ");
   report.version = "mbconform 0.1";
+  report.fail_on_should = a.fail_on_should;
   client::ClientRun cr = client::run_client(o, list);
   if (tty) fmt::print("\r\033[K");
   if (!cr.error.empty()) {
@@ -109,7 +126,7 @@ int run(const ClientArgs& a) {
   }
   client::apply_quirks(cr.run, quirks);
   report.devices.push_back(cr.run);
-  std::string out = a.out.empty() ? "reports/client/" + stamp("%Y%m%dT%H%M%SZ") : a.out;
+  std::string out = a.out.empty() ? default_out_dir("client") : a.out;
   try {
     conf::write_reports(report, out, a.junit_only);
     if (!a.junit_only) {
@@ -128,7 +145,7 @@ int run(const ClientArgs& a) {
     return kExitUsage;
   }
   fmt::print("{}", conf::summary_table(report));
-  int rc = conf::count(cr.run).must_failed > 0 ? kExitFailed : kExitOk;
+  int rc = run_failed(report) ? kExitFailed : kExitOk;
   for (const auto& k : quirks.list) {
     if (k.used || k.by != conf::quirks::Quirk::By::case_id) continue;
     fmt::print("quirk '{}' matched no failing case: the library changed; update {}\n", k.pattern, a.quirks);
@@ -145,9 +162,11 @@ void add_client_command(CLI::App& app, int& exit_code) {
   auto a = std::make_shared<ClientArgs>();
   auto* cmd = app.add_subcommand("client", "Test a Modbus master library, through its adapter, against scenario servers");
   cmd->add_option("--adapter", a->adapter, "the adapter's command line (conformance/client/README.md), run with /bin/sh -c");
-  cmd->add_option("--transport", a->transport, "tcp (default) | rtu-tcp | pty");
+  cmd->add_option("--transport", a->transport, "tcp (default) | rtu-tcp | pty | tls");
+  cmd->add_option("--pki", a->pki, "DIR: --transport tls: ca.crt, server.crt/.key, operator.crt/.key (conformance/tests/security/make_pki.sh)");
   cmd->add_option("--baud", a->baud, "pty: the nominal baud rate (t1.5, t3.5, wire-time bound); default 19200");
   cmd->add_option("--timeout-ms", a->timeout_ms, "the master's response time-out sent to the adapter; default 500");
+  cmd->add_option("--pcap", a->pcap, "FILE: also write every frame of every scenario as pcapng (conformance/capture/README.md)");
   cmd->add_option("--pty", a->pty, "pty: where to link the pty the adapter opens (default: a temporary directory)");
   cmd->add_option("--filter", a->filter, "select scenarios by id: a glob ('client/reply/*') or a substring");
   cmd->add_flag("--list", a->list, "print the scenarios (id, level, clause, title) and exit");
@@ -155,6 +174,7 @@ void add_client_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--out", a->out, "report directory (default reports/client/<UTC date-time>/)");
   cmd->add_option("--quirks", a->quirks, "a quirks file, a YAML list of {case: ID-or-glob, reason} (conformance/README.md): known deviations, reported apart");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
+  add_fail_on_option(cmd, a->fail_on_should);
   cmd->add_flag("--quiet", a->quiet, "no progress line");
   cmd->callback([a, &exit_code] { exit_code = run(*a); });
 }

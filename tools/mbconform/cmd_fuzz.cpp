@@ -2,13 +2,13 @@
 // engine is conformance/blackbox/engine.h; this file wires its options).
 //
 //   mbconform fuzz --target URI [--device ID | --spec FILE] --duration 30s [--out DIR] [--seed S]
-//                  [--batch N] [--quirks FILE] [--allow-motion] [--allow-eeprom-writes]
+//                  [--batch N] [--pipeline N] [--quirks FILE] [--allow-motion] [--allow-eeprom-writes]
 //   mbconform fuzz --replay FILE --target URI          (the same as mbconform replay)
 //
 // Fuzzing goes on until --duration runs out. Each distinct finding (its kind
 // and the function code it came on) is reduced by delta debugging on fresh
 // targets to a minimal sequence of frames and saved once, as a frame script
-// (conformance/script/README.md) in DIR, with the command that replays it.
+// (conformance/check/README.md) in DIR, with the command that replays it.
 // Findings whose kind (or signature, "KIND fcNN") a quirks file declares
 // (--quirks, conformance/README.md) are left aside and counted.
 // Exit 0: nothing found; 1: a finding; 2: could not run.
@@ -20,11 +20,16 @@
 #include <fstream>
 
 #include "blackbox/engine.h"
+#include "capture/pcap_tap.h"
 #include "commands.h"
+#include "conventions.h"
 #include "options.h"
 #include "quirks/quirks.h"
 #include "report/report.h"
 #include "safety/safety.h"
+#include "session/session.h"
+#include "session/progress.h"
+#include "session/signals.h"
 #include "targets/target.h"
 
 namespace mbc::cli {
@@ -37,21 +42,17 @@ struct FuzzArgs {
   std::string duration = "10s", replay, quirks_file;
   std::optional<uint64_t> seed;
   int batch = 50;
+  int pipeline = int(conf::blackbox::Options{}.depth);
+  bool quiet = false;
 };
 
-std::optional<std::chrono::milliseconds> parse_duration(const std::string& text) {
-  size_t used = 0;
-  double v = 0;
-  try {
-    v = std::stod(text, &used);
-  } catch (...) {
-    return std::nullopt;
-  }
-  std::string unit = text.substr(used);
-  double ms = unit == "ms" ? v : unit == "" || unit == "s" ? v * 1e3 : unit == "m" ? v * 60e3 : unit == "h" ? v * 3600e3 : -1;
-  if (ms < 0 || v < 0) return std::nullopt;
-  return std::chrono::milliseconds(int64_t(ms));
-}
+// --duration's bounds: shorter sends no batch of frames; longer than a
+// month is a typo (9999999h once overflowed the clock and sent nothing).
+constexpr std::chrono::milliseconds kMinDuration{100};
+constexpr std::chrono::hours kMaxDuration{24 * 31};
+// After --duration: the reduction of a last finding and the restore, so the
+// command ends within --duration + 10 s even when the target is gone.
+constexpr std::chrono::seconds kAfterDuration{6};
 
 fs::path save(const fs::path& dir, const conf::blackbox::Plan& plan, const conf::blackbox::Reported& r, const std::string& uri) {
   fs::path file;
@@ -60,45 +61,60 @@ fs::path save(const fs::path& dir, const conf::blackbox::Plan& plan, const conf:
     if (!fs::exists(file)) break;
   }
   std::string replay = fmt::format("mbconform replay {} --target '{}'", file.string(), uri);
-  std::ofstream(file) << conf::script::format(conf::blackbox::reproducer(plan, r, replay));
+  std::ofstream(file) << conf::check::format(conf::blackbox::reproducer(plan, r, replay));
   return file;
 }
 
 int run_fuzz(FuzzArgs& a) {
   const std::string uri = a.t.targets.front();
   if (!a.replay.empty()) return replay_file(a.replay, uri, a.t, "fuzz");
-  if (!conf::out_dir_ok(a.t.out, "mbconform fuzz")) return kExitUsage;
+  if (a.t.out.empty()) a.t.out = default_out_dir("fuzz");
   auto duration = parse_duration(a.duration);
+  if (duration && (*duration < kMinDuration || *duration > kMaxDuration)) duration.reset();
   if (!duration) {
-    fmt::print(stderr, "mbconform fuzz: --duration '{}': expected e.g. 500ms, 20s, 5m, 1h\n", a.duration);
+    fmt::print(stderr, "mbconform fuzz: error: --duration '{}': expected {} ms to {} days, e.g. 500ms, 20s, 5m, 1h\n",
+               a.duration, kMinDuration.count(), kMaxDuration.count() / 24);
     return kExitUsage;
   }
-  std::unique_ptr<conf::Target> target;
-  spec::Spec s;
+  if (!conf::out_dir_ok(a.t.out, "mbconform fuzz")) return kExitUsage;
+  conf::install_stop_signals();
+  Opened opened;
   conf::blackbox::Plan plan;
   conf::quirks::Quirks quirks;
+  const auto started = std::chrono::steady_clock::now();
+  conf::Progress progress(fmt::format("fuzz {}", uri), a.t.progress, a.quiet);
   try {
-    if (!a.quirks_file.empty()) quirks = conf::quirks::load(a.quirks_file);
+    if (!a.quirks_file.empty()) {
+      check_readable(a.quirks_file, kMaxQuirksBytes, "--quirks");
+      quirks = conf::quirks::load(a.quirks_file);
+    }
     auto named = named_spec(a.t);
-    target = conf::open_target(uri);
-    s = spec_for(named, uri, target->info().device_id);
-    plan = conf::blackbox::make_plan(s, target->info(), a.t.policy);
+    // Every frame goes through the session: its gate, its journal (in --out), its restore.
+    auto so = session_options(a.t, "fuzz", a.t.out);
+    so.deadline = started + *duration + kAfterDuration;
+    so.on_frame = [&progress, d = *duration](uint64_t n) { progress.update_timed(n, "frames", d); };
+    opened = open_session(named, uri, std::move(so));
+    plan = conf::blackbox::make_plan(*opened.spec, opened.session->info(), a.t.policy);
   } catch (const std::exception& e) {
-    fmt::print(stderr, "mbconform fuzz: {}\n", e.what());
+    fmt::print(stderr, "mbconform fuzz: error: {}\n", e.what());
     return kExitUsage;
   }
-  const conf::TargetInfo info = target->info();
-  conf::blackbox::Open open = [&] { return conf::open_target(uri); };
-  // A live drive gets back the values it had (conformance/safety/safety.h).
-  std::optional<conf::Snapshot> snapshot;
-  if (info.live) {
-    snapshot = conf::Snapshot::take(*target, s, a.t.policy);
-    for (const auto& f : snapshot->failures()) fmt::print(stderr, "mbconform fuzz: snapshot: {}\n", f);
+  conf::Session& session = *opened.session;
+  const spec::Spec& s = *opened.spec;
+  const conf::TargetInfo info = session.info();
+  conf::blackbox::Open open = [&] { return session.open_another(true); };
+  std::vector<std::string> notes;
+  if (std::string why = prepare_live(session, a.t, notes); !why.empty()) {
+    fmt::print(stderr, "mbconform fuzz: error: {}\n", why);
+    return kExitUsage;
   }
+  for (const auto& n : notes) fmt::print(stderr, "mbconform fuzz: {}\n", n);
+  auto target = session.open_another(false);
   conf::blackbox::Options o;
   o.duration = *duration;
   o.seed = a.seed.value_or(uint64_t(std::chrono::steady_clock::now().time_since_epoch().count()));
   o.batch = a.batch;
+  o.depth = size_t(a.pipeline);
   o.isolate = info.kind == "plugin";
   o.journal = (fs::path(a.t.out) / ".journal").string();
   if (!quirks.empty()) o.declared = [&](const std::string& sig) { return quirks.for_kind(sig) != nullptr; };
@@ -106,7 +122,11 @@ int run_fuzz(FuzzArgs& a) {
              s.device.id, a.duration, o.seed, a.batch, plan.readable.size(), plan.writable.size());
   std::fflush(stdout);
 
+  size_t saved = 0;
   auto out = conf::blackbox::fuzz(std::move(target), open, plan, o, [&](const conf::blackbox::Reported& r) {
+    if (session.stopped()) return;  // cut off by a stop or the deadline: not a finding of the target
+    ++saved;
+    progress.clear();
     fmt::print("FINDING {} after {} steps: {}\n", r.finding.kind, r.history, r.finding.message);
     if (!r.reproduced)
       fmt::print("the finding does not reproduce on a fresh target (timing, state outside the frames, or the target is gone); "
@@ -117,22 +137,29 @@ int run_fuzz(FuzzArgs& a) {
     std::fflush(stdout);
   });
 
-  if (snapshot) {
-    try {
-      auto t = open();
-      for (const auto& f : snapshot->restore(*t)) fmt::print(stderr, "mbconform fuzz: NOT RESTORED: {}\n", f);
-    } catch (const std::exception& e) {
-      fmt::print(stderr, "mbconform fuzz: could not restore the drive's registers: {}\n", e.what());
-    }
+  progress.clear();
+  restore_and_say(session, "fuzz");
+  if (conf::stop_requested()) {
+    fmt::print("INCOMPLETE: stopped by {} after {} frames in {} batches; {} distinct finding(s) saved in {}\n",
+               conf::signal_name(conf::stop_signal()), out.frames, out.batches, saved, a.t.out);
+    return kExitUsage;
   }
+  const bool ran_out = session.stopped().has_value();  // the deadline: --duration + the reduction's time
   if (out.declared) fmt::print("{} finding(s) of a kind {} declares left aside\n", out.declared, a.quirks_file);
-  if (out.target_lost) fmt::print("the target could not be opened again: fuzzing stopped before --duration ran out\n");
-  if (out.findings.empty()) {
-    fmt::print("no finding: {} frames in {} batches, every probe answered\n", out.frames, out.batches);
-    return out.target_lost ? kExitUsage : kExitOk;
+  if (out.target_lost && !ran_out) fmt::print("the target could not be opened again: fuzzing stopped before --duration ran out\n");
+  if (ran_out) fmt::print("the time allowed (--duration + {} s) ran out; what was left of a reduction was cut off\n", kAfterDuration.count());
+  if (out.wire_time_bound_seconds > 0)
+    fmt::print("{} exchanges ({} silent) in {:.2f} s against a wire-time bound of {:.2f} s at {} baud: {:.2f}x\n",
+               out.exchanges, out.silences, out.seconds, out.wire_time_bound_seconds, *info.baud,
+               out.seconds / out.wire_time_bound_seconds);
+  if (saved == 0) {
+    fmt::print("no finding: {} frames in {} batches, every probe answered ({:.0f} frames/s)\n", out.frames, out.batches,
+               out.frames_per_second());
+    return out.target_lost && !ran_out ? kExitUsage : kExitOk;
   }
-  fmt::print("{} distinct finding(s), {} repeat(s) not saved again, {} frames in {} round(s); reproducers in {}\n",
-             out.findings.size(), out.repeats, out.frames, out.rounds, a.t.out);
+  fmt::print("{} distinct finding(s), {} repeat(s) not saved again, {} frames in {} round(s) ({:.0f} frames/s, reductions "
+             "left out); reproducers in {}\n",
+             saved, out.repeats, out.frames, out.rounds, out.frames_per_second(), a.t.out);
   return kExitFailed;
 }
 
@@ -140,14 +167,17 @@ int run_fuzz(FuzzArgs& a) {
 
 void add_fuzz_command(CLI::App& app, int& exit_code) {
   auto args = std::make_shared<FuzzArgs>();
-  args->t.out = "fuzz-findings";
+
   auto* cmd = app.add_subcommand("fuzz", "Black-box structure-aware fuzzing of a target; saves minimal reproducers");
-  add_target_options(*cmd, args->t, false, "DIR: reproducers, one per distinct finding (default fuzz-findings)");
+  add_target_options(*cmd, args->t, false, "DIR: reproducers, one per distinct finding (default reports/fuzz/<UTC date-time>/)");
   cmd->add_option("--duration", args->duration, "How long to fuzz: 500ms, 20s, 5m, 1h (default 10s)");
   cmd->add_option("--seed", args->seed, "Random seed (default: from the clock, printed)");
   cmd->add_option("--batch", args->batch, "Frames between two liveness probes (default 50)")->check(CLI::Range(1, 100000));
+  cmd->add_option("--pipeline", args->pipeline, "Modbus TCP: requests out at once, paired by transaction id (default 16; "
+                  "1: one exchange at a time)")->check(CLI::Range(1, 256));
   cmd->add_option("--quirks", args->quirks_file, "a quirks file (conformance/README.md): findings of the kinds it declares "
                   "('kind: KIND' or 'KIND fcNN', globs) are left aside");
+  cmd->add_flag("-q,--quiet", args->quiet, "no progress on stderr");
   cmd->add_option("--replay", args->replay, "Replay a reproducer FILE instead of fuzzing (as mbconform replay)");
   cmd->callback([args, &exit_code] { exit_code = run_fuzz(*args); });
 }

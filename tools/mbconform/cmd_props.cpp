@@ -23,13 +23,18 @@
 #include <rapidcheck/detail/Configuration.h>
 #include <unistd.h>
 
+#include "capture/pcap_tap.h"
 #include "commands.h"
+#include "conventions.h"
 #include "loader.h"
 #include "options.h"
 #include "properties/properties.h"
 #include "properties/stateful.h"
 #include "report/report.h"
 #include "safety/safety.h"
+#include "session/session.h"
+#include "session/progress.h"
+#include "session/signals.h"
 
 namespace mbc::cli {
 namespace {
@@ -49,6 +54,7 @@ int replay_files(const PropsArgs& a) {
   for (const auto& path : a.replay) {
     conf::props::Regression r;
     try {
+      check_readable(path, kMaxTextFileBytes, "--replay");
       r = conf::props::parse_regression(path);
     } catch (const std::exception& e) {
       fmt::print(stderr, "mbconform props: error: {}\n", e.what());
@@ -56,12 +62,22 @@ int replay_files(const PropsArgs& a) {
     }
     std::string uri = a.t.targets.empty() ? "ref:" + r.device_id : a.t.targets.front();
     try {
-      auto target = conf::open_target(uri);
       auto named = named_spec(a.t);
-      spec::Spec s = named ? *named : spec::load_spec_by_id(r.device_id);
-      conf::props::SpecView view(s, target->info(), a.t.policy);
-      conf::props::Session session(*target, view, conf::props::facts_for(s));
+      if (!named) named = spec::load_spec_by_id(r.device_id);
+      std::string out = a.t.out.empty() ? "reports/runs/props-" + utc_now("%Y%m%dT%H%M%SZ") : a.t.out;
+      auto opened = open_session(named, uri, session_options(a.t, "props", out));
+      const spec::Spec& s = *opened.spec;
+      conf::Target& target = opened.session->target();
+      std::vector<std::string> notes;
+      if (std::string why = prepare_live(*opened.session, a.t, notes); !why.empty()) throw std::runtime_error(why);
+      conf::props::SpecView view(s, target.info(), a.t.policy);
+      conf::props::Session session(target, view, conf::props::facts_for(s));
       std::string why = conf::props::replay(session, r.steps);
+      restore_and_say(*opened.session, "props");
+      if (auto stop = opened.session->stopped()) {
+        fmt::print("{} on {}: INCOMPLETE: {}\n", path, uri, *stop);
+        return kExitUsage;
+      }
       fmt::print("{} on {}: {}\n", path, uri, why.empty() ? "agrees with the model" : why);
       if (!why.empty()) rc = kExitFailed;
       if (!a.t.out.empty() && session.steps().size() >= r.steps.size()) {
@@ -126,31 +142,41 @@ int run(PropsArgs& a) {
   report.command = "props";
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
   report.version = "mbconform 0.1";
-  std::string out = a.t.out.empty() ? "reports/runs/props-" + utc_now("%Y%m%dT%H%M%SZ") : a.t.out;
+  std::string out = a.t.out.empty() ? default_out_dir("props") : a.t.out;
   if (!conf::out_dir_ok(out, "mbconform props")) return kExitUsage;
+  conf::install_stop_signals();
   bool failed = false;
   std::vector<std::pair<std::string, std::string>> regressions;  // file name, text
 
   for (const auto& uri : targets) {
+    if (conf::stop_requested()) break;
+    // Every frame goes through the session: its gate, its journal (in the
+    // report directory), its restore (conformance/session/session.h).
+    Opened opened;
     conf::props::TargetSource src;
+    // Inside a property too: the frames sent so far.
+    std::unique_ptr<conf::Progress> progress;
+    uint64_t frames_before = 0;
     try {
-      src = conf::props::source_for(uri, named ? &*named : nullptr);
+      auto so = session_options(a.t, "props", out);
+      so.on_frame = [&](uint64_t n) {
+        if (progress) progress->update(n - frames_before, 0, "frames");
+      };
+      opened = open_session(named, uri, std::move(so));
     } catch (const std::exception& e) {
       fmt::print(stderr, "mbconform props: error: target {}: {}\n", uri, e.what());
       return kExitUsage;
     }
-    auto probe = src.open();
-    const conf::TargetInfo info = probe->info();
-    std::optional<conf::Snapshot> snap;
+    conf::Session& session = *opened.session;
+    const conf::TargetInfo info = session.info();
+    src.uri = info.uri;
+    src.spec = opened.spec.get();
+    // In-process targets start each generated case at power-on; a live one is the same drive throughout.
+    src.open = [&session, live = info.live] { return session.open_another(!live); };
     conf::DeviceRun dr;
-    if (info.live) {
-      try {
-        snap = conf::Snapshot::take(*probe, *src.spec, a.t.policy);
-        for (const auto& f : snap->failures()) dr.safety_notes.push_back(f);
-      } catch (const std::exception& e) {
-        fmt::print(stderr, "mbconform props: error: target {}: cannot read the registers to keep: {}\n", uri, e.what());
-        return kExitUsage;
-      }
+    if (std::string why = prepare_live(session, a.t, dr.safety_notes); !why.empty()) {
+      fmt::print(stderr, "mbconform props: error: {}\n", why);
+      return kExitUsage;
     }
     dr.device_id = src.spec->device.id;
     dr.target_uri = info.uri;
@@ -160,7 +186,20 @@ int run(PropsArgs& a) {
     auto t0 = std::chrono::steady_clock::now();
     for (const auto& inv : conf::props::invariants()) {
       if (!a.only.empty() && std::find(a.only.begin(), a.only.end(), inv.name) == a.only.end()) continue;
+      if (session.stopped()) break;
+      progress = std::make_unique<conf::Progress>(fmt::format("props {} {}", dr.device_id, inv.name), a.t.progress, a.quiet);
+      frames_before = session.frames();
       conf::CaseResult c = conf::props::run_invariant(inv, src, opt);
+      progress.reset();
+      if (auto stop = session.stopped()) {
+        // Cut off inside the property: no verdict, the report says so.
+        c.outcome = conf::Outcome::error;
+        c.message = "not finished: " + *stop;
+        c.extra.erase("regression");
+        dr.interrupted = report.interrupted = true;
+        dr.cases.push_back(std::move(c));
+        break;
+      }
       for (const auto& b : c.extra.value("broadcast_writes", nlohmann::json::array())) dr.broadcast_writes.push_back(c.id + ": " + b.get<std::string>());
       fmt::print("  {:<34} {:<5} {:>5} cases {:>8.1f} ms{}\n", c.id, conf::to_string(c.outcome), c.extra.value("cases", 0),
                  c.duration_ms, c.outcome == conf::Outcome::skip ? "  (" + c.message + ")" : "");
@@ -173,11 +212,9 @@ int run(PropsArgs& a) {
       dr.cases.push_back(std::move(c));
     }
     dr.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    if (snap) {
-      for (const auto& f : snap->restore(*probe)) dr.restore_failures.push_back(f);
-      for (const auto& f : dr.restore_failures) fmt::print(stderr, "mbconform props: warning: {}\n", f);
-    }
+    if (info.live) dr.restore_failures = restore_and_say(session, "props");
     report.devices.push_back(std::move(dr));
+    if (conf::stop_requested()) report.interrupted = true;
   }
   try {
     conf::write_reports(report, out);
@@ -192,6 +229,7 @@ int run(PropsArgs& a) {
   fmt::print("{}", conf::summary_table(report));
   fmt::print("reports: {}\n", out);
   if (!regressions.empty()) fmt::print("counterexamples: {}/regressions/ (copy to conformance/properties/regressions/ to replay in ctest)\n", out);
+  if (report.interrupted) return kExitUsage;
   return failed ? kExitFailed : kExitOk;
 }
 
@@ -209,7 +247,7 @@ void add_props_command(CLI::App& app, int& exit_code) {
                   "FILE: replay a regression file through the model (on ref:ID, or --target); with --out, write it back "
                   "to DIR/regressions/ with the model's expectations");
   cmd->add_flag("--list", a.list, "print the invariants and exit");
-  cmd->add_flag("--quiet", a.quiet, "do not print counterexamples (they are in the reports)");
+  cmd->add_flag("-q,--quiet", a.quiet, "do not print counterexamples (they are in the reports) nor progress");
   cmd->callback([&exit_code] { exit_code = run(a); });
 }
 

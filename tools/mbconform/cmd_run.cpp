@@ -8,7 +8,7 @@
 // Exit codes: 0 every MUST case passed; 1 a MUST case failed; 2 the run could
 // not be done (bad target, bad spec, bad arguments, interrupted).
 #include <fmt/core.h>
-#include <fnmatch.h>
+#include <re2/re2.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -17,26 +17,28 @@
 #include <ctime>
 #include <filesystem>
 #include <fstream>
-#include <regex>
 
+#include "capture/pcap_tap.h"
 #include "cases/case.h"
 #include "cases/common.h"
 #include "commands.h"
+#include "conventions.h"
 #include "loader.h"
 #include "map/map.h"
 #include "options.h"
 #include "quirks/quirks.h"
 #include "report/report.h"
 #include "runner/runner.h"
-#include "script/script.h"
+#include "check/text.h"
 #include "safety/safety.h"
+#include "security/security.h"
+#include "session/session.h"
+#include "session/progress.h"
+#include "session/signals.h"
 #include "targets/target.h"
 
 namespace mbc::cli {
 namespace {
-
-std::atomic<bool> g_stop{false};
-extern "C" void on_signal(int) { g_stop.store(true); }
 
 struct RunArgs {
   TargetOptions t;
@@ -44,33 +46,48 @@ struct RunArgs {
   bool list = false, plan = false, junit_only = false, quiet = false;
   std::string map;  // --map auto | FILE | inline
   int map_budget = conf::map::kDefaultBudget;
-  bool allow_writes = false;
+  std::optional<std::chrono::milliseconds> map_time;  // --map-time
+  bool fail_on_should = false;                        // --fail-on should
+  bool verbose = false;                               // -v: every case's line, not only failures
   std::string quirks_file;
+  std::string deadline;  // --deadline: the whole run's time
 };
 
-// GLOB (fnmatch, '*' crosses '/') or, when it has regex syntax, an ECMAScript
-// regex searched in the id; a plain word matches as a substring.
-std::function<bool(const std::string&)> make_filter(const std::string& f) {
-  if (f.empty()) return [](const std::string&) { return true; };
-  if (f.find_first_of("^$()|+[]\\{}") != std::string::npos) {
-    std::regex re(f, std::regex::ECMAScript);
-    return [re](const std::string& id) { return std::regex_search(id, re); };
+// What --filter selects (conf::select_cases: literal unless it holds '*'
+// or '?', a glob over the whole id, '*' crossing '/'; or "re:REGEX", searched
+// in the id), matched with RE2 in time linear in the id whatever the
+// pattern. Throws std::invalid_argument with one line.
+conf::Matcher re2_matcher(const std::string& text, bool glob) {
+  std::string pattern;
+  if (glob) {
+    pattern = "^";
+    for (char c : text) pattern += c == '*' ? ".*" : c == '?' ? "." : RE2::QuoteMeta(std::string(1, c));
+    pattern += "$";
+  } else {
+    pattern = text;
   }
-  if (f.find_first_of("*?") != std::string::npos)
-    return [f](const std::string& id) { return fnmatch(f.c_str(), id.c_str(), 0) == 0; };
-  return [f](const std::string& id) { return id.find(f) != std::string::npos; };
+  RE2::Options o;
+  o.set_log_errors(false);
+  o.set_max_mem(8 << 20);
+  auto re = std::make_shared<RE2>(pattern, o);
+  if (!re->ok()) throw std::invalid_argument(fmt::format("--filter '{}': not a pattern RE2 takes: {}",
+                                                         text.size() > 60 ? text.substr(0, 60) + "..." : text, re->error()));
+  return [re](const std::string& id) { return RE2::PartialMatch(id, *re); };
 }
-
+std::function<conf::Matcher(const std::string&)> pattern_for(const std::string& filter) {
+  bool regex = filter.rfind("re:", 0) == 0;
+  return [regex](const std::string& text) { return re2_matcher(text, !regex); };
+}
 // What a target will be, without opening it (for --list and --plan on live
 // targets: nothing is connected, nothing is sent).
 conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   conf::Uri u = conf::parse_uri(uri);
   conf::TargetInfo i;
   i.uri = uri;
-  i.kind = u.scheme;
-  i.framing = u.scheme == "tcp" ? conf::Framing::mbap : conf::Framing::rtu;
+  i.kind = u.scheme == "mbtls" ? "tls" : u.scheme;
+  i.framing = u.scheme == "tcp" || u.scheme == "mbtls" ? conf::Framing::mbap : conf::Framing::rtu;
   i.live = u.scheme != "ref" && u.scheme != "plugin";
-  i.raw = u.scheme != "tcp";
+  i.raw = true;  // every kind sends raw frames in its own framing (tcp: raw MBAP), as the opened target says
   i.unit = uint8_t(std::stoi(u.param("unit").value_or(std::to_string(s.serial.slave_default.value_or(1)))));
   if (auto b = u.param("baud")) i.baud = std::stoi(*b);
   else if (u.scheme == "ref") i.baud = s.serial.baud_default;
@@ -98,6 +115,7 @@ int run(RunArgs& a) {
   conf::quirks::Quirks quirks;
   if (!a.quirks_file.empty()) {
     try {
+      check_readable(a.quirks_file, kMaxQuirksBytes, "--quirks");
       quirks = conf::quirks::load(a.quirks_file);
     } catch (const std::exception& e) {
       fmt::print(stderr, "{}\n", e.what());
@@ -119,18 +137,54 @@ int run(RunArgs& a) {
   if (targets.empty() && named) targets.push_back("ref:" + named->device.id);
   if (targets.empty()) targets = targets_or_default(a.t);
 
-  auto keep = make_filter(a.filter);
+  std::function<bool(const std::string&)> keep;
+  try {
+    keep = [](const std::string&) { return true; };
+    if (!a.filter.empty()) {
+      // The same selection as select_cases, for ids no generator makes (the TLS checks).
+      auto pattern = pattern_for(a.filter);
+      keep = [filter = a.filter, pattern](const std::string& id) {
+        conf::Case c;
+        c.id = id;
+        return !conf::select_cases({c}, filter, pattern).empty();
+      };
+      (void)keep("");  // a pattern RE2 does not take fails here, before anything is opened
+    }
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "mbconform run: error: {}\n", e.what());
+    return kExitUsage;
+  }
   conf::RunReport report;
   report.command = "run";
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
   report.version = "mbconform 0.1";
+  report.fail_on_should = a.fail_on_should;
 
-  std::signal(SIGINT, on_signal);
-  std::signal(SIGTERM, on_signal);
+  conf::install_stop_signals();
+  std::optional<std::chrono::steady_clock::time_point> deadline;
+  if (!a.deadline.empty()) {
+    auto d = parse_duration(a.deadline);
+    if (!d || d->count() == 0) {
+      fmt::print(stderr, "mbconform run: error: --deadline '{}': expected 1ms to 31 days, e.g. 90s, 10m, 2h\n", a.deadline);
+      return kExitUsage;
+    }
+    deadline = std::chrono::steady_clock::now() + *d;
+  }
+  // Set between cases: a stop signal, or the deadline passed.
+  std::atomic<bool> stop_run{false};
+  auto should_stop = [&] {
+    return conf::stop_requested() || (deadline && std::chrono::steady_clock::now() >= *deadline);
+  };
   bool dry = a.list || a.plan;
   bool tty = isatty(STDOUT_FILENO) && !a.quiet;
-  const std::string out = a.t.out.empty() ? "reports/runs/" + utc_now("%Y%m%dT%H%M%SZ") : a.t.out;
+  const std::string out = a.t.out.empty() ? default_out_dir("run") : a.t.out;
   if (!dry && !conf::out_dir_ok(out, "mbconform run")) return kExitUsage;
+  if (!dry && !a.summary_dir.empty()) {
+    if (std::string why = conf::out_dir_problem(a.summary_dir); !why.empty()) {
+      fmt::print(stderr, "mbconform run: error: --summary: {}\n", why);
+      return kExitUsage;
+    }
+  }
   for (const auto& uri : targets) {
     spec::Spec s;
     try {
@@ -139,14 +193,24 @@ int run(RunArgs& a) {
       fmt::print(stderr, "mbconform run: error: target {}: {}\n", uri, e.what());
       return kExitUsage;
     }
-    std::unique_ptr<conf::Target> target;
+    // Every frame goes through the session: its gate, its journal (in the
+    // report directory), its restore (conformance/session/session.h).
+    std::unique_ptr<conf::Session> session;
+    conf::Target* target = nullptr;
     conf::TargetInfo info;
     try {
       if (!dry || (uri.rfind("ref:", 0) == 0 && !named)) {
-        target = conf::open_target(uri);
+        auto so = session_options(a.t, "run", out);
+        so.stop_mid_exchange = false;  // the runner stops between cases
+        if (!a.map.empty()) so.rules.access_unstated = !(given_map && given_map->access_known());
+        session = std::make_unique<conf::Session>(uri, &s, std::move(so));
+        if (!session->journal_path().empty())
+          fmt::print(stderr, "journal: {} (if this command is killed: mbconform restore {})\n", session->journal_path(),
+                     session->journal_path());
+        target = &session->target();
         info = target->info();
       } else {
-        info = planned_info(uri, s);
+        info = planned_info(conf::line_settings(uri, &s).uri, s);
       }
     } catch (const std::exception& e) {
       fmt::print(stderr, "mbconform run: error: cannot open target {}: {}\n", uri, e.what());
@@ -156,19 +220,12 @@ int run(RunArgs& a) {
     std::vector<std::string> notes;
     std::optional<conf::map::Map> map = given_map;
     if (a.map == "auto" && target) {
-      if (std::string why = conf::unreachable(*target, s); !why.empty()) {
-        fmt::print(stderr, "mbconform run: error: target {}: {}\n", uri, why);
+      if (std::string why = session->reachable(); !why.empty()) {
+        fmt::print(stderr, "mbconform run: error: {}\n", why);
         return kExitUsage;
       }
-      auto t0 = std::chrono::steady_clock::now();
-      map = conf::map::probe(*target, a.map_budget);
-      double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      notes.push_back(fmt::format("map probed in {} requests, {:.2f} s: {}", map->requests, secs, map->describe()));
-      for (const auto& u : map->unmapped)
-        notes.push_back(fmt::format("unmapped {} addresses answered: {} ({} probes)", conf::map::table_name(u.table), u.answer, u.seen));
-      if (map->partial)
-        notes.push_back(fmt::format("PARTIAL MAP: the probe budget of {} requests ran out at {}; nothing past it was probed",
-                                    a.map_budget, map->partial_at));
+      map = conf::map::probe(*target, conf::map::ProbeLimits{a.map_budget, a.map_time});
+      notes = conf::map::probe_notes(*map);
       if (!a.quiet) fmt::print("{}: {}\n", uri, notes.front());
     } else if (a.map == "auto" && a.plan) {
       fmt::print("# --map auto: the probe sends at most {} reads (FC 01/02/03/04, --map-budget) before the cases; "
@@ -178,13 +235,14 @@ int run(RunArgs& a) {
     }
     if (map && (a.map != "auto" || target)) s = conf::map::apply(s, *map);
 
-    conf::GenContext g{s, info, a.t.policy, standard ? &*standard : nullptr};
+    conf::GenContext g{s, info, a.t.policy, standard ? &*standard : nullptr, std::nullopt};
+    if (map) g.map = conf::map::terms(*map, a.t.allow_writes);
     std::vector<conf::Case> cases;
-    for (auto& c : conf::all_cases(g))
-      if (keep(c.id)) cases.push_back(std::move(c));
-
-    if (map) conf::map::adapt_cases(cases, *map, a.allow_writes);
-    if (cases.empty() && !a.filter.empty()) {
+    cases = conf::select_cases(conf::all_cases(g), a.filter, pattern_for(a.filter));
+    bool security_kept = false;  // an mbtls:// target also runs conformance/security/'s checks
+    if (info.kind == "tls")
+      for (const auto& n : conf::security::check_names()) security_kept = security_kept || keep(s.device.id + "/security/" + n);
+    if (cases.empty() && !a.filter.empty() && !security_kept) {
       fmt::print(stderr, "mbconform run: error: --filter '{}' matches none of the {} cases for {}\n", a.filter,
                  conf::all_cases(g).size(), uri);
       return kExitUsage;
@@ -197,15 +255,14 @@ int run(RunArgs& a) {
       continue;
     }
     if (a.plan) {
-      // A frame script (conformance/script/README.md): `mbconform replay` runs it.
-      if (&uri == &targets.front()) fmt::print("{}\n", conf::script::kHeader);
+      // A frame script (conformance/check/README.md): `mbconform replay` runs it.
+      if (&uri == &targets.front()) fmt::print("{}\n", conf::check::kHeader);
       fmt::print("#\n# {}: {} cases, unit {}, {}\ndevice {}\n", info.uri, cases.size(), info.unit,
                  info.framing == conf::Framing::rtu ? "RTU frames" : "MBAP frames (transaction id * : the target numbers its own)",
                  s.device.id);
       for (const auto& c : cases) {
-        fmt::print("#\n# {}  [{}] {}\n", c.id, conf::to_string(c.level), c.clause);
-        if (!c.skip_reason.empty()) fmt::print("# (skip: {})\n", c.skip_reason);
-        for (const auto& l : conf::plan_lines(c, info)) fmt::print("{}\n", l);
+        fmt::print("#\n");
+        for (const auto& l : conf::check::case_lines(c, info.framing)) fmt::print("{}\n", l);
       }
       for (const auto& b : conf::cases::planned_broadcast_writes(cases)) fmt::print("# every drive on the line receives: {}\n", b);
       continue;
@@ -213,54 +270,63 @@ int run(RunArgs& a) {
     fmt::print("{}: {} cases against {}\n", s.device.id, cases.size(), info.uri);
     std::fflush(stdout);
     conf::RunOptions opt;
-    opt.stop = &g_stop;
+    stop_run = should_stop();
+    opt.stop = &stop_run;
+    conf::Progress progress(fmt::format("run {}", s.device.id), a.t.progress, a.quiet);
     opt.on_case = [&](const conf::CaseResult& r, size_t done, size_t total) {
-      if (r.outcome == conf::Outcome::fail) {
-        fmt::print("{}{}\n", tty ? "\r\033[K" : "", conf::progress_line(r, done, total));
-      } else if (tty) {
-        fmt::print("\r\033[K{}", conf::progress_line(r, done, total));
+      if (should_stop()) stop_run = true;
+      // On a terminal a failure stays on screen as it happens; elsewhere (a
+      // log, CI) the summary at the end lists it, once. -v: every case.
+      if (a.verbose || (r.outcome == conf::Outcome::fail && tty)) {
+        progress.clear();
+        fmt::print("{}\n", conf::progress_line(r, done, total));
+        std::fflush(stdout);
       }
-      std::fflush(stdout);
+      progress.update(done, total, "cases");
     };
     // Live drives: keep every register the run may write, put them back
     // afterwards (also after SIGINT or a target error) and report what could not be.
-    std::optional<conf::Snapshot> snap;
     std::vector<std::string> snap_notes;
-    if (info.live) {
-      if (std::string why = conf::unreachable(*target, s); !why.empty()) {
-        fmt::print(stderr, "mbconform run: error: target {}: {}\n", uri, why);
-        return kExitUsage;
-      }
-      try {
-        snap = conf::Snapshot::take(*target, s, a.t.policy);
-        for (const auto& f : snap->failures()) snap_notes.push_back(f);
-      } catch (const std::exception& e) {
-        fmt::print(stderr, "mbconform run: error: target {}: cannot read the registers to keep: {}\n", uri, e.what());
-        return kExitUsage;
-      }
+    // A map in use: the target is judged by its own map, not identified as the spec's device.
+    TargetOptions live_opts = a.t;
+    if (!a.map.empty()) live_opts.no_preflight = true;
+    if (std::string why = prepare_live(*session, live_opts, snap_notes); !why.empty()) {
+      fmt::print(stderr, "mbconform run: error: {}\n", why);
+      return kExitUsage;
     }
-    conf::DeviceRun dr = conf::run_cases(*target, s, cases, opt);
-    if (tty) fmt::print("\r\033[K");
-    if (snap) {
-      try {
-        for (auto& f : snap->restore(*target)) dr.restore_failures.push_back(std::move(f));
-      } catch (const std::exception& e) {
-        dr.restore_failures.push_back(fmt::format("restore stopped: {}", e.what()));
-      }
+    conf::DeviceRun dr = conf::run_cases(*session, s, cases, opt);
+    // Modbus/TCP Security: what the server does around the TLS handshake
+    // (conformance/security/), beside the standard cases run inside TLS.
+    if (info.kind == "tls" && !conf::stop_requested())
+      for (auto& r : conf::security::check_server(conf::security::from_uri(uri), s.device.id))
+        if (keep(r.id)) dr.cases.push_back(std::move(r));
+    conf::describe_device(dr, s);
+    progress.clear();
+    if (info.live) {
+      for (auto& f : restore_and_say(*session, "run")) dr.restore_failures.push_back(std::move(f));
       for (auto& n : snap_notes) dr.safety_notes.push_back(std::move(n));
-      for (const auto& f : dr.restore_failures) fmt::print(stderr, "mbconform run: {}: {}\n", s.device.id, f);
+    }
+    if (stop_run && !conf::stop_requested()) {
+      // The deadline: every case not run is named, and the report is INCOMPLETE.
+      for (size_t k = dr.cases.size(); k < cases.size(); ++k) {
+        conf::CaseResult nr = conf::check::result_header(cases[k]);
+        nr.outcome = conf::Outcome::error;
+        nr.message = fmt::format("not run: --deadline {} ran out", a.deadline);
+        dr.cases.push_back(std::move(nr));
+      }
+      dr.interrupted = true;
+      report.interrupted = true;
+      dr.notes.push_back(fmt::format("--deadline {} ran out: the cases not run are listed as errors", a.deadline));
     }
     dr.notes.insert(dr.notes.begin(), notes.begin(), notes.end());
     if (!quirks.empty()) conf::quirks::apply(quirks, dr);
     report.devices.push_back(std::move(dr));
-    if (g_stop.load()) {
+    if (stop_run.load()) {
       report.interrupted = true;
       report.devices.back().interrupted = true;
       break;
     }
   }
-  std::signal(SIGINT, SIG_DFL);
-  std::signal(SIGTERM, SIG_DFL);
   if (dry) return kExitOk;
 
   try {
@@ -280,9 +346,7 @@ int run(RunArgs& a) {
   // Interrupted: the run was not done (2), whatever it found so far. A lost
   // target is recorded as the FAIL of the case it was lost in (1).
   if (report.interrupted) return kExitUsage;
-  bool must_failed = false;
-  for (const auto& d : report.devices) must_failed |= conf::count(d).must_failed > 0;
-  if (must_failed) return kExitFailed;
+  if (run_failed(report)) return kExitFailed;
   for (const auto& d : report.devices)
     if (!d.error.empty()) return kExitUsage;
   return kExitOk;
@@ -293,20 +357,25 @@ int run(RunArgs& a) {
 void add_run_command(CLI::App& app, int& exit_code) {
   auto a = std::make_shared<RunArgs>();
   auto* cmd = app.add_subcommand("run", "Run the conformance cases generated from a spec against targets; write reports");
-  add_target_options(*cmd, a->t, true, "DIR: report directory (default reports/runs/<UTC date-time>/)");
+  add_target_options(*cmd, a->t, true, "DIR: report directory (default reports/run/<UTC date-time>/)");
   cmd->add_flag("--list", a->list, "print the cases (id, level, clause, title) and exit");
-  cmd->add_option("--filter", a->filter, "select cases by id: a glob ('*/registers/*'), a regex, or a substring");
+  cmd->add_option("--filter", a->filter, "select cases by id: a part of the id, taken literally ('fc15/quantity-limit+1'); "
+                  "a glob ('*/registers/*'); or a regex after 're:' ('re:fc1[56]/')");
   cmd->add_flag("--plan", a->plan, "print every frame the cases would send, without sending anything");
   cmd->add_option("--summary", a->summary_dir, "also write the stable summary.md and summary.json into this directory");
   cmd->add_option("--map", a->map,
                   "the target's data map instead of the spec's: 'auto' (probe it with reads), a map file, or "
                   "'holding=0-199,coils=0-199,input=0-199,discrete=0-199' (conformance/README.md, Maps)");
   cmd->add_option("--map-budget", a->map_budget, "the most requests --map auto sends (default 2000)")->check(CLI::Range(1, 1000000));
-  cmd->add_flag("--allow-writes", a->allow_writes, "with --map auto or a map without access: run the cases that write");
+  add_map_time_option(cmd, a->map_time);
+  add_fail_on_option(cmd, a->fail_on_should);
   cmd->add_option("--quirks", a->quirks_file, "a quirks file: known deviations (case ids or globs, with reasons) "
                   "reported apart, not failed (conformance/README.md, Quirks files)");
+  cmd->add_option("--deadline", a->deadline, "the whole run's time (e.g. 10m): then the run stops between cases, restores, "
+                  "and names the cases not run (report INCOMPLETE, exit 2)");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
-  cmd->add_flag("--quiet", a->quiet, "no progress line");
+  cmd->add_flag("-q,--quiet", a->quiet, "no progress on stderr, no failure lines as they happen");
+  cmd->add_flag("-v,--verbose", a->verbose, "a line for every case as it ends, not only for failures");
   cmd->callback([a, &exit_code] { exit_code = run(*a); });
 }
 

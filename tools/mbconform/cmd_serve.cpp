@@ -12,11 +12,13 @@ namespace mbc::cli {
 namespace {
 
 struct ServeArgs {
-  std::vector<std::string> devices, tcp, rtu_tcp, pty;
+  std::vector<std::string> devices, tcp, rtu_tcp, pty, tls;
+  serve::TlsOptions tls_options;
   std::vector<std::pair<serve::Transport, std::string>> endpoints;  // in command-line order
   std::string eeprom_dir;
   std::optional<int> baud, line_rate;
   bool trace = false;
+  std::string pcap;
   std::vector<std::string> faults;  // --fault NAME[,NAME], repeatable
   bool list_faults = false;
   int idle_timeout_s = serve::Options{}.idle_timeout_s;
@@ -31,12 +33,14 @@ serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_
   } catch (const std::invalid_argument& e) {
     throw CLI::ValidationError("endpoint", e.what());
   }
-  if (o.endpoints.empty()) throw CLI::ValidationError("serve", "give at least one of --tcp, --rtu-tcp, --pty");
+  if (o.endpoints.empty()) throw CLI::ValidationError("serve", "give at least one of --tcp, --rtu-tcp, --pty, --tls");
   o.eeprom_dir = a.eeprom_dir;
   o.trace = a.trace;
+  o.pcap = a.pcap;
   o.line_rate = a.line_rate;
   o.idle_timeout_s = a.idle_timeout_s;
   o.max_connections = a.max_connections;
+  o.tls = a.tls_options;
   try {
     for (const auto& f : a.faults)
       for (auto x : faults::parse_faults(f).list()) o.faults.add(x);
@@ -81,12 +85,19 @@ void add_serve_command(CLI::App& app, int& exit_code) {
   auto* tcp = cmd->add_option("--tcp", a.tcp, "[HOST:]PORT: Modbus TCP (HOST 127.0.0.1 if omitted; PORT 0 picks one)");
   auto* rtu_tcp = cmd->add_option("--rtu-tcp", a.rtu_tcp, "[HOST:]PORT: RTU frames over TCP");
   auto* pty = cmd->add_option("--pty", a.pty, "PATH: RTU on a pseudo-terminal, PATH a symlink to it");
+  auto* tls = cmd->add_option("--tls", a.tls, "[HOST:]PORT: Modbus/TCP Security (MBAP in TLS, port 802); needs --cert, --key, --ca");
+  cmd->add_option("--cert", a.tls_options.files.cert, "FILE: --tls: the server's certificate chain (PEM)");
+  cmd->add_option("--key", a.tls_options.files.key, "FILE: --tls: its private key (PEM, mode 600)");
+  cmd->add_option("--ca", a.tls_options.files.ca, "FILE: --tls: the CA(s) that sign client certificates (PEM)");
+  cmd->add_option("--roles", a.tls_options.roles_file,
+                  "FILE: --tls: the function codes and addresses each certificate role may use (README)");
   cmd->add_option("--eeprom", a.eeprom_dir, "DIR: keep persistent registers in DIR/<id>@<slave>.json");
   cmd->add_option("--baud", a.baud, "nominal pty baud rate: the frame gap (default: the first device's)")
       ->check(CLI::Range(300, 4000000));
   cmd->add_option("--line-rate", a.line_rate, "pace RTU replies at the wire time of this baud rate")
       ->check(CLI::Range(300, 4000000));
-  cmd->add_flag("--trace", a.trace, "log every frame to stderr");
+  cmd->add_flag("--trace", a.trace, "log every frame to stderr, timestamped (the serial log format check-capture reads)");
+  cmd->add_option("--pcap", a.pcap, "FILE: also write every frame as pcapng (Wireshark; conformance/capture/README.md)");
   cmd->add_option("--fault", a.faults,
                   "NAME[,NAME]: serve deliberately broken devices (every device served); repeatable; see --list-faults");
   cmd->add_option("--idle-timeout", a.idle_timeout_s, "SECONDS: close a TCP connection silent this long (0: never)")
@@ -97,23 +108,32 @@ void add_serve_command(CLI::App& app, int& exit_code) {
       ->capture_default_str()
       ->check(CLI::Range(1, 1000000));
   cmd->add_flag("--list-faults", a.list_faults, "print the faults --fault takes, one per line, and exit");
-  cmd->callback([&exit_code, cmd, tcp, rtu_tcp, pty] {
+  cmd->callback([&exit_code, cmd, tcp, rtu_tcp, pty, tls] {
     if (a.list_faults) {
       for (const auto& f : faults::all_faults()) fmt::print("{:<22} {}\n", f.name, f.description);
       exit_code = 0;
       return;
     }
     // Endpoints open and print their "listening" lines in command-line order.
-    size_t next_tcp = 0, next_rtu_tcp = 0, next_pty = 0;
+    size_t next_tcp = 0, next_rtu_tcp = 0, next_pty = 0, next_tls = 0;
     for (const CLI::Option* opt : cmd->parse_order()) {
       if (opt == tcp) a.endpoints.emplace_back(serve::Transport::tcp, a.tcp.at(next_tcp++));
       if (opt == rtu_tcp) a.endpoints.emplace_back(serve::Transport::rtu_tcp, a.rtu_tcp.at(next_rtu_tcp++));
       if (opt == pty) a.endpoints.emplace_back(serve::Transport::pty, a.pty.at(next_pty++));
+      if (opt == tls) a.endpoints.emplace_back(serve::Transport::tls, a.tls.at(next_tls++));
     }
+    if (a.tls.empty() && (!a.tls_options.files.cert.empty() || !a.tls_options.roles_file.empty()))
+      throw CLI::ValidationError("--cert/--key/--ca/--roles", "only with --tls");
     ref::Bus bus = bus_from(a.devices);
     serve::Options o = options_from(a, bus.devices().front()->spec().serial.baud_default);
     serve::Server server(std::move(bus), std::move(o));
-    server.open();
+    try {
+      server.open();
+    } catch (const std::runtime_error& e) {  // an endpoint, a TLS file, the roles file: one line, exit 2
+      fmt::print(stderr, "mbconform serve: error: {}\n", e.what());
+      exit_code = kExitUsage;
+      return;
+    }
     exit_code = server.run();
   });
 }

@@ -5,14 +5,21 @@
 #include <iostream>
 
 #include <fmt/core.h>
+#include <fmt/format.h>
 
 #include "commands.h"
 #include "dump.h"
 #include "errata.h"
+#include "cases/case.h"
+#include "cases/facts.h"
 #include "exchange.h"
 #include "loader.h"
+#include "conventions.h"
 #include "map/map.h"
+#include "options.h"
 #include "runner/runner.h"
+#include "session/session.h"
+#include "session/signals.h"
 #include "targets/target.h"
 
 namespace mbc::cli {
@@ -64,6 +71,31 @@ bool write_file(const fs::path& p, const std::string& text) {
   return bool(out);
 }
 
+// The cases of a spec, as a reference target runs them, that are OBSERVED
+// only because a fact they rely on is inferred (cases/facts.h), with the facts.
+nlohmann::json observed_by_inference(const spec::Spec& s, const spec::Spec& standard) {
+  conf::TargetInfo info;
+  info.kind = "ref";
+  info.uri = "ref:" + s.device.id;
+  info.unit = uint8_t(s.serial.slave_default.value_or(s.serial.slave_min));
+  info.virtual_clock = info.power_cycle = info.raw = true;
+  info.device_id = s.device.id;
+  conf::GenContext g{s, info, {}, &standard, std::nullopt};
+  nlohmann::json out = nlohmann::json::array();
+  for (const auto& c : conf::all_cases(g)) {
+    if (!c.level_if_stated) continue;
+    nlohmann::json facts = nlohmann::json::array();
+    for (const auto& r : conf::facts::all_relies(c)) {
+      if (!r.basis.is_inferred()) continue;
+      nlohmann::json f{{"fact", r.fact}, {"basis", spec::to_string(r.basis.basis)}, {"why", r.basis.why}, {"section", r.basis.section}};
+      if (!r.basis.searched.empty()) f["searched"] = r.basis.searched;
+      facts.push_back(std::move(f));
+    }
+    out.push_back({{"case", c.id}, {"level_if_stated", conf::to_string(*c.level_if_stated)}, {"facts", facts}});
+  }
+  return out;
+}
+
 int run_errata(std::vector<std::string> ids, const std::string& out_dir) {
   if (ids.empty()) ids = spec::spec_ids();
   spec::Spec standard = load_id_or_path("modbus-standard");
@@ -72,7 +104,7 @@ int run_errata(std::vector<std::string> ids, const std::string& out_dir) {
   if (ec) throw std::runtime_error("cannot create " + out_dir + ": " + ec.message());
   for (const auto& id : ids) {
     spec::Spec s = load_id_or_path(id);
-    auto report = spec::errata_report(s, standard);
+    auto report = spec::errata_report(s, standard, observed_by_inference(s, standard));
     fs::path base = fs::path(out_dir) / s.device.id;
     if (!write_file(base.string() + ".json", report.dump(2) + "\n") ||
         !write_file(base.string() + ".md", spec::errata_markdown(report)))
@@ -92,15 +124,21 @@ bool valid_id(const std::string& id) {
   return true;
 }
 
-int run_import(const std::string& csv, const std::string& id, std::string out) {
-  if (!valid_id(id)) throw std::runtime_error("--id '" + id + "': a spec id is [a-z0-9][a-z0-9-]*");
+int run_import(const std::string& csv_file, const std::string& wb_file, std::string id, std::string out) {
+  if (csv_file.empty() == wb_file.empty()) throw std::runtime_error("give one of --csv FILE and --wb-template FILE");
+  const std::string& csv = csv_file.empty() ? wb_file : csv_file;
+  check_readable(csv, kMaxTextFileBytes, csv_file.empty() ? "--wb-template" : "--csv");
   std::ifstream in(csv, std::ios::binary);
   if (!in) throw std::runtime_error("cannot open " + csv);
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  auto r = exchange::import_csv(text, csv, id);
+  if (id.empty() && !wb_file.empty()) id = exchange::wb_template_id(text);
+  if (id.empty()) throw std::runtime_error("--id ID is needed (the new spec's id, [a-z0-9][a-z0-9-]*)");
+  if (!valid_id(id)) throw std::runtime_error("--id '" + id + "': a spec id is [a-z0-9][a-z0-9-]*");
+  auto r = wb_file.empty() ? exchange::import_csv(text, csv, id) : exchange::import_wb_template(text, csv, id);
+  for (const auto& w : r.warnings) std::cerr << w << "\n";
   for (const auto& e : r.errors) std::cerr << e << "\n";
   if (!r.errors.empty()) {
-    std::cerr << fmt::format("{}: {} error{}; nothing written\n", csv, r.errors.size(), r.errors.size() == 1 ? "" : "s");
+    std::cerr << fmt::format("{}: {} error{}; nothing written\n", csv, r.error_count, r.error_count == 1 ? "" : "s");
     return kExitFailed;
   }
   if (out.empty()) out = id + ".yaml";
@@ -113,10 +151,16 @@ int run_import(const std::string& csv, const std::string& id, std::string out) {
   return kExitOk;
 }
 
-int run_export(const std::string& what, const std::string& format, const std::string& out) {
+int run_export(const std::string& what, const std::string& format, const std::string& out,
+               const exchange::HomeAssistantOptions& ha) {
   spec::Spec s = load_id_or_path(what);
+  if (!ha.only.empty()) {
+    size_t kept = std::count_if(s.registers.begin(), s.registers.end(), [&](const auto& r) { return exchange::register_matches(r, ha.only); });
+    if (kept == 0) throw std::runtime_error(fmt::format("--only {}: matches none of {}'s {} registers", fmt::join(ha.only, ","), s.device.id, s.registers.size()));
+  }
   std::string text = format == "csv"              ? exchange::export_csv(s)
-                     : format == "home-assistant" ? exchange::export_home_assistant(s)
+                     : format == "home-assistant" ? exchange::export_home_assistant(s, ha)
+                     : format == "wb-template"    ? exchange::export_wb_template(s)
                                                   : exchange::export_edgex(s);
   if (out.empty() || out == "-") {
     std::cout << text;
@@ -161,21 +205,31 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
   errata->add_option("--out", errata_out, "output directory")->capture_default_str();
   errata->callback([&] { exit_code = run_errata(errata_ids, errata_out); });
 
-  auto* import = spec_cmd->add_subcommand("import", "Turn a CSV register map into a spec skeleton (spec/README.md)");
-  static std::string import_csv_file, import_id, import_out;
-  import->add_option("--csv", import_csv_file, "the register map (CSV with a header row)")->required();
-  import->add_option("--id", import_id, "the new spec's id ([a-z0-9-]+)")->required();
+  auto* import = spec_cmd->add_subcommand(
+      "import", "Turn a register map (a vendor's CSV sheet, a wb-mqtt-serial device template) into a spec (spec/README.md)");
+  static std::string import_csv_file, import_wb_file, import_id, import_out;
+  import->add_option("--csv", import_csv_file, "the register map (CSV with a header row; UTF-8, or GBK as Chinese Excel saves it)");
+  import->add_option("--wb-template", import_wb_file, "a wb-mqtt-serial device template (JSON)");
+  import->add_option("--id", import_id, "the new spec's id ([a-z0-9-]+; a template's own id by default)");
   import->add_option("--out", import_out, "the spec file to write (default ID.yaml; - for stdout)");
-  import->callback([&] { exit_code = run_import(import_csv_file, import_id, import_out); });
+  import->callback([&] { exit_code = run_import(import_csv_file, import_wb_file, import_id, import_out); });
 
   auto* exp = spec_cmd->add_subcommand("export", "Write a spec's register map for another tool");
   static std::string export_id, export_format, export_out;
   exp->add_option("id", export_id, "device id or spec file")->required();
-  exp->add_option("--format", export_format, "csv | home-assistant | edgex")
+  exp->add_option("--format", export_format, "csv | home-assistant | edgex | wb-template")
       ->required()
-      ->check(CLI::IsMember({"csv", "home-assistant", "edgex"}));
+      ->check(CLI::IsMember({"csv", "home-assistant", "edgex", "wb-template"}));
   exp->add_option("--out", export_out, "the file to write (default: stdout)");
-  exp->callback([&] { exit_code = run_export(export_id, export_format, export_out); });
+  static exchange::HomeAssistantOptions ha;
+  exp->add_option("--only", ha.only,
+                  "home-assistant: only these registers: addresses (0x0044), ranges (0x0040-0x004F), globs on key or name (*speed*)")
+      ->delimiter(',');
+  exp->add_option("--scan-interval", ha.fast_scan, "home-assistant: seconds between reads of read-only registers")
+      ->capture_default_str()->check(CLI::Range(1, 86400));
+  exp->add_option("--settings-scan-interval", ha.slow_scan, "home-assistant: seconds between reads of writable settings")
+      ->capture_default_str()->check(CLI::Range(1, 86400));
+  exp->callback([&] { exit_code = run_export(export_id, export_format, export_out, ha); });
 
   auto* discover = spec_cmd->add_subcommand(
       "discover", "Probe a live target's map with reads (never writes) and write a spec skeleton whose facts are observed");
@@ -185,16 +239,25 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
   discover->add_option("--out", discover_out, "the spec file to write")->required();
   discover->add_option("--id", discover_id, "the device id to write (default: the --out file's name, as spec check requires)");
   discover->add_option("--map-budget", discover_budget, "the most read requests the probe sends")->check(CLI::Range(1, 1000000));
+  static std::optional<std::chrono::milliseconds> discover_time;
+  add_map_time_option(discover, discover_time);
   discover->callback([&] {
     try {
-      auto target = conf::open_target(discover_target);
-      spec::Spec none;
-      if (std::string why = conf::unreachable(*target, none); !why.empty()) throw std::runtime_error(why);
-      conf::map::Map m = conf::map::probe(*target, discover_budget);
+      // Through a session with no spec: its gate lets no write through.
+      conf::install_stop_signals();
+      conf::SessionOptions so;
+      so.command = "spec discover";
+      conf::Session session(discover_target, nullptr, so);
+      conf::Target* target = &session.target();
+      if (std::string why = session.reachable(); !why.empty()) throw std::runtime_error(why);
+      conf::map::Map m = conf::map::probe(*target, conf::map::ProbeLimits{discover_budget, discover_time});
+      if (auto stop = session.stopped()) throw std::runtime_error("INCOMPLETE: " + *stop + "; no spec written");
       std::string id = discover_id.empty() ? fs::path(discover_out).stem().string() : discover_id;
       if (!write_file(discover_out, conf::map::skeleton_yaml(m, id, target->info().unit)))
         throw std::runtime_error("cannot write " + discover_out);
-      std::cout << fmt::format("{}: {} ({} requests{})\n", discover_out, m.describe(), m.requests, m.partial ? ", PARTIAL" : "");
+      std::cout << fmt::format("{}: {} ({} requests, {:.1f} s{})\n", discover_out, m.describe(), m.requests, m.seconds,
+                               m.partial ? ", PARTIAL: the " + m.partial_by + " ran out at " + m.partial_at : "");
+      for (const auto& d : m.deviations) std::cout << "DEVIATION: " << d << "\n";
       exit_code = kExitOk;
     } catch (const std::exception& e) {
       std::cerr << "mbconform spec discover: error: " << e.what() << "\n";

@@ -26,8 +26,13 @@ void add_props_command(CLI::App& app, int& exit_code);
 void add_fuzz_command(CLI::App& app, int& exit_code);
 // `client`: a master library, through its adapter, against scenario servers (cmd_client.cpp).
 void add_client_command(CLI::App& app, int& exit_code);
-// `replay`: a frame script (conformance/script/README.md) against any target (cmd_replay.cpp).
+// `replay`: a frame script (conformance/check/README.md) against any target (cmd_replay.cpp).
 void add_replay_command(CLI::App& app, int& exit_code);
+// `check-capture`: a recorded capture judged against a spec (cmd_capture.cpp, conformance/capture/).
+void add_capture_command(CLI::App& app, int& exit_code);
+
+// `restore`: a drive put back from a command's journal (cmd_restore.cpp).
+void add_restore_command(CLI::App& app, int& exit_code);
 
 struct TargetOptions;
 // Replays the frame script `file` on `uri` (default: ref: of the script's

@@ -1,7 +1,9 @@
+#include <algorithm>
 #include <cstdio>
 #include <exception>
 
 #include "commands.h"
+#include "conventions.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"mbconform: Modbus conformance and fuzz test suite for motor drives"};
@@ -14,9 +16,15 @@ int main(int argc, char** argv) {
   mbc::cli::add_fuzz_command(app, exit_code);
   mbc::cli::add_client_command(app, exit_code);
   mbc::cli::add_replay_command(app, exit_code);
+  mbc::cli::add_capture_command(app, exit_code);
+  mbc::cli::add_restore_command(app, exit_code);
   mbc::cli::add_global_options(app);
+  mbc::cli::add_conventions(app, exit_code);
+  std::vector<std::string> args(argv + 1, argv + argc);
+  if (auto rc = mbc::cli::check_args(app, args)) return *rc;
   try {
-    app.parse(argc, argv);
+    std::reverse(args.begin(), args.end());  // CLI11 takes the words last first
+    app.parse(args);
   } catch (const CLI::ParseError& e) {
     int rc = app.exit(e);
     return rc == 0 ? 0 : mbc::cli::kExitUsage;

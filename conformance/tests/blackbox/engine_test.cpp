@@ -17,7 +17,7 @@
 namespace mbc::conf::blackbox {
 namespace {
 
-using K = script::Expect::Kind;
+using K = check::Expect::Kind;
 
 // A target as an RTU drive on a live line would present itself.
 TargetInfo live_rtu(uint8_t unit) {
@@ -54,11 +54,11 @@ TEST(Generator, LiveDriveStaysSafeAndExpectsWhatTheStandardSays) {
       ++raws;
       // A frame not addressed to unit 1 must get no reply (MB-SL v1.02 §2.1).
       if (st.bytes[0] != 1) {
-        EXPECT_EQ(st.expect.kind, K::silence) << script::line(st);
+        EXPECT_EQ(st.expect.kind, K::silence) << check::line(st);
       }
       // A frame with a bad CRC must get none either (§2.4.2: the 57HS-R is silent on CRC errors).
       if (st.bytes[0] == 1 && !st.gap && !crc_ok(st.bytes)) {
-        EXPECT_EQ(st.expect.kind, K::silence) << script::line(st);
+        EXPECT_EQ(st.expect.kind, K::silence) << check::line(st);
       }
       silences += st.expect.kind == K::silence;
       if (st.bytes.size() < 4 || !crc_ok(st.bytes) || st.gap) continue;
@@ -74,13 +74,13 @@ TEST(Generator, LiveDriveStaysSafeAndExpectsWhatTheStandardSays) {
     if (pdu.size() < 5) continue;
     if (pdu[0] == 6 || pdu[0] == 16) {
       ++writes;
-      EXPECT_EQ(unit, 1) << "a write to another drive or to broadcast: " << script::line(st);
+      EXPECT_EQ(unit, 1) << "a write to another drive or to broadcast: " << check::line(st);
       uint16_t start = be16(pdu, 1), count = pdu[0] == 6 ? 1 : be16(pdu, 3);
       for (uint32_t a = start; a < uint32_t(start) + count; ++a) {
-        EXPECT_FALSE(settings.count(uint16_t(a))) << "writes serial setting 0x" << std::hex << a << ": " << script::line(st);
+        EXPECT_FALSE(settings.count(uint16_t(a))) << "writes serial setting 0x" << std::hex << a << ": " << check::line(st);
         const spec::Register* r = s.register_covering(uint16_t(a), spec::Table::holding);
-        ASSERT_NE(r, nullptr) << "a live write to an address the spec does not map: " << script::line(st);
-        EXPECT_TRUE(may_write(s, *r, p.info, WritePolicy{}).allowed) << script::line(st);
+        ASSERT_NE(r, nullptr) << "a live write to an address the spec does not map: " << check::line(st);
+        EXPECT_TRUE(may_write(s, *r, p.info, WritePolicy{}).allowed) << check::line(st);
       }
     }
   }
@@ -97,8 +97,8 @@ TEST(Generator, SameSeedSameSteps) {
   bool differs = false;
   for (int i = 0; i < 500; ++i) {
     Step x = a.next(), y = b.next(), z = c.next();
-    EXPECT_EQ(script::line(x), script::line(y));
-    differs |= script::line(x) != script::line(z);
+    EXPECT_EQ(check::line(x), check::line(y));
+    differs |= check::line(x) != check::line(z);
   }
   EXPECT_TRUE(differs);
 }
@@ -114,8 +114,8 @@ TEST(Generator, TcpTargetGetsNoRtuBytes) {
   Generator gen(p, 3);
   for (int n = 0; n < 3000; ++n) {
     Step st = gen.next();
-    ASSERT_EQ(st.kind, Step::Kind::frame) << script::line(st);
-    ASSERT_EQ(script::line(st).rfind("mbap * 00 00 ", 0), 0u) << script::line(st);
+    ASSERT_EQ(st.kind, Step::Kind::frame) << check::line(st);
+    ASSERT_EQ(check::line(st).rfind("mbap * 00 00 ", 0), 0u) << check::line(st);
   }
 }
 
@@ -141,13 +141,13 @@ struct JudgeTest : ::testing::Test {
 };
 
 TEST_F(JudgeTest, WellFormedRepliesAreNoFinding) {
-  Step read = generated(script::frame(Framing::rtu, 1, {0x03, 0x00, 0x00, 0x00, 0x01}));
+  Step read = generated(check::frame(Framing::rtu, 1, {0x03, 0x00, 0x00, 0x00, 0x01}));
   EXPECT_EQ(kind(read, reply(1, {0x03, 0x02, 0x12, 0x34})), "");
   EXPECT_EQ(kind(read, reply(1, {0x83, 0x02})), "");  // MBAP v1.1b3 §7: 02 illegal data address
 }
 
 TEST_F(JudgeTest, MalformedReplyAndUnknownException) {
-  Step read = generated(script::frame(Framing::rtu, 1, {0x03, 0x00, 0x00, 0x00, 0x01}));
+  Step read = generated(check::frame(Framing::rtu, 1, {0x03, 0x00, 0x00, 0x00, 0x01}));
   // One register asked, a byte count of 4 (MBAP v1.1b3 §6.3: 2 x N).
   EXPECT_EQ(kind(read, reply(1, {0x03, 0x04, 0x12, 0x34, 0x00, 0x00})), "malformed-reply");
   EXPECT_EQ(kind(read, reply(1, {0x83, 0x55})), "unknown-exception-code");
@@ -159,13 +159,13 @@ TEST_F(JudgeTest, MalformedReplyAndUnknownException) {
 
 TEST_F(JudgeTest, NoReplyToBroadcastOtherSlaveOrCorruptedFrame) {
   Bytes write{0x06, 0x00, 0x00, 0x00, 0x01};
-  Step broadcast = generated(script::raw_rtu(rtu_frame(0, write)));
-  Step other = generated(script::raw_rtu(rtu_frame(9, write)));
+  Step broadcast = generated(check::raw_rtu(rtu_frame(0, write)));
+  Step other = generated(check::raw_rtu(rtu_frame(9, write)));
   Bytes corrupted = rtu_frame(1, write);
   corrupted.back() ^= 0x01;
-  Step bad = generated(script::raw_rtu(corrupted));
+  Step bad = generated(check::raw_rtu(corrupted));
   for (const Step* st : {&broadcast, &other, &bad}) {
-    EXPECT_EQ(st->expect.kind, K::silence) << script::line(*st);
+    EXPECT_EQ(st->expect.kind, K::silence) << check::line(*st);
     Reply silent;
     EXPECT_EQ(kind(*st, silent), "");
   }
@@ -217,11 +217,11 @@ TEST(Reducer, RealTargetReducesToTheFrameThatFails) {
   Plan p = make_plan(s, t->info(), WritePolicy{});
   std::vector<Step> steps;
   for (int i = 0; i < 40; ++i) {
-    Step st = script::frame(Framing::rtu, 1, read_request(3, uint16_t(i % 4), 1));
+    Step st = check::frame(Framing::rtu, 1, read_request(3, uint16_t(i % 4), 1));
     st.expect = expect_for(p, st);
     steps.push_back(st);
   }
-  Step bc = script::raw_rtu(rtu_frame(0, write_single_register(0x0000, 1)));
+  Step bc = check::raw_rtu(rtu_frame(0, write_single_register(0x0000, 1)));
   bc.expect = expect_for(p, bc);
   steps.insert(steps.begin() + 23, bc);
   Open open = [&] { return open_target(uri); };
@@ -235,7 +235,7 @@ TEST(Reducer, RealTargetReducesToTheFrameThatFails) {
   int runs = 0;
   auto min = ddmin<Step>(steps, fails, 400, runs);
   ASSERT_EQ(min.size(), 1u);
-  EXPECT_EQ(script::line(min[0]), script::line(bc));
+  EXPECT_EQ(check::line(min[0]), check::line(bc));
   // The correct device does not fail it.
   Open correct = [] { return open_target("ref:hsc60"); };
   EXPECT_FALSE(run_fresh(correct, p, min));

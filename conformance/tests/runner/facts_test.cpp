@@ -44,7 +44,7 @@ TargetInfo full_target() {
 }
 
 std::vector<Case> cases_of(const spec::Spec& s) {
-  GenContext g{s, full_target(), {}, &standard()};
+  GenContext g{s, full_target(), {}, &standard(), std::nullopt};
   return all_cases(g);
 }
 
@@ -77,7 +77,7 @@ std::string shape(const Case& c) {
     return x;
   };
   for (const auto& st : c.steps) {
-    s += "|" + to_hex(st.pdu) + to_hex(st.adu) + "=" + expect(st.expect);
+    s += "|" + to_hex(st.pdu) + to_hex(st.bytes) + "=" + expect(st.expect);
     for (const auto& a : st.expect.either) s += "/" + expect(a);
   }
   return s;
@@ -232,7 +232,7 @@ INSTANTIATE_TEST_SUITE_P(Specs, EachSpec, ::testing::ValuesIn(spec::spec_ids()),
 TEST(Facts, EitherPassesOnTheReadingTheDeviceChoseAndRecordsIt) {
   auto t = open_target("ref:sihong-57hs-r");
   spec::Spec s = spec::load_spec_by_id("sihong-57hs-r");
-  GenContext g{s, t->info(), {}, &standard()};
+  GenContext g{s, t->info(), {}, &standard(), std::nullopt};
   std::vector<Case> picked;
   for (auto& c : all_cases(g))
     if (c.id == "sihong-57hs-r/examples/6.2.4/crc-error" || c.id == "sihong-57hs-r/framing/rtu/crc-error") picked.push_back(c);
@@ -265,7 +265,7 @@ TEST(Facts, EitherFailsWhenNoReadingMatches) {
   p.kind = a.kind;
   p.code = a.code;
   p.basis.basis = Basis::either;
-  GenContext g{s, t->info(), {}, &standard()};
+  GenContext g{s, t->info(), {}, &standard(), std::nullopt};
   std::vector<Case> picked;
   for (auto& c : all_cases(g))
     if (c.id.find("/above-max") != std::string::npos && c.level == Level::must && picked.empty()) picked.push_back(c);
@@ -289,7 +289,7 @@ class EngineAgrees : public ::testing::TestWithParam<std::string> {};
 TEST_P(EngineAgrees, NoDiffersOutcomeThatIsNotDeclared) {
   auto t = open_target("ref:" + GetParam());
   spec::Spec s = spec::load_spec_by_id(GetParam());
-  GenContext g{s, t->info(), {}, &standard()};
+  GenContext g{s, t->info(), {}, &standard(), std::nullopt};
   auto cases = all_cases(g);
   DeviceRun run = run_cases(*t, s, cases);
   size_t observed = 0;

@@ -27,7 +27,7 @@ const spec::Spec& standard() {
 }
 
 std::vector<Case> cases_for(const spec::Spec& s, const TargetInfo& info) {
-  GenContext g{s, info, {}, &standard()};
+  GenContext g{s, info, {}, &standard(), std::nullopt};
   return all_cases(g);
 }
 
@@ -59,7 +59,7 @@ TEST_P(ReferenceDevice, EveryMustCasePasses) {
       EXPECT_NE(c.outcome, Outcome::observed) << c.id;
     }
   }
-  EXPECT_GT(pass, 10u);
+  EXPECT_GT(pass, 5u);  // 7TRSM5740Q: 9 (its policy is unspecified, most of its cases are OBSERVED)
   EXPECT_GT(r.run.frames_sent, r.run.cases.size() / 2);
   EXPECT_FALSE(r.run.latencies_us.empty());
 }
@@ -162,7 +162,9 @@ TEST(Cases, UnstatedPolicyIsObserved) {
 }
 
 // Each fault breaks one requirement; the named case fails on the broken
-// device and passes on the correct one.
+// device and passes on the correct one. (modbus-standard's accept-out-of-range
+// has no MUST case: the standard leaves a range check to the application,
+// so its write-out-of-range example and 0x0212/above-max are OBSERVED.)
 struct FaultCase {
   const char* device;
   const char* fault;
@@ -192,7 +194,6 @@ INSTANTIATE_TEST_SUITE_P(
         FaultCase{"sihong-57hs-r", "swapped-words", "sihong-57hs-r/examples/6.2.3/write-total-pulses"},
         FaultCase{"hsc60", "swapped-words", "hsc60/examples/四_1.2.3/fc16-write-travel"},
         FaultCase{"sihong-57hs-r", "accept-out-of-range", "sihong-57hs-r/registers/0x0020/above-max"},
-        FaultCase{"modbus-standard", "accept-out-of-range", "modbus-standard/examples/MBAP_7_MBAP_6.6_Figure_16/write-out-of-range"},
         FaultCase{"sihong-57hs-r", "accept-read-only", "sihong-57hs-r/registers/0x0000/read-only"},
         FaultCase{"sihong-57hs-r", "lost-write", "sihong-57hs-r/examples/6.2.2/write-accel-time-500"},
         FaultCase{"hsc60", "reply-other-slave", "hsc60/framing/address/wrong-slave"},

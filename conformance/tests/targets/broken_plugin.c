@@ -2,10 +2,19 @@
  * that answers FC 03 with zeros and everything else with exception 01, and
  * breaks in one way (BROKEN_MODE) on a request with function code 0x41:
  *   1 segfault   2 abort   3 loop forever   4 a length over the capacity
- *   5 a negative length without an error message */
+ *   5 a negative length without an error message
+ * and the modes the session's plugin tests use:
+ *   6 segfault on every FC 06 (a run meets it in case after case)
+ *   7 kill(getppid(), SIGKILL) on FC 0x41 (a plugin that signals its parent)
+ *   8 forks a child on create that sleeps for ever, its pid written to the
+ *     file named by the config (it must not outlive the run)
+ *   9 allocates and touches 2 GiB on FC 0x41 (the memory limit stops it)
+ *  10 loops forever on every FC 06 */
 #include <signal.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "mbconform_plugin.h"
 
@@ -15,6 +24,17 @@ static void* create(const char* config, char* error, size_t error_size) {
   (void)config;
   (void)error;
   (void)error_size;
+  if (BROKEN_MODE == 8 && config && *config) {
+    pid_t child = fork();
+    if (child == 0) {
+      for (;;) pause();
+    }
+    FILE* f = fopen(config, "a");
+    if (f) {
+      fprintf(f, "%d\n", (int)child);
+      fclose(f);
+    }
+  }
   return &instance_token;
 }
 
@@ -23,8 +43,26 @@ static void destroy(void* instance) { (void)instance; }
 static int handle_pdu(void* instance, uint8_t unit, const uint8_t* pdu, size_t len, uint8_t* out, size_t cap) {
   (void)instance;
   (void)unit;
+  if (len >= 1 && pdu[0] == 0x06 && BROKEN_MODE == 6) {
+    volatile int* nowhere = NULL;
+    *nowhere = 1;
+  }
+  if (len >= 1 && pdu[0] == 0x06 && BROKEN_MODE == 10) {
+    volatile int spin = 1;
+    while (spin) {
+    }
+  }
   if (len >= 1 && pdu[0] == 0x41) {
     switch (BROKEN_MODE) {
+      case 7: kill(getppid(), SIGKILL); break;
+      case 9: {
+        size_t big = (size_t)2 << 30;
+        char* p = malloc(big);
+        if (!p) abort();
+        memset(p, 1, big);
+        free(p);
+        break;
+      }
       case 1: {
         volatile int* nowhere = NULL;
         *nowhere = 1;

@@ -20,11 +20,15 @@
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "loader.h"
+#include "check/check.h"
 #include "runner/runner.h"
 #include "targets/target.h"
 
 namespace mbc::conf {
 namespace {
+
+using check::Expect;
+using check::Step;
 
 using namespace std::chrono_literals;
 
@@ -140,7 +144,7 @@ TEST(RtuLateReply, AnUnansweredRequestAfterASilenceIsRunAgain) {
     Step st;
     st.unit = unit;
     st.pdu = read_request(3, 0, 1);
-    st.what = "read 0x0000";
+    st.note = "read 0x0000";
     st.expect.kind = kind;
     return st;
   };
@@ -162,9 +166,9 @@ Case split_request_case() {
   c.id = "t/split-by-gap";
   Step st;
   st.kind = Step::Kind::raw;
-  st.adu = rtu_frame(1, read_request(3, 0, 1));
-  st.gap_after = 3;
-  st.what = "a request split by a pause";
+  st.bytes = rtu_frame(1, read_request(3, 0, 1));
+  st.gap = 3;
+  st.note = "a request split by a pause";
   st.expect.kind = Expect::Kind::silence;
   c.steps = {st};
   return c;
@@ -219,7 +223,7 @@ TEST(RtuOptionalFunction, SkippedOnlyForTheCodeTheStepSent) {
   Step st;
   st.unit = 1;
   st.pdu = read_request(3, 0, 1);
-  st.what = "read 0x0000";
+  st.note = "read 0x0000";
   st.expect.kind = Expect::Kind::normal;
   c.steps = {st};
   auto spec = spec::load_spec_by_id("modbus-standard");

@@ -9,6 +9,7 @@
 #include <chrono>
 #include <csignal>
 #include <cstdio>
+#include <vector>
 
 #include "loader.h"
 #include "modbus/crc16.h"
@@ -127,6 +128,34 @@ TEST_P(LiveTarget, ForeignSlaveIsSilentAndTheNextExchangeWorks) {
   EXPECT_FALSE(foreign.pdu);
   Reply ok = target->transact(req);
   EXPECT_TRUE(ok.pdu) << ok.framing_error;
+}
+
+// Target::transact_all: on Modbus TCP the requests go out together and each
+// reply is paired with its request by transaction id; elsewhere one after
+// another. Either way a request nobody answers (a slave id nobody on the bus
+// has, MB-SL v1.02 §2.1) is silent and the ones after it get their own replies.
+TEST_P(LiveTarget, TransactAllPairsEachReplyWithItsRequest) {
+  EXPECT_EQ(target->pipelines(), GetParam() == "tcp");
+  const auto& r = served.default_word();
+  Bytes read = read_request(served.read_fc(r), r.address, 1);
+  const Bytes unlisted{0x41};  // a function code modbus-standard does not list: its policy's exception
+  auto policy = served.spec.profile.policy(spec::Violation::unsupported_function);
+  ASSERT_EQ(policy.kind, spec::PolicyEntry::Kind::exception);
+  target->set_wait(Target::Wait::window);
+  std::vector<Target::Request> requests{
+      {served.slave, read}, {served.foreign_slave(), read}, {served.slave, unlisted}, {served.slave, read}};
+  std::vector<Reply> replies = target->transact_all(requests, 4);
+  ASSERT_EQ(replies.size(), 4u);
+  for (size_t i : {size_t(0), size_t(3)}) {
+    ASSERT_TRUE(replies[i].pdu) << i << ": " << replies[i].framing_error << " " << to_hex(replies[i].frame);
+    Judged j = judge_reply(read, *replies[i].pdu);
+    ASSERT_TRUE(j.ok() && j.registers.size() == 1) << i << ": " << describe_pdu(*replies[i].pdu, false);
+    EXPECT_EQ(j.registers[0], uint16_t(int64_t(*r.default_value) & 0xFFFF)) << i;
+  }
+  EXPECT_TRUE(replies[1].silent()) << to_hex(replies[1].frame);
+  ASSERT_TRUE(replies[2].pdu) << replies[2].framing_error;
+  EXPECT_EQ(*replies[2].pdu, (Bytes{0xC1, uint8_t(policy.code)}));
+  for (const auto& rep : replies) EXPECT_FALSE(rep.request.empty());
 }
 
 // MB-SL v1.02 §2.5.1.2: a frame with a wrong CRC is discarded; what the spec

@@ -83,6 +83,12 @@ TEST(MayWrite, StoredOnWriteNeedsAllowEepromUnlessTheSpecHasASwitch) {
       const auto& p = r.persistence;
       bool on_write = p.store != spec::Store::none && p.by == spec::PersistBy::on_write;
       auto d = may_write(s, r, live_info(), {});
+      if (is_serial_setting(s, r)) {
+        // Slave id, baud rate, frame format: never written on a live line, whatever the opt-ins.
+        EXPECT_FALSE(d.allowed) << id << " " << r.address;
+        EXPECT_FALSE(may_write(s, r, live_info(), {.allow_motion = true, .allow_eeprom_writes = true}).allowed);
+        continue;
+      }
       if (on_write && !p.unless_register) {
         ++stored;
         EXPECT_FALSE(d.allowed) << id << " " << r.address;

@@ -1,6 +1,8 @@
 // CSV import and export (spec/exchange/exchange.h): every device's map goes
 // out as CSV and comes back the same; bad rows are errors with their line;
 // the README's example imports into a spec that passes `spec check`.
+#include <fmt/core.h>
+
 #include <fstream>
 #include <sstream>
 
@@ -130,9 +132,12 @@ INSTANTIATE_TEST_SUITE_P(
         BadRow{"address,name,access,type\n1,Mode,rw,enum\n",
                "2: error: type 'enum': the CSV carries no value list; write the integer type (u16) and describe the "
                "values, then declare the enum in the spec"},
-        BadRow{"address,name,access,colour\n1,Speed,rw,red\n",
-               "1: error: unknown column 'colour' (columns: table, address, name, access, type, words, word_order, min, "
-               "max, default, unit, scale, description; spec/README.md lists the aliases)"},
+        BadRow{"address,name,access,type,byte order\n1,Speed,rw,u32,BADC\n",
+               "2: error: byte order 'BADC' swaps the bytes inside each word; Modbus sends every register high byte "
+               "first (MBAP v1.1b3 §4.2) and the spec language states word order only (ABCD, CDAB)"},
+        BadRow{"address,name,access,range\n1,Speed,rw,fast\n", "2: error: range 'fast' is not MIN~MAX (0~3000, -10~10, 0..3000)"},
+        BadRow{"address,name,access\n1,Speed,\xFF\xFF\n",
+               "2: error: the file is neither UTF-8 nor GB18030/GBK (byte 0xFF); save it as CSV UTF-8"},
         BadRow{"address,name,access\n1,\"Speed,rw\n", "2: error: a quoted field is not closed"},
         BadRow{"address,name,access\n1,Speed,rw,extra\n", "2: error: 4 fields, the header has 3"},
         BadRow{"address,name\n1,Speed\n", "2: error: no access for a holding register (ro, rw, wo or command)"}));
@@ -155,6 +160,81 @@ TEST(Import, HeaderAliasesAndReferences) {
   ASSERT_TRUE(alarm);
   EXPECT_EQ(alarm->type, DataType::bit);
   EXPECT_EQ(alarm->access, spec::Access::ro);
+}
+
+// An unknown column (序号, No., a vendor's own) is said once and ignored.
+TEST(Import, UnknownColumnsAreWarnedAndIgnored) {
+  auto r = import_csv("No.,address,name,access,colour\n1,1,Speed,rw,red\n", "dir/extra.csv", "extra");
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  ASSERT_EQ(r.warnings.size(), 2u);
+  EXPECT_EQ(r.warnings[0].rfind("dir/extra.csv:1: warning: column 'No.' is not one of", 0), 0u) << r.warnings[0];
+  EXPECT_NE(r.warnings[1].find("'colour'"), std::string::npos) << r.warnings[1];
+  EXPECT_NE(load(r, "extra").find_register(1), nullptr);
+}
+
+// A vendor sheet as Chinese Excel saves it: GBK, CRLF, Chinese headers, a
+// 序号 column, ranges written a~b (and with a full-width ～), an address
+// range for a reserved block, ABCD/CDAB byte orders, 只读/读写/命令.
+TEST(Import, AVendorSheetInGbkWithChineseHeaders) {
+  std::ifstream in(VENDOR_GBK_CSV, std::ios::binary);
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_FALSE(text.empty());
+  auto r = import_csv(text, "vendor-gbk.csv", "vendor-gbk");
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  ASSERT_GE(r.warnings.size(), 2u);
+  EXPECT_NE(r.warnings[0].find("read as GB18030"), std::string::npos) << r.warnings[0];
+  EXPECT_NE(r.warnings[1].find("'序号'"), std::string::npos) << r.warnings[1];
+  spec::Spec s = load(r, "vendor-gbk");
+  const auto* speed = s.find_register(0);
+  ASSERT_TRUE(speed);
+  EXPECT_EQ(speed->name.zh, "目标速度");
+  EXPECT_EQ(speed->access, spec::Access::rw);
+  ASSERT_TRUE(speed->range);
+  EXPECT_EQ(speed->range->min, 0);
+  EXPECT_EQ(speed->range->max, 3000);
+  EXPECT_EQ(speed->unit, "rpm");
+  EXPECT_EQ(speed->default_value, 100);
+  const auto* accel = s.find_register(1);
+  ASSERT_TRUE(accel && accel->range);
+  EXPECT_EQ(accel->range->max, 500);  // 1～500, full-width tilde
+  for (uint16_t a = 2; a <= 5; ++a) {
+    const auto* reserved = s.find_register(a);
+    ASSERT_TRUE(reserved) << a;
+    EXPECT_EQ(reserved->access, spec::Access::ro);
+  }
+  const auto* pos = s.find_register(0x10);
+  ASSERT_TRUE(pos);
+  EXPECT_EQ(pos->type, DataType::s32);
+  EXPECT_EQ(pos->word_order, spec::WordOrder::low_first);  // CDAB
+  EXPECT_EQ(pos->range->min, -100000);
+  const auto* volts = s.find_register(0x12);
+  ASSERT_TRUE(volts);
+  EXPECT_EQ(volts->scale, 0.1);
+  EXPECT_EQ(volts->access, spec::Access::ro);
+  const auto* save = s.find_register(0x13);
+  ASSERT_TRUE(save);
+  EXPECT_EQ(save->access, spec::Access::command);
+}
+
+// Spreadsheets of most of Europe: ';' between fields, ',' before decimals.
+TEST(Import, DecimalCommas) {
+  auto r = import_csv("address;name;access;scale;range\n1;Speed;rw;0,1;0,5~99,5\n", "eu.csv", "eu");
+  ASSERT_TRUE(r.errors.empty()) << r.errors[0];
+  const auto* reg = load(r, "eu").find_register(1);
+  ASSERT_TRUE(reg && reg->range);
+  EXPECT_EQ(reg->scale, 0.1);
+  EXPECT_EQ(reg->range->min, 0.5);
+  EXPECT_EQ(reg->range->max, 99.5);
+}
+
+// A bad file of 100,000 rows: 20 errors, then how many more.
+TEST(Import, AtMostTwentyErrorsThenACount) {
+  std::string csv = "address,name,access\n";
+  for (int i = 0; i < 100000; ++i) csv += fmt::format("{},Speed{},maybe\n", i % 9000, i);  // one error a row: the access
+  auto r = import_csv(csv, "big.csv", "big");
+  ASSERT_EQ(r.errors.size(), 21u);
+  EXPECT_EQ(r.error_count, 100000u);
+  EXPECT_EQ(r.errors.back(), "big.csv: 99980 more errors not shown (100000 in all)");
 }
 
 }  // namespace

@@ -150,7 +150,23 @@ def test_home_assistant(sid, spec):
             check(e.get("unit_of_measurement", "") == r["unit"], f"{at}: unit {e.get('unit_of_measurement')}")
         if platform == "switches":
             check(e["write_type"] == "coil", f"{at}: write_type {e['write_type']}")
+        # Polled: what the drive changes by itself often, settings seldom.
+        check(isinstance(e.get("scan_interval"), int) and e["scan_interval"] > 0, f"{at}: scan_interval {e.get('scan_interval')}")
+        if platform == "sensors":
+            numeric = r["type"] not in ("enum", "bitfield")
+            if r["access"] == "ro" and numeric:
+                check(e.get("state_class") in ("measurement", "total_increasing"), f"{at}: state_class {e.get('state_class')}")
+                check(e["scan_interval"] < 60, f"{at}: a read-only value polled every {e['scan_interval']} s")
+            else:
+                check("state_class" not in e, f"{at}: a setting or coded value has state_class {e.get('state_class')}")
     check("modbus.write_register" in text, f"{sid}: the write_register action is not documented")
+    # --only: the registers it names and nothing else.
+    first = next(r for r in spec["registers"] if r["access"] in ("ro", "rw"))
+    only = run("spec", "export", sid, "--format", "home-assistant", "--only", f"{first['address']:#06x}").stdout
+    kept = [e for p in HA_PLATFORMS for e in (yaml.safe_load(only)["modbus"][0].get(p) or [])]
+    check(kept and all(e["address"] == first["address"] for e in kept), f"{sid}: --only {first['address']:#06x} kept {[e['address'] for e in kept]}")
+    none = run("spec", "export", sid, "--format", "home-assistant", "--only", "no-such-register-*", ok=False)
+    check(none.returncode == 2 and "matches none" in none.stderr, f"{sid}: --only matching nothing: exit {none.returncode} {none.stderr!r}")
 
 
 EDGEX_TABLES = {"COILS": "coil", "DISCRETES_INPUT": "discrete_input", "INPUT_REGISTERS": "input",

@@ -1,0 +1,528 @@
+// The judgement of one recorded exchange. Expectations come from the spec
+// (through cases/facts.h, so that the level rule of `run` applies) and from
+// the standard (modbus/judge.h for the reply's layout); never from what the
+// reference devices do.
+#include "capture/judge.h"
+
+#include <fmt/core.h>
+
+#include <algorithm>
+#include <array>
+#include <unordered_map>
+
+#include "cases/facts.h"
+#include "modbus/crc16.h"
+#include "modbus/function_codes.h"
+#include "modbus/judge.h"
+#include "modbus/limits.h"
+#include "modbus/mbap.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
+
+namespace mbc::conf::capture {
+namespace {
+
+using spec::PolicyEntry;
+using spec::Violation;
+
+struct Pdu {
+  uint8_t unit = 0;
+  Bytes pdu;
+  bool crc_ok = true;
+};
+
+Pdu unframe(Carrier c, std::span<const uint8_t> adu) {
+  Pdu p;
+  if (c == Carrier::mbap) {
+    if (adu.size() >= kMbapHeader) {
+      p.unit = adu[6];
+      p.pdu.assign(adu.begin() + kMbapHeader, adu.end());
+    }
+  } else if (adu.size() >= 1) {
+    p.unit = adu[0];
+    size_t end = adu.size() >= 4 ? adu.size() - 2 : adu.size();
+    p.pdu.assign(adu.begin() + 1, adu.begin() + ptrdiff_t(end));
+    p.crc_ok = adu.size() >= 4 && crc_ok(adu);
+  }
+  return p;
+}
+
+bool is_write(uint8_t fc) { return fc == 5 || fc == 6 || fc == 15 || fc == 16 || fc == 22; }
+
+const char* table_word(spec::Table t) {
+  switch (t) {
+    case spec::Table::holding: return "holding";
+    case spec::Table::input: return "input";
+    case spec::Table::coil: return "coils";
+    case spec::Table::discrete_input: return "discrete";
+  }
+  return "holding";
+}
+
+std::string policy_text(const PolicyEntry& p, Violation v) {
+  std::string where = p.section.empty() ? "" : ", " + p.section;
+  switch (p.kind) {
+    case PolicyEntry::Kind::exception: return fmt::format("exception {:02X} (policy {}{})", p.code, spec::to_string(v), where);
+    case PolicyEntry::Kind::silent: return fmt::format("no reply (policy {}{})", spec::to_string(v), where);
+    default: return fmt::format("anything (policy {} not stated)", spec::to_string(v));
+  }
+}
+
+// What one violation of the request lets the reply be: each reading of its policy.
+struct Allowed {
+  Violation violation;
+  std::vector<PolicyEntry> readings;
+  std::vector<Reliance> relies;
+  std::shared_ptr<const std::vector<Reliance>> shared;  // `relies`, once complete
+};
+
+Allowed allowed(const spec::Spec& s, Violation v) {
+  Allowed a{v, {}, {}, {}};
+  PolicyEntry p = facts::policy(a.relies, s, v);
+  if (!p.readings.empty()) a.readings = p.readings;
+  else a.readings.push_back(p);
+  return a;
+}
+
+// The request's breaches of the spec, in the order a server meets them
+// (MBAP v1.1b3 §6: function, quantity, address, value).
+struct Breaches {
+  std::vector<Allowed> list;
+  std::vector<Reliance> relies;   // facts a valid request's verdict rests on
+  std::shared_ptr<const std::vector<Reliance>> shared;  // `relies`, once complete
+  std::vector<std::pair<spec::Table, uint16_t>> registers;  // mapped registers it addresses
+};
+
+// The spec's registers by wire address, per table: the map is asked about
+// every address of every request (a linear search per address cost most of
+// the time on a long capture).
+struct Index {
+  const spec::Spec* spec = nullptr;
+  const spec::Register* first = nullptr;
+  size_t count = 0;
+  std::string id;
+  std::array<std::vector<const spec::Register*>, 4> cover;
+  std::array<std::optional<uint16_t>, 4> last;
+  bool for_spec(const spec::Spec& s) const {
+    return spec == &s && first == s.registers.data() && count == s.registers.size() && id == s.device.id;
+  }
+};
+
+const Index& index_of(const spec::Spec& s) {
+  static Index ix;
+  if (ix.for_spec(s)) return ix;
+  ix = Index{};
+  ix.spec = &s;
+  ix.first = s.registers.data();
+  ix.count = s.registers.size();
+  ix.id = s.device.id;
+  for (auto& c : ix.cover) c.assign(0x10000, nullptr);
+  for (const auto& r : s.registers)
+    for (uint32_t a = r.address; a <= r.last_address() && a <= 0xFFFF; ++a) {
+      auto t = size_t(r.table);
+      ix.cover[t][a] = &r;
+      ix.last[t] = std::max<uint16_t>(ix.last[t].value_or(0), uint16_t(a));
+    }
+  return ix;
+}
+
+void add_range(const spec::Spec& s, Breaches& b, spec::Table table, uint32_t first, uint32_t count, bool write) {
+  bool unmapped = false, past = false, denied = false;
+  const Index& ix = index_of(s);
+  auto last = ix.last[size_t(table)];
+  std::vector<Reliance> access;
+  for (uint32_t a = first; a < first + count && a <= 0xFFFF; ++a) {
+    const spec::Register* r = ix.cover[size_t(table)][a];
+    if (!r) {
+      if (!last || a > *last) past = true;
+      else unmapped = true;
+      continue;
+    }
+    if (b.registers.size() < 256 && (b.registers.empty() || b.registers.back().second != r->address))
+      b.registers.emplace_back(table, r->address);
+    bool ok = write ? facts::writable(access, *r) : facts::readable(access, *r);
+    if (!ok) denied = true;
+  }
+  if (first + count > 0x10000) past = true;
+  if (past) b.list.push_back(allowed(s, Violation::address_past_map));
+  if (unmapped) b.list.push_back(allowed(s, Violation::unmapped_address));
+  if (denied) {
+    Allowed a = allowed(s, write ? Violation::write_read_only : Violation::read_write_only);
+    a.relies.insert(a.relies.end(), access.begin(), access.end());
+    b.list.push_back(std::move(a));
+  } else {
+    b.relies.insert(b.relies.end(), access.begin(), access.end());
+  }
+}
+
+void add_value(const spec::Spec& s, Breaches& b, spec::Table table, uint16_t address, uint16_t value) {
+  const spec::Register* r = index_of(s).cover[size_t(table)][address];
+  if (!r || r->address != address || r->words != 1) return;  // 32-bit values: both words are needed (not judged word by word)
+  std::vector<Reliance> rel;
+  const auto& range = facts::range(rel, *r);
+  if (!range) return;
+  double v = r->is_signed() ? double(int16_t(value)) : double(value);
+  if (v < range->min || v > range->max) {
+    Allowed a = allowed(s, Violation::value_out_of_range);
+    a.relies.insert(a.relies.end(), rel.begin(), rel.end());
+    b.list.push_back(std::move(a));
+  } else {
+    b.relies.insert(b.relies.end(), rel.begin(), rel.end());
+  }
+}
+
+Breaches compute_breaches(const spec::Spec& s, std::span<const uint8_t> pdu) {
+  Breaches b;
+  uint8_t fc = pdu[0];
+  const spec::FunctionCode* f = s.profile.function(fc);
+  if (!f) {
+    b.list.push_back(allowed(s, Violation::unsupported_function));
+    return b;
+  }
+  facts::supported(b.relies, *f);
+  ParsedRequest pr = parse_request(pdu);
+  if (!pr.request) {
+    b.list.push_back(allowed(s, Violation::wrong_byte_count));
+    return b;
+  }
+  const Request& r = *pr.request;
+  for (const auto& p : pr.problems)
+    if (p.find("byte count") != std::string::npos) {
+      b.list.push_back(allowed(s, Violation::wrong_byte_count));
+      break;
+    }
+  spec::Table table = spec::table_for_function(fc);
+  auto quantity = [&](uint32_t q, const char* which) {
+    if (q == 0) {
+      b.list.push_back(allowed(s, Violation::quantity_zero));
+      return false;
+    }
+    std::vector<Reliance> rel;
+    if (auto lim = facts::limit(rel, *f, which); lim && int(q) > *lim) {
+      Allowed a = allowed(s, Violation::quantity_over_limit);
+      a.relies.insert(a.relies.end(), rel.begin(), rel.end());
+      b.list.push_back(std::move(a));
+      return false;
+    }
+    b.relies.insert(b.relies.end(), rel.begin(), rel.end());
+    return true;
+  };
+  switch (fc) {
+    case fc::read_coils: case fc::read_discrete_inputs: case fc::read_holding_registers: case fc::read_input_registers:
+      if (quantity(r.quantity, "max_quantity")) add_range(s, b, table, r.address, r.quantity, false);
+      break;
+    case fc::write_single_coil:
+      add_range(s, b, table, r.address, 1, true);
+      break;
+    case fc::write_single_register:
+      add_range(s, b, table, r.address, 1, true);
+      if (b.list.empty()) add_value(s, b, table, r.address, r.value);
+      break;
+    case fc::write_multiple_coils:
+      if (quantity(r.quantity, "max_quantity")) add_range(s, b, table, r.address, r.quantity, true);
+      break;
+    case fc::write_multiple_registers:
+      if (quantity(r.quantity, "max_quantity")) {
+        add_range(s, b, table, r.address, r.quantity, true);
+        if (b.list.empty())
+          for (size_t i = 0; i < r.registers.size(); ++i) add_value(s, b, table, uint16_t(r.address + i), r.registers[i]);
+      }
+      break;
+    case fc::mask_write_register:
+      add_range(s, b, table, r.address, 1, true);
+      break;
+    case fc::read_write_multiple_registers:
+      if (quantity(r.quantity, "max_read_quantity") && quantity(r.write_quantity, "max_write_quantity")) {
+        add_range(s, b, table, r.write_address, r.write_quantity, true);
+        add_range(s, b, table, r.address, r.quantity, false);
+      }
+      break;
+    default:
+      break;
+  }
+  return b;
+}
+
+// A request's breaches depend on its PDU alone (and the spec): a capture
+// repeats its requests (polling), so each distinct one is worked out once.
+const Breaches& breaches(const spec::Spec& s, std::span<const uint8_t> pdu) {
+  static std::unordered_map<std::string, std::unique_ptr<Breaches>> cache;
+  static const Index* for_index = nullptr;
+  const Index* ix = &index_of(s);
+  if (for_index != ix || !ix->for_spec(s) || cache.size() >= 4096) cache.clear();
+  for_index = ix;
+  std::string key(pdu.begin(), pdu.end());
+  key += s.device.id;
+  auto it = cache.find(key);
+  if (it != cache.end()) return *it->second;
+  auto b = std::make_unique<Breaches>(compute_breaches(s, pdu));
+  b->shared = std::make_shared<const std::vector<Reliance>>(std::move(b->relies));
+  for (auto& a : b->list) a.shared = std::make_shared<const std::vector<Reliance>>(std::move(a.relies));
+  return *cache.emplace(std::move(key), std::move(b)).first->second;
+}
+
+Verdict verdict(CheckKey k, bool pass, std::string message, std::shared_ptr<const std::vector<Reliance>> relies = {}) {
+  return Verdict{k, pass, std::move(message), std::move(relies)};
+}
+
+}  // namespace
+
+std::vector<Verdict> judge_exchange(const spec::Spec& s, const Exchange& x, const JudgeOptions& o) {
+  std::vector<Verdict> out;
+  Pdu rq = unframe(x.carrier, x.request);
+  if (o.unit && rq.unit != *o.unit) return out;
+  if (rq.pdu.empty()) return out;  // nothing to judge: a frame with no function code
+  uint8_t fc = rq.pdu[0];
+  bool rtu = x.carrier == Carrier::rtu;
+
+  // Timing on a serial line (MB-SL v1.02 §2.5.1.1): frames are kept apart by
+  // at least 3.5 character times of silence.
+  if (x.timed_line) {
+    auto t35 = frame_gap(o.baud).count();
+    auto gap_check = [&](std::optional<int64_t> gap, const char* which) {
+      if (!gap) return;
+      bool ok = *gap >= t35;
+      out.push_back(verdict({Check::gap_t35}, ok,
+                            ok ? "" : fmt::format("{} {} us of silence before the {}, under t3.5 = {} us at {} baud",
+                                                  x.conversation, *gap, which, t35, o.baud)));
+    };
+    gap_check(x.gap_before_request_us, "request");
+    if (x.reply) gap_check(x.gap_before_reply_us, "reply");
+  }
+
+  if (rtu && !rq.crc_ok) {
+    // A corrupted request: the device's answer is its crc_error policy.
+    Allowed a = allowed(s, Violation::crc_error);
+    a.shared = std::make_shared<const std::vector<Reliance>>(std::move(a.relies));
+    CheckKey k{Check::policy, 0, Violation::crc_error};
+    if (x.reply || x.abandoned) {
+      bool ok = std::any_of(a.readings.begin(), a.readings.end(),
+                            [](const PolicyEntry& p) { return p.kind != PolicyEntry::Kind::silent; });
+      out.push_back(verdict(k, ok, ok ? "" : "a reply to a request with a bad CRC; expected " + policy_text(a.readings[0], a.violation),
+                            a.shared));
+    } else {
+      out.push_back(verdict(k, true, "", a.shared));
+    }
+    return out;
+  }
+
+  // Broadcast (MB-SL v1.02 §2.1): no reply. Only RTU: on Modbus TCP unit 0
+  // addresses the server (Implementation Guide V1.0b §4.4.1.2).
+  if (rtu && rq.unit == 0) {
+    bool ok = !x.reply;
+    out.push_back(verdict({Check::broadcast_no_reply}, ok, ok ? "" : "a reply to a broadcast (unit 0): " + to_hex(*x.reply)));
+    return out;
+  }
+
+  const Breaches& b = breaches(s, rq.pdu);
+  if (!x.reply) {
+    bool silent_allowed = false;
+    for (const auto& a : b.list)
+      for (const auto& p : a.readings)
+        if (p.kind != PolicyEntry::Kind::exception) silent_allowed = true;
+    if (silent_allowed) {
+      for (const auto& a : b.list) out.push_back(verdict({Check::policy, 0, a.violation}, true, "", a.shared));
+    } else if (!x.abandoned) {
+      // A capture misses packets; its silence is never a failure of the device.
+      out.push_back(verdict({Check::unanswered}, false,
+                            fmt::format("packet {}: {} FC {:02X} to unit {} got no reply in the capture", x.request_packet,
+                                        x.conversation, fc, rq.unit)));
+    }
+    return out;
+  }
+  out.push_back(verdict({Check::unanswered}, true, ""));
+
+  Pdu rp = unframe(x.carrier, *x.reply);
+  if (rtu) {
+    bool ok = rp.crc_ok;
+    out.push_back(verdict({Check::reply_crc}, ok, ok ? "" : "reply CRC does not check: " + to_hex(*x.reply)));
+    if (!ok) return out;
+  }
+  {
+    // MBAP v1.1b3 §4.1 / MB-SL v1.02 §2.2: the reply carries the unit (slave) it comes from.
+    bool ok = rp.unit == rq.unit;
+    out.push_back(verdict({Check::unit_echo}, ok, ok ? "" : fmt::format("request to unit {}, reply from unit {}", rq.unit, rp.unit)));
+  }
+  if (rp.pdu.empty()) {
+    out.push_back(verdict({Check::reply_well_formed, fc}, false, "reply without a function code"));
+    return out;
+  }
+  bool exception = (rp.pdu[0] & kExceptionBit) && (rp.pdu[0] & 0x7F) == fc;
+  uint8_t code = exception && rp.pdu.size() >= 2 ? rp.pdu[1] : 0;
+
+  if (!b.list.empty()) {
+    // The spec's policy for the breach says the reply; a breach whose policy
+    // the spec leaves open is OBSERVED by the level rule.
+    bool any_exact = false;
+    std::string expected;
+    for (const auto& a : b.list)
+      for (const auto& p : a.readings) {
+        if (p.kind == PolicyEntry::Kind::unspecified) any_exact = true;
+        if (p.kind == PolicyEntry::Kind::exception && exception && code == p.code) any_exact = true;
+        expected += (expected.empty() ? "" : " or ") + policy_text(p, a.violation);
+      }
+    std::string got = exception ? fmt::format("exception {:02X} ({})", code, exception_name(code))
+                                : "a normal reply: " + describe_pdu(rp.pdu, false);
+    for (const auto& a : b.list)
+      out.push_back(verdict({Check::policy, 0, a.violation}, any_exact,
+                            any_exact ? "" : fmt::format("packet {}: {} to {}: expected {}, got {}", x.reply_packet,
+                                                         describe_pdu(rq.pdu, true), x.conversation, expected, got),
+                            a.shared));
+    return out;
+  }
+
+  // A request the spec allows: a well-formed normal reply (MBAP v1.1b3 §6).
+  if (exception) {
+    // 04-06 (device failure, acknowledge, busy) depend on the device's state,
+    // not on the request; 01-03 contradict the spec's facts.
+    bool contradicts = code >= 1 && code <= 3;
+    out.push_back(verdict({Check::reply_well_formed, fc}, !contradicts,
+                          fmt::format("packet {}: exception {:02X} ({}) to {}, which the spec allows", x.reply_packet, code,
+                                      exception_name(code), describe_pdu(rq.pdu, true)),
+                          b.shared));
+    return out;
+  }
+  Judged j = judge_reply(rq.pdu, rp.pdu);
+  std::vector<std::string> count_problems, other;
+  for (auto& p : j.problems) (p.find("byte count") != std::string::npos ? count_problems : other).push_back(p);
+  if (j.kind == Judged::Kind::malformed && other.empty() && count_problems.empty()) other.push_back("malformed reply");
+  auto joined = [&](const std::vector<std::string>& v) {
+    std::string t = fmt::format("packet {}: {}: ", x.reply_packet, describe_pdu(rq.pdu, true));
+    for (size_t i = 0; i < v.size(); ++i) t += (i ? "; " : "") + v[i];
+    return t;
+  };
+  out.push_back(verdict({Check::reply_byte_count, fc}, count_problems.empty(), count_problems.empty() ? "" : joined(count_problems), b.shared));
+  out.push_back(verdict({Check::reply_well_formed, fc}, other.empty(), other.empty() ? "" : joined(other), b.shared));
+  bool good = j.ok();
+  for (const auto& [table, address] : b.registers) {
+    CheckKey k{is_write(fc) ? Check::register_write : Check::register_read, 0, Violation::unsupported_function, table, address};
+    out.push_back(verdict(k, good, good ? "" : joined(j.problems)));
+    if (fc == fc::read_write_multiple_registers) out.push_back(verdict({Check::register_read, 0, Violation::unsupported_function, table, address}, good, ""));
+  }
+  if (x.timed_line && x.reply_time_us >= x.request_time_us) {
+    out.push_back(verdict({Check::latency}, true,
+                          fmt::format("{} us from the request's end to the reply's end", x.reply_time_us - x.request_time_us)));
+  }
+  return out;
+}
+
+Verdict judge_unsolicited(const Frame& f) {
+  return verdict({Check::unsolicited}, false,
+                 fmt::format("packet {}: {} a reply with no request in the capture: {}", f.packet, f.conversation,
+                             to_hex(std::span(f.adu).first(std::min<size_t>(f.adu.size(), 16)))));
+}
+
+std::vector<CheckKey> catalogue(const spec::Spec& s) {
+  std::vector<CheckKey> keys;
+  for (const auto& f : s.profile.function_codes) {
+    keys.push_back({Check::reply_well_formed, uint8_t(f.code)});
+    keys.push_back({Check::reply_byte_count, uint8_t(f.code)});
+  }
+  for (auto v : spec::kAllViolations) keys.push_back({Check::policy, 0, v});
+  keys.push_back({Check::unit_echo});
+  keys.push_back({Check::reply_crc});
+  keys.push_back({Check::broadcast_no_reply});
+  keys.push_back({Check::gap_t35});
+  keys.push_back({Check::gap_t15});
+  keys.push_back({Check::latency});
+  keys.push_back({Check::unanswered});
+  keys.push_back({Check::unsolicited});
+  for (const auto& r : s.registers) {
+    if (r.access != spec::Access::wo && r.access != spec::Access::command)
+      keys.push_back({Check::register_read, 0, Violation::unsupported_function, r.table, r.address});
+    if (r.access != spec::Access::ro)
+      keys.push_back({Check::register_write, 0, Violation::unsupported_function, r.table, r.address});
+  }
+  return keys;
+}
+
+CaseText case_text(const std::string& device, const CheckKey& k) {
+  CaseText t;
+  std::string base = device + "/capture/";
+  switch (k.check) {
+    case Check::reply_well_formed:
+      t.id = fmt::format("{}function-codes/fc{:02X}/reply", base, k.function);
+      t.clause = "MBAP v1.1b3 §6";
+      t.title = fmt::format("FC {:02X} ({}): a request the spec allows gets a well-formed normal reply", k.function, function_name(k.function));
+      t.requirement = "The server answers a valid request with the normal response of §6 for its function code.";
+      break;
+    case Check::reply_byte_count:
+      t.id = fmt::format("{}function-codes/fc{:02X}/byte-count", base, k.function);
+      t.clause = "MBAP v1.1b3 §6";
+      t.title = fmt::format("FC {:02X}: the reply's byte count matches its data and the request", k.function);
+      t.requirement = "Byte count: the number of data bytes that follow (2 x quantity for registers, ceil(quantity / 8) for bits).";
+      break;
+    case Check::policy:
+      t.id = fmt::format("{}policy/{}", base, spec::to_string(k.violation));
+      t.clause = "MBAP v1.1b3 §7";
+      t.title = fmt::format("a request that breaks the spec ({}) gets the answer the exception policy states", spec::to_string(k.violation));
+      t.requirement = "The device answers each kind of bad request as its manual's exception policy says (or the standard's exception codes).";
+      break;
+    case Check::register_read:
+    case Check::register_write: {
+      bool w = k.check == Check::register_write;
+      t.id = fmt::format("{}registers/{}/0x{:04X}/{}", base, table_word(k.table), k.address, w ? "write" : "read");
+      t.clause = "MBAP v1.1b3 §6";
+      t.title = fmt::format("{} 0x{:04X}: {} answered with a well-formed normal reply", table_word(k.table), k.address, w ? "a write" : "a read");
+      t.requirement = "A register the spec maps and allows is read or written with a normal response.";
+      t.register_address = k.address;
+      break;
+    }
+    case Check::unit_echo:
+      t.id = base + "framing/unit-echo";
+      t.clause = "MBAP v1.1b3 §4.1; MB-SL v1.02 §2.2";
+      t.title = "the reply carries the unit identifier (slave address) of the request";
+      t.requirement = "The server copies the unit identifier of the request into its response; a slave puts its own address in its reply.";
+      break;
+    case Check::reply_crc:
+      t.id = base + "framing/crc";
+      t.clause = "MB-SL v1.02 §2.5.1.2";
+      t.title = "every RTU reply ends with a CRC that checks";
+      t.requirement = "The CRC field is appended to the message as the last field.";
+      break;
+    case Check::broadcast_no_reply:
+      t.id = base + "framing/broadcast";
+      t.clause = "MB-SL v1.02 §2.1";
+      t.title = "no reply to a broadcast (slave address 0)";
+      t.requirement = "Broadcast requests are necessarily writing commands ... No response is returned to broadcast requests by the slaves.";
+      break;
+    case Check::gap_t35:
+      t.id = base + "timing/t3.5";
+      t.clause = "MB-SL v1.02 §2.5.1.1";
+      t.title = "frames on the line are separated by at least 3.5 character times (serial logs)";
+      t.requirement = "Message frames are separated by a silent interval of at least 3.5 character times.";
+      t.level = Level::should;  // a log's timestamps carry the sniffer's jitter
+      break;
+    case Check::gap_t15:
+      t.id = base + "timing/t1.5";
+      t.clause = "MB-SL v1.02 §2.5.1.1";
+      t.title = "no silence over 1.5 character times inside a frame (needs a log with a timestamp per character)";
+      t.requirement = "The entire message frame must be transmitted as a continuous stream of characters.";
+      t.level = Level::should;
+      break;
+    case Check::latency:
+      t.id = base + "timing/latency";
+      t.clause = "MB-SL v1.02 §2.4.1";
+      t.title = "reply latency on a timed serial log (recorded: coverage.html plots it)";
+      t.requirement = "The response timeout is set by the master; the latencies seen are recorded.";
+      t.level = Level::observed;
+      break;
+    case Check::unanswered:
+      t.id = base + "pairing/unanswered";
+      t.clause = "MBAP v1.1b3 §4.1";
+      t.title = "every request in the capture has its reply (a capture can drop packets: recorded, not failed)";
+      t.requirement = "A unicast request gets a response (normal or exception) unless the policy says silence.";
+      t.level = Level::observed;
+      break;
+    case Check::unsolicited:
+      t.id = base + "pairing/unsolicited";
+      t.clause = "MBAP v1.1b3 §4.1";
+      t.title = "no reply without a request (by transaction id on TCP, by order and unit on RTU)";
+      t.requirement = "A server answers requests; it sends nothing unasked.";
+      t.level = Level::observed;
+      break;
+  }
+  return t;
+}
+
+}  // namespace mbc::conf::capture

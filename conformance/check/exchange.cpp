@@ -1,0 +1,270 @@
+#include "check/exchange.h"
+
+#include <fmt/core.h>
+
+#include <chrono>
+#include <thread>
+
+#include "modbus/crc16.h"
+#include "modbus/judge.h"
+#include "modbus/pdu.h"
+#include "modbus/rtu.h"
+
+namespace mbc::conf::check {
+
+using clock_type = std::chrono::steady_clock;
+
+double frame_wire_seconds(size_t bytes, int baud) {
+  return std::chrono::duration<double>(wire_time(bytes, baud) + frame_gap(baud)).count();
+}
+
+Exchange::Exchange(Link& link, DeviceRun& counters) : link_(link), counters_(counters) {}
+
+Sent Exchange::send(const Step& st) {
+  bool want_reply = st.expect.kind != Expect::Kind::silence && st.expect.kind != Expect::Kind::none &&
+                    st.expect.kind != Expect::Kind::any_or_silence;
+  Target::Wait wait = want_reply ? Target::Wait::reply : Target::Wait::automatic;
+  if (st.expect.kind == Expect::Kind::silence || (want_reply && st.may_go_unanswered)) wait = Target::Wait::window;
+  bool after_silence = last_silent_;
+  Sent s = st.kind == Step::Kind::raw ? link_.send_raw(st.bytes, st.gap, wait) : link_.transact(st.unit, st.pdu, wait);
+  if (s.refused) return s;
+  account(s.reply, st.kind == Step::Kind::raw && st.gap ? 1 : 0);
+  line.last_request = s.reply.request;
+  line.last_what = st.note;
+  if (s.reply.silent()) {
+    line.silence = true;
+    line.unanswered |= want_reply;
+    line.unanswered_after_silence |= want_reply && after_silence;
+  }
+  return s;
+}
+
+Sent Exchange::quiet(uint8_t unit, std::span<const uint8_t> pdu) {
+  Sent s = link_.transact(unit, pdu, Target::Wait::reply);
+  if (!s.refused) account(s.reply, 0);
+  return s;
+}
+
+void Exchange::account(const Reply& r, int extra_gaps) {
+  last_silent_ = r.silent();
+  counters_.frames_sent++;
+  counters_.bytes_sent += r.request.size();
+  counters_.bytes_received += r.frame.size();
+  if (!r.silent()) counters_.latencies_us.push_back(double(r.latency.count()));
+  else counters_.silences++;
+  if (auto baud = link_.info().baud) {
+    double b = frame_wire_seconds(r.request.size(), *baud) +
+               extra_gaps * std::chrono::duration<double>(frame_gap(*baud)).count();
+    if (!r.silent()) b += frame_wire_seconds(r.frame.size(), *baud);
+    counters_.wire_time_bound_seconds += b;
+  }
+}
+
+CaseResult result_header(const Case& c) {
+  CaseResult r;
+  r.id = c.id;
+  r.family = c.family;
+  r.clause = c.clause;
+  r.level = c.level;
+  r.title = c.title;
+  r.requirement = c.requirement;
+  r.register_address = c.register_address;
+  r.errata = c.errata;
+  r.outcome = Outcome::skip;
+  if (c.level_if_stated) r.extra["level_if_stated"] = to_string(*c.level_if_stated);
+  // What the case relies on that the manual does not simply state.
+  for (const auto& rel : all_relies(c)) {
+    if (rel.basis.basis == spec::Basis::stated) continue;
+    r.extra[rel.basis.is_inferred() ? "inferred" : "printed_two_ways"].push_back(describe(rel));
+  }
+  return r;
+}
+
+namespace {
+
+std::string hex_or_silence(const std::optional<Bytes>& b) { return b ? to_hex(*b) : "silence"; }
+
+bool has_fc(const spec::Spec& s, int fc) { return s.profile.function(fc) != nullptr; }
+
+struct Saved {
+  const spec::Register* reg;
+  std::vector<uint16_t> words;
+};
+
+// Reads the registers a case touches, so they can be put back.
+std::vector<Saved> save(Exchange& x, const spec::Spec& s, const Case& c) {
+  std::vector<Saved> out;
+  if (c.touches.empty() || !has_fc(s, 3)) return out;
+  for (auto [addr, n] : c.touches) {
+    for (uint32_t a = addr; a < uint32_t(addr) + uint32_t(n) && a <= 0xFFFF;) {
+      const spec::Register* r = s.register_covering(uint16_t(a));
+      if (!r) {
+        ++a;
+        continue;
+      }
+      a = r->last_address() + 1;
+      if (r->access != spec::Access::rw) continue;
+      bool dup = false;
+      for (const auto& sv : out) dup |= sv.reg == r;
+      if (dup) continue;
+      Bytes req = read_request(3, r->address, uint16_t(r->words));
+      Sent got = x.quiet(x.link().info().unit, req);
+      if (!got.reply.pdu) continue;
+      Judged j = judge_reply(req, *got.reply.pdu);
+      if (j.ok() && j.kind == Judged::Kind::normal && int(j.registers.size()) == r->words) out.push_back({r, j.registers});
+    }
+  }
+  return out;
+}
+
+// Writes back what save() read: FC 06 for one word when the profile has it,
+// else FC 16 (holding registers only: save() reads FC 03).
+void restore(Exchange& x, const spec::Spec& s, const std::vector<Saved>& saved) {
+  for (const auto& sv : saved) {
+    Bytes pdu;
+    if (sv.words.size() == 1 && has_fc(s, 6)) pdu = write_single_register(sv.reg->address, sv.words[0]);
+    else if (has_fc(s, 16)) pdu = write_multiple_registers(sv.reg->address, sv.words);
+    else continue;
+    x.quiet(x.link().info().unit, pdu);
+  }
+}
+
+// The function code a step was refused with exception 01 (illegal
+// function) for, when the step expected anything else. Only the code the
+// step sent counts: an exception 01 for another code (a raw frame the
+// server misread) answers nothing the step asked.
+std::optional<int> not_implemented(const Case& c, const std::vector<std::optional<Bytes>>& replies, uint8_t unit) {
+  for (size_t i = 0; i < c.steps.size() && i < replies.size(); ++i) {
+    const Step& st = c.steps[i];
+    if (st.expect.kind == Expect::Kind::exception && st.expect.code == 1) continue;
+    if (!replies[i]) continue;
+    auto req = request_pdu(st, unit);
+    const Bytes& a = *replies[i];
+    if (req && !req->empty() && a.size() == 2 && a[0] == ((*req)[0] | 0x80) && a[1] == 1) return (*req)[0];
+  }
+  return std::nullopt;
+}
+
+std::string observed_summary(const CaseResult& r) {
+  std::string s;
+  for (const auto& f : r.frames) {
+    if (f.request.empty()) continue;
+    s += fmt::format("{}{} -> {}", s.empty() ? "" : "; ", f.step,
+                     f.actual ? (f.actual_decoded.empty() ? to_hex(*f.actual) : f.actual_decoded) : "silence");
+  }
+  return s.empty() ? "documented in the spec: " + r.title : s;
+}
+
+CaseResult& skipped(CaseResult& r, const std::string& why) {
+  r.outcome = Outcome::skip;
+  r.message = why;
+  return r;
+}
+
+}  // namespace
+
+CaseResult run_case(Exchange& x, const spec::Spec& spec, const Case& c) {
+  x.line = LineState{};
+  CaseResult res = result_header(c);
+  auto t0 = clock_type::now();
+  if (!c.skip_reason.empty()) return skipped(res, c.skip_reason);
+  const TargetInfo& info = x.link().info();
+  for (const auto& st : c.steps) {
+    if (st.kind == Step::Kind::advance && !info.virtual_clock) return skipped(res, "the target has no virtual clock");
+    if (st.kind == Step::Kind::power_cycle && !info.power_cycle) return skipped(res, "the target cannot be power-cycled");
+    if (st.kind == Step::Kind::raw && !info.raw) return skipped(res, "the target cannot send raw frames");
+    if (st.kind == Step::Kind::raw && st.framing != info.framing)
+      return skipped(res, fmt::format("raw {} bytes; the target frames {}", st.framing == Framing::rtu ? "RTU" : "MBAP",
+                                      info.framing == Framing::rtu ? "RTU" : "MBAP"));
+  }
+  auto saved = save(x, spec, c);
+
+  std::vector<std::optional<Bytes>> replies;
+  std::vector<std::string> failures;
+  bool setup_failed = false;
+  std::optional<Refusal> refused;
+  JudgeContext ctx{info.unit, info.framing, &spec, {}};
+  for (const auto& step : c.steps) {
+    auto filled = fill_words(step, step.words_from >= 0 && size_t(step.words_from) < replies.size()
+                                       ? replies[size_t(step.words_from)] : std::nullopt);
+    if (!filled) {  // what the target held could not be read: nothing is written back blind
+      failures.push_back(fmt::format("{}: not sent: step {} read no value to write", step.note, step.words_from));
+      replies.push_back(std::nullopt);
+      continue;
+    }
+    const Step& st = *filled;
+    FrameRecord fr;
+    fr.step = st.note;
+    fr.expected_text = describe(st.expect);
+    if (st.kind == Step::Kind::advance || st.kind == Step::Kind::wait) {
+      if (info.virtual_clock || st.kind == Step::Kind::advance) x.link().advance(std::chrono::microseconds(st.us));
+      else std::this_thread::sleep_for(std::chrono::microseconds(st.us));
+      replies.push_back(std::nullopt);
+      res.frames.push_back(std::move(fr));
+      continue;
+    }
+    if (st.kind == Step::Kind::power_cycle) {
+      x.link().power_cycle();
+      replies.push_back(std::nullopt);
+      res.frames.push_back(std::move(fr));
+      continue;
+    }
+    Sent sent = x.send(st);
+    if (sent.refused) {  // the gate held it back: no verdict, the case is skipped with its reason
+      refused = sent.refused;
+      break;
+    }
+    if (sent.lost) throw TargetLost(fmt::format("the target was lost at: {}", st.note));
+    const Reply& reply = sent.reply;
+    if (is_broadcast_write(st)) x.counters().broadcast_writes.push_back(fmt::format("{}: {}", c.id, st.note));
+    auto req = request_pdu(st, info.unit);
+    fr.request = reply.request;
+    fr.request_decoded = req ? describe_pdu(*req, true) : "(not a frame)";
+    if (!reply.silent()) fr.actual = reply.frame;
+    if (reply.pdu) fr.actual_decoded = describe_pdu(*reply.pdu, false);
+    else if (!reply.framing_error.empty()) fr.actual_decoded = reply.framing_error;
+    fr.latency_us = double(reply.latency.count());
+    ctx.earlier = replies;
+    fr.expected = expected_bytes(st, ctx);
+    if (fr.expected) {
+      const Bytes& e = *fr.expected;
+      bool adu = info.framing == Framing::rtu && e.size() >= 4 && crc_ok(e);
+      fr.expected_decoded = describe_pdu(adu ? rtu_unframe(e).pdu : e, false);
+    }
+    auto miss = judge_expect(st.expect, st, reply, ctx);
+    if (!st.expect.either.empty()) {
+      // Printed two ways: the step passes on any reading; record which one.
+      std::string chosen = judge_reading(st, reply, ctx);
+      if (!chosen.empty()) miss.reset();
+      res.extra["either"].push_back({{"step", st.note}, {"chose", chosen.empty() ? "neither reading" : chosen}});
+    }
+    replies.push_back(reply.pdu);
+    if (miss) {
+      if (st.setup) setup_failed = true;
+      std::string got = reply.silent() && reply.closed ? "nothing" : hex_or_silence(fr.actual);
+      failures.push_back(fmt::format("{}{}: expected {}; got {}: {}", st.setup ? "setup: " : "", st.note, fr.expected_text, got, miss->why));
+    }
+    res.frames.push_back(std::move(fr));
+  }
+  restore(x, spec, saved);
+  res.duration_ms = std::chrono::duration<double, std::milli>(clock_type::now() - t0).count();
+  if (refused)
+    return skipped(res, fmt::format("not sent: {}{}", refused->reason, refused->opt_in.empty() ? "" : " (" + refused->opt_in + ")"));
+  if (c.functions_optional && !failures.empty())
+    if (auto fc = not_implemented(c, replies, info.unit))
+      return skipped(res, fmt::format("the server does not implement FC {:02} (exception 01); every function is optional "
+                                      "(MBAP v1.1b3 §5.1)", *fc));
+  if (failures.empty()) {
+    res.outcome = c.level == Level::observed ? Outcome::observed : Outcome::pass;
+    if (c.level == Level::observed) res.message = observed_summary(res);
+  } else {
+    res.outcome = c.level == Level::observed ? Outcome::observed : Outcome::fail;
+    res.message = failures.front();
+    if (failures.size() > 1) res.message += fmt::format(" (+{} more)", failures.size() - 1);
+    if (c.level == Level::observed) res.message = "differs from the expectation: " + res.message;
+    if (setup_failed && c.level != Level::observed) res.message = "could not establish the state: " + res.message;
+  }
+  return res;
+}
+
+}  // namespace mbc::conf::check

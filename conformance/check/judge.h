@@ -1,0 +1,63 @@
+// The one judge: whether a reply meets a step's expectation. Cases, plans,
+// replays, property counterexamples and the black-box fuzzer are all judged
+// here, so a plan replays the way the run judged it.
+#pragma once
+
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "check/check.h"
+
+namespace mbc::conf::check {
+
+// How an exchange departed from its expectation.
+struct Mismatch {
+  enum class Kind {
+    answered,          // a reply where silence was expected
+    malformed_framing, // a reply whose framing is wrong (CRC, unit, transaction)
+    silent,            // silence (or a closed connection) where a reply was expected
+    malformed_reply,   // the reply PDU breaks MBAP v1.1b3 for the request
+    unknown_exception, // an exception code neither the standard nor the spec knows
+    refused,           // an exception where a normal reply was expected
+    different,         // a well-formed reply other than the expected one
+  } kind;
+  std::string why;
+};
+
+// What the judge needs beyond the step and the reply.
+struct JudgeContext {
+  uint8_t unit = 1;                  // the unit the target is addressed as
+  Framing framing = Framing::rtu;    // the target's framing (an exact ADU is checked on RTU only)
+  const spec::Spec* spec = nullptr;  // adds the exception codes the device documents
+  // The replies (PDUs) of the earlier steps of the same case (`same`).
+  std::span<const std::optional<Bytes>> earlier;
+};
+
+// Empty when `reply` to step `s` meets s.expect (or one of its `either`
+// readings: use judge_reading to learn which).
+std::optional<Mismatch> judge(const Step& s, const Reply& reply, const JudgeContext& ctx);
+// The same for one expectation, ignoring its `either`.
+std::optional<Mismatch> judge_expect(const Expect& e, const Step& s, const Reply& reply, const JudgeContext& ctx);
+// Which reading the reply met ("" when none): the expectation's own
+// `reading` (or its text) or one of its `either`.
+std::string judge_reading(const Step& s, const Reply& reply, const JudgeContext& ctx);
+
+// The request PDU a step carries, as the addressed receiver sees it: a
+// frame's PDU; for raw RTU bytes, the part (of the two a gap makes) that is
+// a valid frame for `unit`, if any; for raw MBAP bytes, the PDU after a
+// whole, well-formed header (protocol 0, length right, `unit`), if any.
+std::optional<Bytes> request_pdu(const Step& s, uint8_t unit);
+
+bool exception_code_known(const spec::Spec* spec, uint8_t code);
+
+// The expectation in words ("exception 03", "exactly 03 02 00 01", ...).
+std::string describe(const Expect&);
+
+// The reply an expectation fixes, framed as it comes back from a target of
+// `framing` (RTU for frame steps on RTU targets; else the PDU), for reports;
+// nullopt when the expectation fixes no bytes.
+std::optional<Bytes> expected_bytes(const Step& s, const JudgeContext& ctx);
+
+}  // namespace mbc::conf::check

@@ -1,0 +1,330 @@
+// The qualification summary that opens report.html: what an integrator files.
+// One banner with the verdict; per device its identity (the FC 43 objects the
+// run read, else the spec's), firmware, target and line settings; the counts
+// by level with the share that is only OBSERVED and why; the MUST failures
+// grouped by cause with register names and a command that replays them; the
+// manual's errata the run touched; the skipped families with the flag that
+// enables each. A print stylesheet (html.cpp) keeps it to two A4 pages.
+#include <fmt/core.h>
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <map>
+#include <regex>
+#include <set>
+
+#include "report/html_util.h"
+#include "report/report.h"
+
+namespace mbc::conf::html {
+namespace {
+
+// How many of each list the summary shows before "and N more below".
+constexpr size_t kShown = 6;
+
+// The PDU inside a framed request or reply: MBAP has a 7-byte header, RTU a
+// slave byte before and a CRC after.
+std::optional<Bytes> pdu_of(const Bytes& frame, bool mbap) {
+  if (mbap) {
+    if (frame.size() < 8) return std::nullopt;
+    return Bytes(frame.begin() + 7, frame.end());
+  }
+  if (frame.size() < 4) return std::nullopt;
+  return Bytes(frame.begin() + 1, frame.end() - 2);
+}
+
+bool is_mbap(const DeviceRun& d) { return d.target_uri.rfind("tcp://", 0) == 0; }
+
+// The identification objects a FC 43 / MEI 0E reply of the run carried
+// (MBAP v1.1b3 §6.21): object id -> value.
+std::vector<std::pair<std::string, std::string>> identity_read(const DeviceRun& d) {
+  static const char* kNames[] = {"VendorName", "ProductCode", "MajorMinorRevision", "VendorUrl", "ProductName", "ModelName",
+                                 "UserApplicationName"};
+  std::map<int, std::string> objects;
+  for (const auto& r : d.cases)
+    for (const auto& f : r.frames) {
+      if (!f.actual) continue;
+      auto rq = pdu_of(f.request, is_mbap(d));
+      auto rp = pdu_of(*f.actual, is_mbap(d));
+      if (!rq || !rp || rq->size() < 2 || (*rq)[0] != 0x2B || (*rq)[1] != 0x0E) continue;
+      const Bytes& p = *rp;
+      if (p.size() < 7 || p[0] != 0x2B || p[1] != 0x0E) continue;
+      size_t at = 7, n = p[6];
+      for (size_t i = 0; i < n && at + 2 <= p.size(); ++i) {
+        int id = p[at];
+        size_t len = p[at + 1];
+        if (at + 2 + len > p.size()) break;
+        objects.emplace(id, std::string(p.begin() + long(at) + 2, p.begin() + long(at + 2 + len)));
+        at += 2 + len;
+      }
+    }
+  std::vector<std::pair<std::string, std::string>> out;
+  for (const auto& [id, v] : objects)
+    out.emplace_back(id < 7 ? kNames[id] : fmt::format("object 0x{:02X}", id), v);
+  return out;
+}
+
+// The value a FC 03 read of `address` got in the run, if one did.
+std::optional<uint16_t> value_read(const DeviceRun& d, uint16_t address) {
+  for (const auto& r : d.cases)
+    for (const auto& f : r.frames) {
+      if (!f.actual) continue;
+      auto rq = pdu_of(f.request, is_mbap(d));
+      auto rp = pdu_of(*f.actual, is_mbap(d));
+      if (!rq || !rp || rq->size() < 5 || (*rq)[0] != 3 || uint16_t((*rq)[1] << 8 | (*rq)[2]) != address) continue;
+      if (rp->size() >= 4 && (*rp)[0] == 3 && (*rp)[1] >= 2) return uint16_t((*rp)[2] << 8 | (*rp)[3]);
+    }
+  return std::nullopt;
+}
+
+// A failure's cause: its clause and its message with the numbers taken out,
+// so the same fault at 35 registers is one line.
+std::string cause_of(const CaseResult& r) {
+  // 0x0044, 80000, -1.5, hex bytes "01 03 00 44", register words "[07D1 0000]".
+  static const std::regex numbers("0x[0-9A-Fa-f]+|\\b[0-9A-Fa-f]{2}( [0-9A-Fa-f]{2})+\\b|\\b[0-9A-F]{4}\\b|-?\\b[0-9]+(\\.[0-9]+)?\\b");
+  std::string m = r.message;
+  if (auto more = m.find(" (+"); more != std::string::npos) m.resize(more);
+  return r.clause + ": " + std::regex_replace(m, numbers, "#");
+}
+
+// Why a case is only OBSERVED: the facts it relies on that the manual does
+// not state (cases/facts.cpp appends " [relies on ...]"), else the level the
+// generator gave it (a reading the manual leaves open, a deviation from
+// modbus-standard).
+std::string observed_why(const CaseResult& r) {
+  auto at = r.requirement.find(" [relies on ");
+  if (at != std::string::npos) {
+    std::string s = r.requirement.substr(at + 12);
+    if (!s.empty() && s.back() == ']') s.pop_back();
+    // One reason per fact: "range: inferred (why...)" -> "range: inferred"
+    std::string fact = s.substr(0, s.find(" ("));
+    if (auto semi = fact.find(';'); semi != std::string::npos) fact.resize(semi);
+    return "relies on a fact the manual does not state (" + fact + ")";
+  }
+  if (r.family == "deviations") return "a deviation from modbus-standard, recorded";
+  return "the manual leaves the behaviour open (" + r.family + ")";
+}
+
+template <class Map>
+std::vector<std::pair<std::string, size_t>> by_count(const Map& m) {
+  std::vector<std::pair<std::string, size_t>> v;
+  for (const auto& [k, n] : m) v.emplace_back(k, n.size());
+  std::stable_sort(v.begin(), v.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
+  return v;
+}
+
+std::string quote_arg(const std::string& s) {
+  if (s.find_first_of(" '\"?&*$;|<>()") == std::string::npos) return s;
+  std::string q = "'";
+  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return q + "'";
+}
+
+std::string replay_command(const DeviceRun& d, const CaseResult& r) {
+  std::string cmd = "mbconform run --target " + quote_arg(d.target_uri);
+  if (d.target_uri.rfind("ref:", 0) != 0) cmd += " --device " + quote_arg(d.device_id);
+  return cmd + " --filter " + quote_arg(r.id);
+}
+
+std::string device_summary(const RunReport& rep, const DeviceRun& d) {
+  std::string h = fmt::format("<section class=device-summary data-device=\"{0}\"><h2>{1} <small>{0}</small></h2>", esc(d.device_id),
+                              esc(d.facts.title.empty() ? d.device_id : d.facts.title));
+  // Identity.
+  h += "<table class=facts>";
+  auto read = identity_read(d);
+  if (!read.empty()) {
+    std::string s;
+    for (const auto& [k, v] : read) s += fmt::format("{}{}: <b>{}</b>", s.empty() ? "" : " · ", esc(k), esc(v));
+    h += "<tr><th>Identity (FC 43, read)</th><td class=identity>" + s + "</td></tr>";
+  } else if (!d.facts.identity.empty()) {
+    std::string s;
+    for (const auto& [k, v] : d.facts.identity) s += fmt::format("{}{}: {}", s.empty() ? "" : " · ", esc(k), esc(v));
+    h += "<tr><th>Identity (the spec's)</th><td class=identity>" + s + " <i>(no FC 43 reply in this run)</i></td></tr>";
+  } else {
+    h += "<tr><th>Identity</th><td class=identity><i>no FC 43 reply in this run; the spec states no objects</i></td></tr>";
+  }
+  std::string fw;
+  for (uint16_t a : d.facts.firmware_registers) {
+    auto name = d.facts.register_names.count(a) ? d.facts.register_names.at(a) : "";
+    auto v = value_read(d, a);
+    fw += fmt::format("{}0x{:04X} {}: {}", fw.empty() ? "" : " · ", a, esc(name),
+                      v ? fmt::format("<b>{}</b> (0x{:04X})", *v, *v) : std::string("<i>not read in this run</i>"));
+  }
+  h += "<tr><th>Firmware</th><td class=firmware>" + (fw.empty() ? std::string("<i>the spec names no firmware register</i>") : fw) + "</td></tr>";
+  h += fmt::format("<tr><th>Target</th><td><code>{}</code>{}</td></tr>", esc(d.target_uri),
+                   d.baud ? fmt::format(" · {} baud on the line", *d.baud) : "");
+  if (!d.facts.line.empty()) h += "<tr><th>Line settings</th><td>" + esc(d.facts.line) + "</td></tr>";
+  h += "<tr><th>Spec</th><td><code>" + esc(d.spec_path) + "</code></td></tr>";
+  for (const auto& n : d.notes)
+    if (n.rfind("PARTIAL", 0) == 0 || n.rfind("DEVIATION", 0) == 0) h += "<tr><th>Note</th><td class=fail>" + esc(n) + "</td></tr>";
+  if (!d.error.empty()) h += "<tr><th>Run stopped</th><td class=fail>" + esc(d.error) + "</td></tr>";
+  h += "</table>";
+
+  // Counts by level.
+  struct Row { size_t cases = 0, pass = 0, fail = 0, observed = 0, skip = 0, error = 0, quirk = 0; };
+  std::map<Level, Row> rows;
+  size_t total = 0, observed_level = 0;
+  std::map<std::string, std::vector<const CaseResult*>> why;
+  for (const auto& r : d.cases) {
+    Row& row = rows[r.level];
+    ++row.cases;
+    ++total;
+    switch (r.outcome) {
+      case Outcome::pass: ++row.pass; break;
+      case Outcome::fail: (r.quirk.empty() ? row.fail : row.quirk)++; break;
+      case Outcome::observed: ++row.observed; break;
+      case Outcome::skip: ++row.skip; break;
+      case Outcome::error: ++row.error; break;
+    }
+    if (r.level == Level::observed) {
+      ++observed_level;
+      why[observed_why(r)].push_back(&r);
+    }
+  }
+  h += "<table class=counts><tr><th>level</th><th>cases</th><th>pass</th><th>fail</th><th>recorded</th><th>skipped</th><th>not run</th></tr>";
+  for (Level l : {Level::must, Level::should, Level::observed}) {
+    const Row& r = rows[l];
+    bool failing = l == Level::must || (l == Level::should && rep.fail_on_should);
+    h += fmt::format("<tr data-level={0}><th>{0}</th><td>{1}</td><td>{2}</td><td class={3}>{4}{5}</td><td>{6}</td><td>{7}</td><td>{8}</td></tr>",
+                     to_string(l), r.cases, r.pass, r.fail ? (failing ? "fail" : "observed") : "", r.fail,
+                     r.quirk ? fmt::format(" (+{} declared quirks)", r.quirk) : "", r.observed, r.skip, r.error);
+  }
+  h += "</table>";
+  if (total) {
+    double share = 100.0 * double(observed_level) / double(total);
+    h += fmt::format("<p class=observed-share><b>{:.0f}% of the cases ({} of {}) are only OBSERVED</b>: recorded, never failed, "
+                     "because they rest on what the manual does not state.",
+                     share, observed_level, total);
+    if (!why.empty()) {
+      h += " Why:</p><ul class=why>";
+      auto v = by_count(why);
+      for (size_t i = 0; i < v.size() && i < kShown - 2; ++i) h += fmt::format("<li>{} cases: {}</li>", v[i].second, esc(v[i].first));
+      if (v.size() > kShown - 2) h += fmt::format("<li>{} more reasons below</li>", v.size() - (kShown - 2));
+      h += "</ul>";
+    } else {
+      h += "</p>";
+    }
+  }
+
+  // MUST failures grouped by cause.
+  std::map<std::string, std::vector<const CaseResult*>> causes;
+  for (const auto& r : d.cases)
+    if (fails_run(r, rep)) causes[cause_of(r)].push_back(&r);
+  if (!causes.empty()) {
+    size_t n = 0;
+    for (const auto& [k, v] : causes) n += v.size();
+    h += fmt::format("<h3>{} failing case{}, {} cause{}</h3><table class=causes><tr><th>cases</th><th>cause</th><th>registers</th><th>replay</th></tr>",
+                     n, n == 1 ? "" : "s", causes.size(), causes.size() == 1 ? "" : "s");
+    auto v = by_count(causes);
+    for (size_t i = 0; i < v.size() && i < kShown; ++i) {
+      const auto& cases = causes[v[i].first];
+      std::set<uint16_t> regs;
+      for (auto* r : cases)
+        if (r->register_address) regs.insert(*r->register_address);
+      std::string rs;
+      size_t shown = 0;
+      for (uint16_t a : regs) {
+        if (shown++ == 4) {
+          rs += fmt::format(" and {} more", regs.size() - 4);
+          break;
+        }
+        auto it = d.facts.register_names.find(a);
+        rs += fmt::format("{}0x{:04X}{}", rs.empty() ? "" : ", ", a, it == d.facts.register_names.end() ? "" : " " + esc(it->second));
+      }
+      h += fmt::format("<tr class=fail><td>{}</td><td>{}<br><small>e.g. {}: {}</small></td><td>{}</td><td><code>{}</code></td></tr>",
+                       cases.size(), esc(cases.front()->clause + " — " + cases.front()->title), esc(cases.front()->id),
+                       esc(cases.front()->message), rs.empty() ? "—" : rs, esc(replay_command(d, *cases.front())));
+    }
+    if (v.size() > kShown) h += fmt::format("<tr><td colspan=4>{} more causes: see Failures below</td></tr>", v.size() - kShown);
+    h += "</table>";
+  }
+
+  // Errata the run touched: those the cases that ran rely on.
+  std::map<std::string, std::vector<const CaseResult*>> errata;
+  for (const auto& r : d.cases)
+    if (r.outcome != Outcome::skip && r.outcome != Outcome::error)
+      for (const auto& e : r.errata) errata[e].push_back(&r);
+  if (!errata.empty()) {
+    h += "<h3>The manual's errata this run touched</h3><ul class=errata>";
+    size_t i = 0;
+    for (const auto& [id, cases] : errata) {
+      if (i++ == kShown) {
+        h += fmt::format("<li>{} more (report.json)</li>", errata.size() - kShown);
+        break;
+      }
+      auto it = d.facts.errata.find(id);
+      h += fmt::format("<li><b>{}</b> ({} case{}): {}</li>", esc(id), cases.size(), cases.size() == 1 ? "" : "s",
+                       it == d.facts.errata.end() ? "" : esc(it->second));
+    }
+    h += "</ul>";
+  }
+
+  // Skipped families, with the flag that enables each.
+  static const std::regex flag("--[a-z][a-z-]+");
+  std::map<std::string, std::vector<const CaseResult*>> skipped;
+  for (const auto& r : d.cases) {
+    if (r.outcome != Outcome::skip) continue;
+    std::smatch m;
+    std::string how = std::regex_search(r.message, m, flag) ? "enable with " + m.str() : "not applicable: " + r.message;
+    skipped[r.family + " — " + how].push_back(&r);
+  }
+  if (!skipped.empty()) {
+    h += "<h3>Skipped</h3><ul class=skipped>";
+    auto v = by_count(skipped);
+    // What a flag would enable first: that is what the integrator can act on.
+    std::stable_sort(v.begin(), v.end(), [](const auto& a, const auto& b) {
+      return (a.first.find("enable with") != std::string::npos) > (b.first.find("enable with") != std::string::npos);
+    });
+    for (size_t i = 0; i < v.size() && i < kShown; ++i) h += fmt::format("<li>{} cases: {}</li>", v[i].second, esc(v[i].first));
+    if (v.size() > kShown) h += fmt::format("<li>{} more reasons below</li>", v.size() - kShown);
+    h += "</ul>";
+  }
+  return h + "</section>";
+}
+
+}  // namespace
+
+std::string byte_diff(const Bytes& expected, const std::optional<Bytes>& actual) {
+  if (!actual) return "<span class=diff>silence</span>";
+  std::string e, a;
+  size_t n = std::max(expected.size(), actual->size());
+  for (size_t i = 0; i < n; ++i) {
+    bool same = i < expected.size() && i < actual->size() && expected[i] == (*actual)[i];
+    auto byte = [&](std::string& out, uint8_t b) {
+      out += (out.empty() ? "" : " ") + (same ? fmt::format("{:02X}", b) : fmt::format("<mark>{:02X}</mark>", b));
+    };
+    if (i < expected.size()) byte(e, expected[i]);
+    if (i < actual->size()) byte(a, (*actual)[i]);
+  }
+  return "<code class=diff>expected " + e + "<br>actual&nbsp;&nbsp; " + a + "</code>";
+}
+
+std::string summary(const RunReport& rep) {
+  bool failed = false;
+  size_t failing = 0, should_failed = 0;
+  for (const auto& d : rep.devices)
+    for (const auto& r : d.cases) {
+      if (fails_run(r, rep)) {
+        failed = true;
+        ++failing;
+      } else if (r.outcome == Outcome::fail && r.level == Level::should && r.quirk.empty()) {
+        ++should_failed;
+      }
+    }
+  std::string inc = incomplete_line(rep);
+  std::string verdict = !inc.empty() ? "incomplete" : failed ? "fail" : "pass";
+  std::string devices;
+  for (const auto& d : rep.devices) devices += (devices.empty() ? "" : ", ") + d.device_id;
+  std::string line = !inc.empty() ? inc
+                     : failed     ? fmt::format("{} case{} that must pass failed", failing, failing == 1 ? "" : "s")
+                                  : "every MUST case passed";
+  if (should_failed) line += fmt::format("; {} SHOULD case{} failed (not failing the run without --fail-on should)", should_failed,
+                                         should_failed == 1 ? "" : "s");
+  std::string h = fmt::format("<section class=summary><div class=\"verdict {0}\" id=verdict><b>{1}</b> {2}<br><small>{3} · {4} {5} · {6}</small></div>",
+                              verdict, verdict == "pass" ? "PASS" : verdict == "fail" ? "FAIL" : "INCOMPLETE", esc(line),
+                              esc(devices), esc(rep.command), esc(rep.version), esc(rep.started_at));
+  for (const auto& d : rep.devices) h += device_summary(rep, d);
+  return h + "</section>";
+}
+
+}  // namespace mbc::conf::html

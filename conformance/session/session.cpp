@@ -1,0 +1,672 @@
+#include "session/session.h"
+
+#include <fmt/core.h>
+#include <fmt/ranges.h>
+
+#include <algorithm>
+#include <ctime>
+#include <map>
+#include <set>
+#include <thread>
+
+#include "modbus/limits.h"
+#include "modbus/pdu.h"
+#include "safety/safety.h"
+#include "session/signals.h"
+
+namespace mbc::conf {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// MB-SL v1.02 §2.5.1: the default line is 19200 baud, 8 data bits, even parity, 1 stop bit.
+constexpr int kStandardBaud = 19200;
+constexpr const char* kStandardFrame = "8E1";
+
+std::string utc_now() {
+  std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return buf;
+}
+
+std::string label(const spec::Spec* s, spec::Table table, uint16_t address) {
+  if (s)
+    if (const auto* r = s->find_register(address, table)) return register_label(*r);
+  return fmt::format("{} 0x{:04X}", journal_table_name(table), address);
+}
+
+int read_limit(const spec::Spec* s, spec::Table table) {
+  const int fc = table == spec::Table::coil ? 1 : 3;
+  int most = standard_max_quantity(fc);
+  if (s)
+    if (const auto* f = s->profile.function(fc); f && f->max_quantity) most = std::min(most, *f->max_quantity);
+  return std::max(most, 1);
+}
+
+bool no_reply(const std::string& why) { return why.find("no reply") != std::string::npos; }
+
+// Each entry's value as the target reads it now. Entries of one table at
+// consecutive addresses go in one request, up to the read limit; a batch
+// that fails is read again entry by entry, so a drive that takes only single
+// reads costs what it did. Two silent entries in a row end the reading: a
+// dead target costs two time-outs, not one per register.
+std::vector<std::optional<std::vector<uint16_t>>> read_entries(Target& t, const spec::Spec* s,
+                                                               const std::vector<const JournalEntry*>& es,
+                                                               std::vector<std::string>& whys) {
+  std::vector<std::optional<std::vector<uint16_t>>> out(es.size());
+  whys.assign(es.size(), "");
+  int silent = 0;
+  for (size_t i = 0; i < es.size();) {
+    size_t j = i + 1;
+    int words = int(es[i]->value.size());
+    const int most = read_limit(s, es[i]->table);
+    while (j < es.size() && es[j]->table == es[i]->table &&
+           es[j]->address == uint32_t(es[j - 1]->address) + es[j - 1]->value.size() &&
+           words + int(es[j]->value.size()) <= most) {
+      words += int(es[j]->value.size());
+      ++j;
+    }
+    if (j - i > 1) {
+      std::string why;
+      if (auto all = read_table(t, es[i]->table, es[i]->address, words, why); all && int(all->size()) == words) {
+        size_t at = 0;
+        for (size_t k = i; k < j; ++k) {
+          out[k] = std::vector<uint16_t>(all->begin() + long(at), all->begin() + long(at + es[k]->value.size()));
+          at += es[k]->value.size();
+        }
+        silent = 0;
+        i = j;
+        continue;
+      }
+    }
+    for (size_t k = i; k < j; ++k) {
+      if (silent >= 2) {
+        whys[k] = "no reply (the target stopped answering)";
+        continue;
+      }
+      out[k] = read_table(t, es[k]->table, es[k]->address, int(es[k]->value.size()), whys[k]);
+      silent = !out[k] && no_reply(whys[k]) ? silent + 1 : 0;
+    }
+    i = j;
+  }
+  return out;
+}
+
+// Whether the target answers at all: the first item the profile can read,
+// one item, three tries with reconnects; any reply, even an exception, is
+// an answer. Empty when it answers, else why not.
+std::string unreachable(Target& t, const spec::Spec& s) {
+  Bytes pdu = read_request(3, 0, 1);
+  for (const auto& r : s.registers) {
+    if (r.access == spec::Access::wo || r.access == spec::Access::command) continue;
+    int fc = r.table == spec::Table::holding ? 3 : r.table == spec::Table::input ? 4 : r.table == spec::Table::coil ? 1 : 2;
+    if (s.profile.function(fc)) {
+      pdu = read_request(uint8_t(fc), r.address, 1);
+      break;
+    }
+  }
+  // Bytes that never decode as a frame of the target's framing are no answer
+  // either: the framing is wrong (an RTU drive behind a tcp:// URI, a TLS
+  // server without the MBAP header), and every case would fail for it.
+  constexpr int kTries = 3;
+  std::string why = "no reply";
+  std::optional<Reply> garbled;
+  for (int attempt = 0; attempt < kTries; ++attempt) {
+    if (attempt > 0) t.reconnect();
+    try {
+      Reply got = t.transact(t.info().unit, pdu);
+      if (got.pdu) return "";
+      if (!got.silent()) garbled = got;
+      else if (got.closed) why = "the connection was closed";
+    } catch (const std::exception& e) {
+      why = e.what();
+    }
+  }
+  if (garbled)
+    return fmt::format("{} answers, but never with a frame that decodes ({} tries; last: {}: {}): is the framing right?",
+                       t.info().uri, kTries, to_hex(garbled->frame), garbled->framing_error.empty() ? "not a frame" : garbled->framing_error);
+  return fmt::format("{} does not answer ({} tries, with reconnects; last: {})", t.info().uri, kTries, why);
+}
+
+// After a restore: how long the line settles before it is looked at again,
+// and how many times (restore_journal).
+constexpr std::chrono::milliseconds kSettle{300};
+constexpr int kSettleRounds = 3;
+
+}  // namespace
+
+// ---- line settings ---------------------------------------------------------
+
+LineSettings line_settings(const std::string& uri, const spec::Spec* spec) {
+  Uri u = parse_uri(uri);
+  LineSettings ls;
+  ls.uri = uri;
+  if (u.scheme == "ref" || u.scheme == "plugin") return ls;
+  std::vector<std::string> added;
+  std::string from_spec = spec ? fmt::format("from the spec {}", spec->device.id) : "";
+  std::vector<std::string> origins;
+  auto add = [&](const std::string& key, const std::string& value) {
+    ls.uri += fmt::format("{}{}={}", ls.uri.find('?') == std::string::npos ? "?" : "&", key, value);
+  };
+  std::string tried;
+  if (u.scheme == "rtu") {
+    std::string frame = spec && spec->serial.frame_default ? *spec->serial.frame_default : "";
+    bool frame_from_spec = frame.size() == 3;
+    if (!frame_from_spec) frame = kStandardFrame;
+    int baud = kStandardBaud;
+    std::string baud_origin;
+    if (auto b = u.param("baud")) {
+      baud = std::atoi(b->c_str());
+      baud_origin = "from the URI";
+    } else if (spec && spec->serial.baud_default) {
+      baud = *spec->serial.baud_default;
+      add("baud", std::to_string(baud));
+      baud_origin = from_spec;
+    } else {
+      add("baud", std::to_string(baud));
+      baud_origin = "the standard's default (MB-SL v1.02 §2.5.1)";
+    }
+    origins.push_back("baud " + baud_origin);
+    std::string data = u.param("data").value_or(std::string(1, frame[0]));
+    std::string parity = u.param("parity").value_or(std::string(1, frame[1]));
+    std::string stop = u.param("stop").value_or(std::string(1, frame[2]));
+    bool any_frame_given = u.param("data") || u.param("parity") || u.param("stop");
+    if (!u.param("data")) add("data", data);
+    if (!u.param("parity")) add("parity", parity);
+    if (!u.param("stop")) add("stop", stop);
+    origins.push_back("frame " + std::string(any_frame_given ? "from the URI"
+                                             : frame_from_spec ? from_spec
+                                                               : "the standard's default (MB-SL v1.02 §2.5.1)"));
+    tried = fmt::format("{} {}{}{}", baud, data, parity, stop);
+  }
+  int unit = 1;
+  if (auto un = u.param("unit")) {
+    unit = std::atoi(un->c_str());
+    origins.push_back("unit from the URI");
+  } else if (spec && spec->serial.slave_default) {
+    unit = *spec->serial.slave_default;
+    add("unit", std::to_string(unit));
+    origins.push_back("unit " + from_spec);
+  } else {
+    origins.push_back("unit 1 by default");
+  }
+  ls.tried = tried.empty() ? fmt::format("unit {}", unit) : fmt::format("{}, unit {}", tried, unit);
+  ls.origin = fmt::format("{}", fmt::join(origins, ", "));
+  if (spec) {
+    std::string says;
+    if (u.scheme == "rtu" && spec->serial.baud_default) says += std::to_string(*spec->serial.baud_default);
+    if (u.scheme == "rtu" && spec->serial.frame_default) says += (says.empty() ? "" : " ") + *spec->serial.frame_default;
+    if (spec->serial.slave_default) says += fmt::format("{}unit {}", says.empty() ? "" : ", ", *spec->serial.slave_default);
+    if (!says.empty()) ls.spec_says = fmt::format("the spec {} says {}", spec->device.id, says);
+  }
+  return ls;
+}
+
+// ---- the Target view --------------------------------------------------------
+
+class Session::View final : public Target {
+ public:
+  View(Session& s, Target* inner, std::unique_ptr<Target> owned) : s_(s), inner_(inner), owned_(std::move(owned)) {}
+  const TargetInfo& info() const override { return inner_->info(); }
+  Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override { return take(s_.send_on(*inner_, unit, pdu, wait_)); }
+  Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
+    return take(s_.send_raw_on(*inner_, bytes, gap_after, wait_));
+  }
+  std::optional<std::chrono::microseconds> split_gap() const override { return inner_->split_gap(); }
+  void set_split_gap(std::chrono::microseconds g) override { inner_->set_split_gap(g); }
+  std::chrono::microseconds silence_window() const override { return inner_->silence_window(); }
+  void set_wait(Wait w) override { wait_ = w; }
+  uint64_t late_replies() const override { return inner_->late_replies(); }
+  bool reconnect() override { return inner_->reconnect(); }
+  void advance(std::chrono::microseconds dt) override {
+    s_.check_running();
+    inner_->advance(dt);
+  }
+  void power_cycle() override {
+    s_.check_running();
+    inner_->power_cycle();
+  }
+
+ private:
+  Reply take(Sent sent) {
+    if (sent.refused) {
+      if (auto why = s_.stopped()) throw Stopped(*why);
+      throw Refused(*sent.refused);
+    }
+    if (sent.lost) throw std::runtime_error(fmt::format("the target {} was lost", inner_->info().uri));
+    return std::move(sent.reply);
+  }
+  Session& s_;
+  Target* inner_;
+  std::unique_ptr<Target> owned_;
+  Wait wait_ = Wait::automatic;
+};
+
+// ---- the session ------------------------------------------------------------
+
+Session::Session(const std::string& uri, const spec::Spec* spec, SessionOptions options)
+    : spec_(spec), opt_(std::move(options)) {
+  line_ = line_settings(uri, spec);
+  inner_ = opt_.wrap ? opt_.wrap(open_target(line_.uri)) : open_target(line_.uri);
+  gate_ = std::make_unique<Gate>(spec_, inner_->info(), opt_.rules);
+  if (inner_->info().live && !opt_.out_dir.empty()) {
+    journal_ = Journal::create(opt_.out_dir, {{"target", inner_->info().uri},
+                                              {"device", spec_ ? spec_->device.id : ""},
+                                              {"spec", spec_ ? spec_->path : ""},
+                                              {"unit", std::to_string(inner_->info().unit)},
+                                              {"command", opt_.command},
+                                              {"started", utc_now()}});
+    set_stop_journal(journal_.path());
+  }
+  view_ = std::make_unique<View>(*this, inner_.get(), nullptr);
+}
+
+Session::~Session() {
+  if (restored_ || !journal_.open() || journal_.kept() == 0) return;
+  try {
+    restore();
+  } catch (...) {
+  }
+}
+
+std::optional<std::string> Session::stopped() const {
+  if (stop_requested()) return "stopped by " + signal_name(stop_signal());
+  if (opt_.deadline && Clock::now() >= *opt_.deadline) return std::string("the time allowed ran out");
+  return std::nullopt;
+}
+
+void Session::check_running() const {
+  if (!opt_.stop_mid_exchange && !opt_.deadline) return;
+  if (auto why = stopped(); why && (opt_.stop_mid_exchange || !stop_requested())) throw Stopped(*why);
+}
+
+std::string Session::no_answer(const std::string& why) const {
+  std::string s = fmt::format("{} does not answer at {} ({})", inner_->info().uri, line_.tried, line_.origin);
+  if (!line_.spec_says.empty()) s += "; " + line_.spec_says;
+  if (!why.empty()) s += "; last: " + why;
+  return s;
+}
+
+std::string Session::reachable() {
+  spec::Spec none;
+  std::string why = unreachable(*inner_, spec_ ? *spec_ : none);
+  if (why.empty()) return "";
+  if (why.find("never with a frame that decodes") != std::string::npos)
+    return fmt::format("{} (line: {}, {})", why, line_.tried, line_.origin);
+  auto at = why.find("last: ");
+  return no_answer(at == std::string::npos ? why : why.substr(at + 6, why.size() - at - 7));
+}
+
+std::optional<Refusal> Session::journal_range(Target& t, const WriteRange& w) {
+  if (!journal_.open())
+    return Refusal{"no journal (no output directory): a live target is not written without one", ""};
+  // The items not journaled yet, as whole registers of the spec (a 2-word
+  // value is kept and restored whole) or single items.
+  struct Item {
+    uint16_t address;
+    int words;
+    bool in_spec;
+  };
+  std::vector<Item> items;
+  for (int k = 0; k < w.count; ++k) {
+    uint32_t a = uint32_t(w.address) + uint32_t(k);
+    if (a > 0xFFFF) break;
+    if (journal_.has(w.table, uint16_t(a))) continue;
+    const spec::Register* r = spec_ ? spec_->register_covering(uint16_t(a), w.table) : nullptr;
+    Item it{r ? r->address : uint16_t(a), r ? r->words : 1, r != nullptr};
+    if (!items.empty() && items.back().address == it.address) continue;
+    if (uint32_t(it.address) + uint32_t(it.words) > 0x10000) it.words = 1;
+    items.push_back(it);
+  }
+  if (items.empty()) return std::nullopt;
+  std::vector<JournalEntry> kept;
+  std::vector<JournalUnread> unread;
+  const int limit = read_limit(spec_, w.table);
+  // In runs of adjacent items within the read limit: one read each; a run
+  // the drive refuses is read item by item where the spec maps the item
+  // (an unmapped one it refused is not there to restore).
+  for (size_t i = 0; i < items.size();) {
+    size_t j = i + 1;
+    int span = items[i].words;
+    while (j < items.size() && items[j].address == items[j - 1].address + items[j - 1].words && span + items[j].words <= limit)
+      span += items[j++].words;
+    std::string why;
+    auto all = read_table(t, w.table, items[i].address, span, why);
+    for (size_t k = i; k < j; ++k) {
+      const auto& it = items[k];
+      std::optional<std::vector<uint16_t>> v;
+      std::string one_why = why;
+      if (all) {
+        auto from = all->begin() + (it.address - items[i].address);
+        v = std::vector<uint16_t>(from, from + it.words);
+      } else if (j - i > 1 && it.in_spec) {
+        v = read_table(t, w.table, it.address, it.words, one_why);
+      }
+      // A register the spec maps must read before it is written; an
+      // address it does not map may get silence (a device whose policy is
+      // silent there), and has nothing to put back.
+      if (v) kept.push_back({w.table, it.address, *v, false, ""});
+      else if (it.in_spec && no_reply(one_why))
+        return Refusal{fmt::format("{}: its value could not be read before the write ({}), so it is not written",
+                                   label(spec_, w.table, it.address), one_why),
+                       ""};
+      else unread.push_back({w.table, it.address, it.words, one_why});
+    }
+    i = j;
+  }
+  journal_.keep(kept, unread);
+  return std::nullopt;
+}
+
+std::optional<Refusal> Session::before_write(Target& t, uint8_t unit, std::span<const uint8_t> pdu) {
+  if (auto r = gate_->check(unit, pdu)) return r;
+  if (!t.info().live) return std::nullopt;
+  auto w = writes_of(pdu);
+  if (!w || (unit != 0 && unit != t.info().unit)) return std::nullopt;
+  return journal_range(t, *w);
+}
+
+Sent Session::send_on(Target& t, uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait) {
+  if (auto why = stopped(); why && (opt_.stop_mid_exchange || !stop_requested())) {
+    ++refused_;
+    return Sent{{}, Refusal{*why, ""}, false};
+  }
+  if (auto r = before_write(t, unit, pdu)) {
+    ++refused_;
+    return Sent{{}, std::move(r), false};
+  }
+  t.set_wait(wait);
+  Sent sent{t.transact(unit, pdu), std::nullopt, false};
+  if (opt_.on_frame) opt_.on_frame(++frames_);
+  else ++frames_;
+  return sent;
+}
+
+Sent Session::send_raw_on(Target& t, std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait) {
+  if (auto why = stopped(); why && (opt_.stop_mid_exchange || !stop_requested())) {
+    ++refused_;
+    return Sent{{}, Refusal{*why, ""}, false};
+  }
+  for (const auto& [unit, pdu] : frames_in(t.info().framing, adu, gap_after))
+    if (auto r = before_write(t, unit, pdu)) {
+      ++refused_;
+      r->reason = "raw bytes a receiver takes as a frame: " + r->reason;
+      return Sent{{}, std::move(r), false};
+    }
+  t.set_wait(wait);
+  Sent sent{t.send_raw(adu, gap_after), std::nullopt, false};
+  if (opt_.on_frame) opt_.on_frame(++frames_);
+  else ++frames_;
+  return sent;
+}
+
+Sent Session::transact(uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait) {
+  return send_on(*inner_, unit, pdu, wait);
+}
+
+Sent Session::send_raw(std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait) {
+  return send_raw_on(*inner_, adu, gap_after, wait);
+}
+
+std::unique_ptr<Target> Session::open_another(bool reopen) {
+  if (auto why = stopped(); why && (opt_.stop_mid_exchange || !stop_requested())) throw Stopped(*why);
+  if (!inner_->info().live) {
+    if (!reopen) return std::make_unique<View>(*this, inner_.get(), nullptr);
+    auto fresh = opt_.wrap ? opt_.wrap(open_target(line_.uri)) : open_target(line_.uri);
+    Target* raw = fresh.get();
+    return std::make_unique<View>(*this, raw, std::move(fresh));
+  }
+  if (reopen && !inner_->reconnect())
+    throw std::runtime_error(fmt::format("the target {} cannot be opened again", inner_->info().uri));
+  return std::make_unique<View>(*this, inner_.get(), nullptr);
+}
+
+std::string Session::preflight(std::string& identity) {
+  // The standard's baseline describes any server that follows the
+  // standard, not one product: nothing to identify.
+  if (!spec_ || !inner_->info().live || spec_->device.id == "modbus-standard") return "";
+  const auto& id = spec_->device.identification;
+  const auto* fc43 = spec_->profile.function(43);
+  if (fc43 && std::find(fc43->mei_types.begin(), fc43->mei_types.end(), 14) != fc43->mei_types.end() &&
+      !id.product_code.empty()) {
+    // Read Device Identification, basic stream (MBAP v1.1b3 §6.21): objects 00 VendorName, 01 ProductCode, 02 Revision.
+    inner_->set_wait(Target::Wait::reply);
+    Reply r = inner_->transact(inner_->info().unit, read_device_identification(1, 0));
+    std::map<int, std::string> objects;
+    if (r.pdu && r.pdu->size() >= 7 && (*r.pdu)[0] == 0x2B && (*r.pdu)[1] == 0x0E) {
+      const Bytes& p = *r.pdu;
+      size_t at = 7;
+      for (int k = 0; k < p[6] && at + 2 <= p.size(); ++k) {
+        int oid = p[at], len = p[at + 1];
+        if (at + 2 + size_t(len) > p.size()) break;
+        objects[oid] = std::string(p.begin() + long(at) + 2, p.begin() + long(at) + 2 + len);
+        at += 2 + size_t(len);
+      }
+    }
+    if (objects.empty())
+      return fmt::format("--device {}: unit {} does not answer Read Device Identification (FC 43/14), which the spec says it "
+                         "does: is it a {}? (--no-preflight skips this check)",
+                         spec_->device.id, inner_->info().unit, spec_->device.id);
+    identity = fmt::format("FC 43/14: VendorName \"{}\", ProductCode \"{}\", Revision \"{}\"", objects[0], objects[1], objects[2]);
+    if (objects[0] != id.vendor_name || objects[1] != id.product_code)
+      return fmt::format("--device {}: unit {} identifies as VendorName \"{}\", ProductCode \"{}\"; the spec says \"{}\", \"{}\" "
+                         "(--no-preflight skips this check)",
+                         spec_->device.id, inner_->info().unit, objects[0], objects[1], id.vendor_name, id.product_code);
+    return "";
+  }
+  // No identity objects: reads spread over the spec's readable map.
+  std::vector<const spec::Register*> readable;
+  for (const auto& r : spec_->registers)
+    if ((r.table == spec::Table::holding || r.table == spec::Table::input) && r.access != spec::Access::wo &&
+        r.access != spec::Access::command && spec_->profile.function(r.table == spec::Table::holding ? 3 : 4))
+      readable.push_back(&r);
+  if (readable.empty()) return "";
+  const size_t samples = std::min<size_t>(8, readable.size());
+  size_t refused = 0;
+  std::vector<std::string> seen, refusals;
+  // Only a refusal of a mapped address (exception 01 or 02) or silence
+  // speaks against the identity: a reply that is malformed (a wrong byte
+  // count, say) is still this drive answering, and a finding for the run.
+  inner_->set_wait(Target::Wait::reply);
+  for (size_t k = 0; k < samples; ++k) {
+    const spec::Register& r = *readable[k * readable.size() / samples];
+    const uint8_t fc = r.table == spec::Table::holding ? 3 : 4;
+    Reply got;
+    try {
+      got = inner_->transact(inner_->info().unit, read_request(fc, r.address, uint16_t(r.words)));
+    } catch (const std::exception& e) {
+      ++refused;
+      refusals.push_back(fmt::format("0x{:04X}: {}", r.address, e.what()));
+      continue;
+    }
+    const bool exception = got.pdu && got.pdu->size() >= 2 && (*got.pdu)[0] == (fc | 0x80);
+    if (got.silent()) {
+      ++refused;
+      refusals.push_back(fmt::format("0x{:04X}: no reply", r.address));
+    } else if (exception && ((*got.pdu)[1] == 1 || (*got.pdu)[1] == 2)) {
+      ++refused;
+      refusals.push_back(fmt::format("0x{:04X}: exception {:02X}", r.address, (*got.pdu)[1]));
+    } else if (got.pdu && !exception && got.pdu->size() == size_t(2 + 2 * r.words) && (*got.pdu)[0] == fc) {
+      seen.push_back(fmt::format("0x{:04X}={:02X}", r.address, fmt::join(got.pdu->begin() + 2, got.pdu->end(), "")));
+    } else {
+      seen.push_back(fmt::format("0x{:04X} answered ({})", r.address,
+                                 got.pdu ? fmt::format("{:02X}", fmt::join(*got.pdu, " ")) : std::string("a frame that does not decode")));
+    }
+  }
+  identity = fmt::format("{} of {} registers read across the spec's map: {}", samples - refused, samples, fmt::join(seen, ", "));
+  if (refused * 2 > samples)
+    return fmt::format("--device {}: unit {} refuses {} of {} reads of registers the spec maps ({}): is it a {}? "
+                       "(--no-preflight skips this check)",
+                       spec_->device.id, inner_->info().unit, refused, samples, fmt::join(refusals, "; "), spec_->device.id);
+  return "";
+}
+
+void Session::keep() {
+  if (!inner_->info().live || !spec_) return;
+  if (!journal_.open()) throw std::runtime_error("a live target needs an output directory for its journal");
+  // The switch first: from the moment it is on, its original is on disk.
+  auto sw = persist_switch(*spec_);
+  if (sw) {
+    std::string why;
+    if (auto v = read_table(*inner_, spec::Table::holding, sw->first, 1, why))
+      journal_.keep({{spec::Table::holding, sw->first, *v, true, ""}});
+  }
+  Snapshot snap = Snapshot::take(*inner_, *spec_, opt_.rules.policy);
+  std::vector<JournalEntry> kept;
+  for (const auto& k : snap.kept())
+    kept.push_back({k.table, k.address, std::vector<uint16_t>(k.value, k.value + k.words), false, k.name});
+  journal_.keep(kept);
+  for (const auto& f : snap.failures()) notes_.push_back(f);
+}
+
+RestoreReport Session::restore() {
+  RestoreReport rep;
+  rep.journal = journal_.path();
+  if (!journal_.open()) {
+    restored_ = true;
+    return rep;
+  }
+  spec::Spec none;
+  JournalContents c = read_journal(journal_.path());
+  rep = restore_journal(*inner_, spec_ ? *spec_ : none, c, journal_);
+  restored_ = true;
+  return rep;
+}
+
+// ---- restore ------------------------------------------------------------------
+
+RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalContents& c, Journal& record) {
+  RestoreReport rep;
+  rep.journal = record.path();
+  rep.kept = c.originals.size();
+  for (const auto& u : c.unread)
+    rep.unread.push_back(fmt::format("{} 0x{:04X}{}: written, but it could not be read first ({})", journal_table_name(u.table),
+                                     u.address, u.count > 1 ? fmt::format("-0x{:04X}", u.address + u.count - 1) : "", u.why));
+  auto name = [&](const JournalEntry& e) { return e.name.empty() ? label(&s, e.table, e.address) : e.name; };
+  auto line = [&](const char* kind, const JournalEntry& e, const std::string& why = "") {
+    try {
+      record.record(fmt::format("{} {} 0x{:04X}{}{}", kind, journal_table_name(e.table), e.address, why.empty() ? "" : " ",
+                                why));
+    } catch (const std::exception&) {
+    }
+  };
+  if (c.originals.empty()) {
+    try {
+      record.record("end restored nothing was written");
+    } catch (const std::exception&) {
+    }
+    return rep;
+  }
+  // One liveness probe, one reconnect, one more probe: a dead target costs
+  // a few time-outs, not one per register.
+  auto alive = [&](const JournalEntry& e) {
+    std::string why;
+    if (read_table(t, e.table, e.address, int(e.value.size()), why)) return true;
+    if (!t.reconnect()) return false;
+    return read_table(t, e.table, e.address, int(e.value.size()), why).has_value();
+  };
+  // The persistence switch first, then the rest in the order journaled.
+  std::vector<const JournalEntry*> order;
+  for (const auto& e : c.originals)
+    if (e.persist_switch) order.push_back(&e);
+  for (const auto& e : c.originals)
+    if (!e.persist_switch) order.push_back(&e);
+  auto give_up = [&](size_t from, const std::string& why) {
+    rep.gave_up = true;
+    for (size_t k = from; k < order.size(); ++k) {
+      rep.not_restored.push_back(fmt::format("{}: not restored: {}", name(*order[k]), why));
+      line("not-restored", *order[k], why);
+    }
+  };
+  std::vector<const JournalEntry*> done;
+  if (!alive(*order.front())) {
+    give_up(0, "the target does not answer (one probe, one reconnect)");
+  } else {
+    int silent_in_a_row = 0;
+    std::vector<std::string> whys;
+    const auto before = read_entries(t, &s, order, whys);
+    for (size_t k = 0; k < order.size(); ++k) {
+      const JournalEntry& e = *order[k];
+      const std::string& why = whys[k];
+      const auto& now = before[k];
+      if (now && *now == e.value) {
+        done.push_back(&e);
+        silent_in_a_row = 0;
+        continue;
+      }
+      std::string err = write_table_verified(t, s, e.table, e.address, e.value, name(e));
+      if (err.empty()) {
+        ++rep.restored;
+        line("restored", e);
+        done.push_back(&e);
+        silent_in_a_row = 0;
+        continue;
+      }
+      rep.not_restored.push_back(err);
+      line("not-restored", e, err);
+      if (no_reply(err) || (!now && no_reply(why))) {
+        if (++silent_in_a_row >= 2 && !alive(e)) {
+          give_up(k + 1, "the target stopped answering during the restore");
+          break;
+        }
+      } else {
+        silent_in_a_row = 0;
+      }
+    }
+  }
+  // Verify everything put back once more: a write with a side effect on
+  // another register (a mode that resets a setpoint) shows up here.
+  std::vector<std::string> vwhys;
+  const auto after = rep.gave_up ? decltype(read_entries(t, &s, done, vwhys)){} : read_entries(t, &s, done, vwhys);
+  if (!rep.gave_up)
+    for (size_t i = 0; i < done.size(); ++i) {
+      const JournalEntry* e = done[i];
+      const std::string& why = vwhys[i];
+      const auto& now = after[i];
+      if (now && *now == e->value) {
+        ++rep.verified;
+        line("verified", *e);
+      } else {
+        std::string msg = now ? fmt::format("{}: reads {:04X} after the restore (kept {:04X})", name(*e), fmt::join(*now, " "),
+                                            fmt::join(e->value, " "))
+                              : fmt::format("{}: verify failed: {}", name(*e), why);
+        rep.not_restored.push_back(msg);
+        line("not-restored", *e, msg);
+      }
+    }
+  // Frames the stopped command left queued (in a serial adapter, a
+  // gateway, a server the host holds up) may still be applied after the
+  // restore: let the line settle, look again, put back what changed.
+  for (int round = 0; round < kSettleRounds && !rep.gave_up && rep.not_restored.empty(); ++round) {
+    std::this_thread::sleep_for(kSettle);
+    bool changed = false;
+    std::vector<std::string> swhys;
+    const auto settled = read_entries(t, &s, order, swhys);
+    for (size_t i = 0; i < order.size(); ++i) {
+      const JournalEntry* e = order[i];
+      if (settled[i] && *settled[i] == e->value) continue;
+      changed = true;
+      std::string err = write_table_verified(t, s, e->table, e->address, e->value, name(*e));
+      if (err.empty()) {
+        ++rep.restored;
+        line("restored", *e, "again, after the line settled");
+      } else {
+        rep.not_restored.push_back(err);
+        line("not-restored", *e, err);
+      }
+    }
+    if (!changed) break;
+  }
+  try {
+    record.record(fmt::format("end {} {} kept, {} written back, {} verified, {} not restored",
+                              rep.not_restored.empty() ? "restored" : "incomplete", rep.kept, rep.restored, rep.verified,
+                              rep.not_restored.size()));
+  } catch (const std::exception&) {
+  }
+  return rep;
+}
+
+}  // namespace mbc::conf

@@ -1,0 +1,179 @@
+// The session: the one guarded path from every command to a target
+// (README.md, "Live drives"; the seam is session/link.h).
+//
+//   - It opens the target with the line settings of the URI, else the
+//     spec's (baud, parity, data and stop bits, the default unit), else the
+//     standard's (MB-SL v1.02 §2.5.1: 19200 8E1), and says in one line what
+//     it tried when the drive does not answer.
+//   - Every frame passes the gate (session/gate.h) before it goes out.
+//   - On a live target, before the first write to any address, the value it
+//     held is appended to the journal (session/journal.h) and flushed to
+//     disk; keep() journals every register the command may write at once and
+//     turns the spec's "do not persist" switch on.
+//   - restore() puts every journaled address back: the persistence switch
+//     first, then the rest, each written only when it differs and read back,
+//     then all verified once more. Against a target that does not answer it
+//     gives up after one failed liveness probe and one reconnect, and lists
+//     what it could not restore. `mbconform restore JOURNAL` runs the same
+//     restore from the journal alone.
+//   - A stop signal (session/signals.h) or the deadline ends the sending.
+//
+// Code that still takes a Target& (runner, properties, fuzzer, replay, map
+// probe) gets one from target(): the same gate and journal behind the
+// Target interface (a refused frame throws Refused).
+#pragma once
+
+#include <chrono>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "session/gate.h"
+#include "session/journal.h"
+#include "session/link.h"
+#include "spec.h"
+
+namespace mbc::conf {
+
+// A frame the gate held back, thrown by the target() view. A logic_error:
+// the frame cannot be sent with these opt-ins (replay reports "cannot run").
+struct Refused : std::logic_error {
+  Refusal refusal;
+  explicit Refused(Refusal r) : std::logic_error("refused by the gate: " + r.reason), refusal(std::move(r)) {}
+};
+// Sending stopped: a stop signal, or the command's deadline ran out.
+struct Stopped : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+struct SessionOptions {
+  std::string command = "run";  // for messages ("mbconform run: ...") and the journal
+  GateRules rules;
+  // Where the journal goes (the command's output directory); a live target
+  // without one cannot be written (every write is refused).
+  std::string out_dir;
+  // After a stop signal, target() throws Stopped at the next frame (props,
+  // fuzz, replay); false: the caller stops between its own steps (run).
+  bool stop_mid_exchange = true;
+  // No frame goes out after this (fuzz --duration, --deadline).
+  std::optional<std::chrono::steady_clock::time_point> deadline;
+  // Called after each frame sent, with the count so far (progress).
+  std::function<void(uint64_t frames)> on_frame;
+  // Wraps every target the session opens (--pcap: conformance/capture's tap).
+  std::function<std::unique_ptr<Target>(std::unique_ptr<Target>)> wrap;
+};
+
+// Where each line setting of an opened target came from.
+struct LineSettings {
+  std::string uri;          // the URI with the settings filled in
+  std::string tried;        // "9600 8N1, unit 1"
+  std::string origin;       // "from the spec hsc60" | "from the URI" | "the standard's default (MB-SL v1.02 §2.5.1)" | mixed
+  std::string spec_says;    // "the spec hsc60 says 9600 8N1, unit 1", or empty
+};
+// Fills in what the URI does not say from the spec, else the standard.
+// Throws std::invalid_argument on a bad URI.
+LineSettings line_settings(const std::string& uri, const spec::Spec* spec);
+
+struct RestoreReport {
+  size_t kept = 0;       // addresses journaled
+  size_t restored = 0;   // written back (they had changed)
+  size_t verified = 0;   // read back equal to their original at the end
+  std::vector<std::string> not_restored;  // one line each
+  // Addresses written although the drive would not read them first (an
+  // unmapped address the write was meant to be refused at): nothing to put back.
+  std::vector<std::string> unread;
+  bool gave_up = false;  // the target did not answer: the rest is listed in not_restored
+  std::string journal;   // its path
+};
+
+// Puts back every original of `contents` on `target` (spec: how to write
+// each table), appending what it did to `record`. `progress` (may be empty)
+// hears one line per step.
+RestoreReport restore_journal(Target& target, const spec::Spec& spec, const JournalContents& contents, Journal& record);
+
+class Session final : public Link {
+ public:
+  // Opens the target. `spec` (may be null: nothing may be written) must
+  // outlive the session. Throws std::invalid_argument (bad URI) or
+  // std::runtime_error (cannot open; cannot create the journal).
+  Session(const std::string& uri, const spec::Spec* spec, SessionOptions options);
+  ~Session() override;  // restores what keep() or a write journaled, if restore() did not run
+  Session(const Session&) = delete;
+  Session& operator=(const Session&) = delete;
+
+  // ---- the Link ----
+  const TargetInfo& info() const override { return inner_->info(); }
+  Sent transact(uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait) override;
+  Sent send_raw(std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait) override;
+  std::chrono::microseconds silence_window() const override { return inner_->silence_window(); }
+  uint64_t late_replies() const override { return inner_->late_replies(); }
+  std::optional<std::chrono::microseconds> split_gap() const override { return inner_->split_gap(); }
+  void set_split_gap(std::chrono::microseconds g) override { inner_->set_split_gap(g); }
+  bool reconnect() override { return inner_->reconnect(); }
+  void advance(std::chrono::microseconds dt) override { inner_->advance(dt); }
+  void power_cycle() override { inner_->power_cycle(); }
+
+  // ---- the command's side ----
+  const LineSettings& line() const { return line_; }
+  // The one line printed when the target does not answer at all: the
+  // settings tried, where they came from, the spec's, the unit.
+  std::string no_answer(const std::string& why) const;
+  // Empty when a read the spec says is answered gets an answer (3 tries with
+  // reconnects), else no_answer(...).
+  std::string reachable();
+  // A read-only check that the drive looks like the spec (--no-preflight
+  // skips it): its FC 43/14 VendorName and ProductCode where the spec says
+  // it answers them, else reads of registers spread over the spec's map (a
+  // drive that refuses most of them is another drive). Empty when it looks
+  // right, else one line; `identity` gets what was read, for the report.
+  std::string preflight(std::string& identity);
+  // Live targets: journals every register the command may write (read
+  // first, fsync'd), then turns the "do not persist" switch on. Notes (what
+  // could not be read) go to notes().
+  void keep();
+  const std::vector<std::string>& notes() const { return notes_; }
+  // The journal (empty path when there is none: not a live target).
+  const std::string& journal_path() const { return journal_.path(); }
+  // Puts the drive back (idempotent). Marks the journal's end.
+  RestoreReport restore();
+  bool restored() const { return restored_; }
+
+  // The target behind the gate and journal, as a Target (see above).
+  Target& target() { return *view_; }
+  // Another Target through the same gate and journal: a fresh in-process
+  // target for ref: (power-on state), the same connection reopened for a
+  // live one. Throws Stopped after a stop or the deadline, std::runtime_error
+  // when the target cannot be reopened.
+  std::unique_ptr<Target> open_another(bool reopen = true);
+  // Frames sent and refused so far (progress, reports).
+  uint64_t frames() const { return frames_; }
+  uint64_t refused() const { return refused_; }
+  // Whether sending stopped (signal or deadline), and why.
+  std::optional<std::string> stopped() const;
+  // Throws Stopped when sending stopped (for steps that send no frame).
+  void check_running() const;
+
+  class View;
+
+ private:
+  Sent send_on(Target& t, uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait);
+  Sent send_raw_on(Target& t, std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait);
+  std::optional<Refusal> before_write(Target& t, uint8_t unit, std::span<const uint8_t> pdu);
+  std::optional<Refusal> journal_range(Target& t, const WriteRange& w);
+
+  const spec::Spec* spec_;
+  SessionOptions opt_;
+  LineSettings line_;
+  std::unique_ptr<Target> inner_;
+  std::unique_ptr<Gate> gate_;
+  Journal journal_;
+  std::unique_ptr<Target> view_;
+  std::vector<std::string> notes_;
+  bool restored_ = false;
+  uint64_t frames_ = 0, refused_ = 0;
+};
+
+}  // namespace mbc::conf

@@ -1,0 +1,62 @@
+# A plan replays the way `run` judged it (conformance/check/README.md): runs
+# `mbconform run` on TARGET, then `run --plan` into a file and `replay` of that
+# file on the same TARGET, and fails unless both give the same pass, fail,
+# observed and skip counts, name the same failing cases and exit alike.
+#   cmake -DMBCONFORM=<bin> -DTARGET=<uri> -DWORK_DIR=<dir> [-DMUST_FAIL=<case id>] -P plan_replay.cmake
+# MUST_FAIL: a case the run must fail (the fault of a broken device is caught).
+cmake_minimum_required(VERSION 3.25)
+file(REMOVE_RECURSE "${WORK_DIR}")
+file(MAKE_DIRECTORY "${WORK_DIR}")
+execute_process(COMMAND "${MBCONFORM}" run --quiet --target "${TARGET}" --out "${WORK_DIR}/run" --summary "${WORK_DIR}/summary"
+                RESULT_VARIABLE run_rc OUTPUT_QUIET ERROR_VARIABLE run_err)
+if(NOT run_rc EQUAL 0 AND NOT run_rc EQUAL 1)
+  message(FATAL_ERROR "mbconform run --target ${TARGET}: exit ${run_rc}\n${run_err}")
+endif()
+file(READ "${WORK_DIR}/summary/summary.json" summary)
+foreach(k pass fail observed skip)
+  string(JSON run_${k} GET "${summary}" devices 0 counts ${k})
+endforeach()
+string(JSON n_failed LENGTH "${summary}" devices 0 failed)
+set(run_failed "")
+if(n_failed GREATER 0)
+  math(EXPR last "${n_failed} - 1")
+  foreach(i RANGE ${last})
+    string(JSON id GET "${summary}" devices 0 failed ${i} id)
+    list(APPEND run_failed "${id}")
+  endforeach()
+endif()
+
+execute_process(COMMAND "${MBCONFORM}" run --target "${TARGET}" --plan OUTPUT_FILE "${WORK_DIR}/plan.txt"
+                RESULT_VARIABLE plan_rc ERROR_VARIABLE plan_err)
+if(NOT plan_rc EQUAL 0)
+  message(FATAL_ERROR "mbconform run --plan --target ${TARGET}: exit ${plan_rc}\n${plan_err}")
+endif()
+execute_process(COMMAND "${MBCONFORM}" replay "${WORK_DIR}/plan.txt" --target "${TARGET}"
+                RESULT_VARIABLE replay_rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+if(NOT out MATCHES "([0-9]+) cases: ([0-9]+) pass, ([0-9]+) fail, ([0-9]+) observed, ([0-9]+) skip")
+  message(FATAL_ERROR "replay of the plan of ${TARGET}: exit ${replay_rc}, no counts line\n${out}${err}")
+endif()
+set(got "${CMAKE_MATCH_2} pass, ${CMAKE_MATCH_3} fail, ${CMAKE_MATCH_4} observed, ${CMAKE_MATCH_5} skip")
+set(want "${run_pass} pass, ${run_fail} fail, ${run_observed} observed, ${run_skip} skip")
+if(NOT got STREQUAL want)
+  message(FATAL_ERROR "${TARGET}: run counted ${want}; the replay of its plan ${got}\n${out}")
+endif()
+# One "FAIL <id> [LEVEL] ..." line per failed case (a '[' would split a CMake list: match before it).
+string(REGEX MATCHALL "(^|\n)FAIL [^ \n]+" fails "${out}")
+set(replay_failed "")
+foreach(f IN LISTS fails)
+  string(REGEX REPLACE "^\n?FAIL " "" id "${f}")
+  list(APPEND replay_failed "${id}")
+endforeach()
+list(SORT run_failed)
+list(SORT replay_failed)
+if(NOT run_failed STREQUAL replay_failed)
+  message(FATAL_ERROR "${TARGET}: run failed [${run_failed}]; the replay of its plan failed [${replay_failed}]")
+endif()
+if(NOT run_rc EQUAL replay_rc)
+  message(FATAL_ERROR "${TARGET}: run exit ${run_rc}, replay exit ${replay_rc}\n${out}${err}")
+endif()
+if(MUST_FAIL AND NOT MUST_FAIL IN_LIST run_failed)
+  message(FATAL_ERROR "${TARGET}: ${MUST_FAIL} does not fail; failing: [${run_failed}]")
+endif()
+message(STATUS "${TARGET}: ${got}; failing: [${run_failed}]")

@@ -1,0 +1,49 @@
+// The command line's shared conventions, one place for each: the default
+// output root (reports/<command>/<UTC time>/), the --map-time option, the
+// exit codes every --help prints, and "did you mean" for a mistyped
+// subcommand or option.
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <chrono>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "report/result.h"
+
+namespace mbc::cli {
+
+// reports/<command>/<UTC date-time>/ (e.g. reports/run/20261201T230501Z):
+// where a command writes when no --out is given.
+std::string default_out_dir(const std::string& command);
+
+// "500ms", "20s", "2m", "1h" (a bare number is seconds); nullopt when not a duration.
+std::optional<std::chrono::milliseconds> parse_duration_text(const std::string& text);
+
+// --map-time DURATION: the longest the map probe runs.
+void add_map_time_option(CLI::App* cmd, std::optional<std::chrono::milliseconds>& into);
+
+// --fail-on must|should: which failed level fails the run (exit 1, JUnit <failure>).
+void add_fail_on_option(CLI::App* cmd, bool& fail_on_should);
+// A case that fails the run failed (report/result.h fails_run).
+bool run_failed(const conf::RunReport& report);
+
+// The footer every --help ends with.
+const char* exit_codes_footer();
+
+// After every command is added: the exit codes at the end of every --help,
+// `--version`, `help [COMMAND...]`.
+void add_conventions(CLI::App& app, int& exit_code);
+
+// Before parsing: a mistyped command or option is one line with the nearest
+// known one ("did you mean"), and -q means --quiet where a command has it.
+// Returns the exit code when argv cannot be parsed, else nullopt (argv may
+// have been rewritten in `args`).
+std::optional<int> check_args(CLI::App& app, std::vector<std::string>& args);
+
+// The nearest of `known` to `word` (edit distance at most 2, or a prefix),
+// empty when none is near.
+std::string nearest(const std::string& word, const std::vector<std::string>& known);
+
+}  // namespace mbc::cli
