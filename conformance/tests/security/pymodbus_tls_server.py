@@ -3,7 +3,7 @@
 StartAsyncTlsServer, the data store of ../peers/pymodbus_server.py (four
 blocks of 200 items, zero_mode). Prints "listening 127.0.0.1:PORT" when ready.
 
-usage: pymodbus_tls_server.py MODE CERT KEY CA
+usage: pymodbus_tls_server.py MODE CERT KEY CA [PORT]  (PORT 0 or none: any free port)
   --as-shipped  certfile/keyfile and reqclicert=True, as the documentation
                 of StartAsyncTlsServer shows them (sslctx_provider builds the
                 context: server/async_io.py:40-70)
@@ -39,9 +39,9 @@ def user_context(cert, key, ca):
     return ctx
 
 
-async def main(mode, cert, key, ca):
+async def main(mode, cert, key, ca, port="0"):
     context = ModbusServerContext(slaves=store(), single=True)
-    kw = {"context": context, "address": ("127.0.0.1", 0), "defer_start": True}
+    kw = {"context": context, "address": ("127.0.0.1", int(port)), "defer_start": True}
     if mode == "--as-shipped":
         kw.update(certfile=cert, keyfile=key, reqclicert=True)
     else:
@@ -58,4 +58,4 @@ async def main(mode, cert, key, ca):
 
 if __name__ == "__main__":
     logging.disable(logging.CRITICAL)
-    asyncio.run(main(*sys.argv[1:5]))
+    asyncio.run(main(*sys.argv[1:6]))
