@@ -165,6 +165,7 @@ class Prober {
     for (int attempt = 0;; ++attempt) {
       if (out()) stop(ti, address);
       ++used_;
+      if (limits_.on_request) limits_.on_request(used_, limits_.budget);
       uint64_t late = t_.late_replies();
       Reply r = t_.transact(t_.info().unit, req);
       if (t_.late_replies() != late && attempt < 2) continue;  // the window widened: ask again
@@ -400,7 +401,7 @@ const char* table_name(Table t) { return info_of(t).name; }
 
 Map probe(Target& target, const ProbeLimits& limits) { return Prober(target, limits).run(); }
 
-Map probe(Target& target, int budget) { return probe(target, ProbeLimits{budget, std::nullopt}); }
+Map probe(Target& target, int budget) { return probe(target, ProbeLimits{budget, std::nullopt, nullptr}); }
 
 Map parse_inline(const std::string& text) {
   Map m;

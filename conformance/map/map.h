@@ -9,6 +9,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -60,6 +61,8 @@ int planned_requests(int budget);
 struct ProbeLimits {
   int budget = kDefaultBudget;                     // the most requests (--map-budget)
   std::optional<std::chrono::milliseconds> time;   // the longest the probe runs (--map-time)
+  // After each request: how many were sent of the budget (progress).
+  std::function<void(int sent, int budget)> on_request;
 };
 
 // Probes `target` at info().unit with bounded reads (FC 01/02/03/04, never a

@@ -22,6 +22,7 @@
 #include "commands.h"
 #include "conventions.h"
 #include "report/report.h"
+#include "session/progress.h"
 
 namespace mbc::cli {
 namespace {
@@ -29,7 +30,7 @@ namespace {
 struct ClientArgs {
   std::string adapter, transport = "tcp", filter, out, quirks, pty, pki, pcap;
   int baud = 19200, timeout_ms = 500;
-  bool list = false, plan = false, junit_only = false, quiet = false;
+  bool list = false, plan = false, junit_only = false, quiet = false, progress = false;
   bool fail_on_should = false;  // --fail-on should
 };
 
@@ -106,11 +107,17 @@ int run(const ClientArgs& a) {
       return kExitUsage;
     }
   }
+  // A failure is printed as it comes on a terminal (else the summary lists
+  // it, once); progress goes to stderr (session/progress.h).
   bool tty = isatty(STDOUT_FILENO) && !a.quiet;
+  conf::Progress progress("client", a.progress, a.quiet || a.list || a.plan);
   o.on_case = [&](const conf::CaseResult& r, size_t done, size_t total) {
-    if (r.outcome == conf::Outcome::fail && tty) fmt::print("\r\033[K{}\n", conf::progress_line(r, done, total));  // else the summary lists it, once
-    else if (tty) fmt::print("\r\033[K{}", conf::progress_line(r, done, total));
-    std::fflush(stdout);
+    if (r.outcome == conf::Outcome::fail && tty) {
+      progress.clear();
+      fmt::print("{}\n", conf::progress_line(r, done, total));
+      std::fflush(stdout);
+    }
+    progress.update(done, total, "scenarios");
   };
   conf::RunReport report;
   report.command = "client";
@@ -118,7 +125,7 @@ int run(const ClientArgs& a) {
   report.version = "mbconform 0.1";
   report.fail_on_should = a.fail_on_should;
   client::ClientRun cr = client::run_client(o, list);
-  if (tty) fmt::print("\r\033[K");
+  progress.clear();
   if (!cr.error.empty()) {
     fmt::print(stderr, "mbconform client: error: {}\n", cr.error);
     if (!cr.adapter_log.empty()) fmt::print(stderr, "adapter log:\n{}", cr.adapter_log);
@@ -175,7 +182,8 @@ void add_client_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--quirks", a->quirks, "a quirks file, a YAML list of {case: ID-or-glob, reason} (conformance/README.md): known deviations, reported apart");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
   add_fail_on_option(cmd, a->fail_on_should);
-  cmd->add_flag("--quiet", a->quiet, "no progress line");
+  cmd->add_flag("-q,--quiet", a->quiet, "no progress and no failure printed as it comes (the summary and the reports stay)");
+  cmd->add_flag("--progress", a->progress, "progress on stderr (done/total, rate, elapsed, ETA) even when it is not a terminal");
   cmd->callback([a, &exit_code] { exit_code = run(*a); });
 }
 

@@ -19,6 +19,7 @@
 #include "loader.h"
 #include "report/report.h"
 #include "runner/runner.h"
+#include "session/progress.h"
 #include "session/session.h"
 #include "session/signals.h"
 #include "targets/target.h"
@@ -76,7 +77,11 @@ int replay_file(const std::string& file, const std::string& uri_in, const Target
     return kExitUsage;
   }
   // Through the session (a Link): its gate, its journal, its restore.
-  auto r = conf::replay(session, sc, opened.spec.get());
+  conf::Progress progress(command, o.progress, o.quiet);
+  conf::RunOptions ro;
+  ro.on_case = [&](const conf::CaseResult&, size_t done, size_t total) { progress.update(done, total, "cases"); };
+  auto r = conf::replay(session, sc, opened.spec.get(), ro);
+  progress.clear();
   restore_and_say(session, command);
   using Outcome = conf::ReplayResult::Outcome;
   if (auto stop = session.stopped()) {
@@ -122,6 +127,8 @@ void add_replay_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--out", o->out, "DIR: the journal of a live target (default reports/runs/replay-<UTC date-time>/)");
   add_opt_ins(*cmd, *o);
   cmd->add_flag("--no-preflight", o->no_preflight, "live targets: skip the read-only check that the drive looks like the spec");
+  cmd->add_flag("--progress", o->progress, "progress on stderr (cases done of the script's, rate, ETA) even when it is not a terminal");
+  cmd->add_flag("-q,--quiet", o->quiet, "no progress");
   cmd->callback([file, o, &exit_code] {
     exit_code = replay_file(*file, o->targets.empty() ? "" : o->targets.front(), *o, "replay");
   });

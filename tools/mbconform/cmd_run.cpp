@@ -224,7 +224,7 @@ int run(RunArgs& a) {
         fmt::print(stderr, "mbconform run: error: {}\n", why);
         return kExitUsage;
       }
-      map = conf::map::probe(*target, conf::map::ProbeLimits{a.map_budget, a.map_time});
+      map = conf::map::probe(*target, conf::map::ProbeLimits{a.map_budget, a.map_time, nullptr});
       notes = conf::map::probe_notes(*map);
       if (!a.quiet) fmt::print("{}: {}\n", uri, notes.front());
     } else if (a.map == "auto" && a.plan) {

@@ -18,6 +18,7 @@
 #include "map/map.h"
 #include "options.h"
 #include "runner/runner.h"
+#include "session/progress.h"
 #include "session/session.h"
 #include "session/signals.h"
 #include "targets/target.h"
@@ -241,6 +242,9 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
   discover->add_option("--map-budget", discover_budget, "the most read requests the probe sends")->check(CLI::Range(1, 1000000));
   static std::optional<std::chrono::milliseconds> discover_time;
   add_map_time_option(discover, discover_time);
+  static bool discover_progress = false, discover_quiet = false;
+  discover->add_flag("--progress", discover_progress, "progress on stderr (requests sent of the budget, rate, ETA) even when it is not a terminal");
+  discover->add_flag("-q,--quiet", discover_quiet, "no progress");
   discover->callback([&] {
     try {
       // Through a session with no spec: its gate lets no write through.
@@ -250,7 +254,11 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
       conf::Session session(discover_target, nullptr, so);
       conf::Target* target = &session.target();
       if (std::string why = session.reachable(); !why.empty()) throw std::runtime_error(why);
-      conf::map::Map m = conf::map::probe(*target, conf::map::ProbeLimits{discover_budget, discover_time});
+      conf::map::ProbeLimits limits{discover_budget, discover_time, nullptr};
+      conf::Progress progress("spec discover", discover_progress, discover_quiet);
+      limits.on_request = [&](int sent, int budget) { progress.update(uint64_t(sent), uint64_t(budget), "requests"); };
+      conf::map::Map m = conf::map::probe(*target, limits);
+      progress.clear();
       if (auto stop = session.stopped()) throw std::runtime_error("INCOMPLETE: " + *stop + "; no spec written");
       std::string id = discover_id.empty() ? fs::path(discover_out).stem().string() : discover_id;
       if (!write_file(discover_out, conf::map::skeleton_yaml(m, id, target->info().unit)))

@@ -32,6 +32,7 @@ struct TargetOptions {
   bool allow_writes = false;         // --allow-writes: a map whose access is not stated
   bool allow_long_waits = false;     // --allow-long-waits: a frame script's `wait` over kMaxWait
   bool progress = false;             // --progress: progress on stderr even when it is not a terminal
+  bool quiet = false;                // -q: no progress (commands that had no quiet flag of their own)
   bool no_preflight = false;         // --no-preflight: skip the identity check of a live drive
 };
 

@@ -161,7 +161,7 @@ TEST(Map, BitsAnsweredPastTheTablesEndAreADeviationNotTheMap) {
 
 TEST(Map, ATimeBoundStopsTheProbe) {
   auto t = open_target("ref:hanstar-7trsm5740q");
-  map::Map m = map::probe(*t, map::ProbeLimits{map::kDefaultBudget, std::chrono::milliseconds(0)});
+  map::Map m = map::probe(*t, map::ProbeLimits{map::kDefaultBudget, std::chrono::milliseconds(0), nullptr});
   EXPECT_TRUE(m.partial);
   EXPECT_EQ(m.partial_by, "time");
 }
