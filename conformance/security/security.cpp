@@ -10,6 +10,7 @@
 #include <chrono>
 #include <filesystem>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <stdexcept>
 
@@ -57,7 +58,7 @@ struct Attempt {
   bool resumed = false;
   bool close_notify_back = false;  // the server answered our close_notify with its own
   std::string close_text;
-  SSL_SESSION* session = nullptr;  // the session, for a resumption (caller frees)
+  std::shared_ptr<SSL_SESSION> session;  // the session, for a resumption
 };
 
 struct Seen {
@@ -161,7 +162,8 @@ Attempt attempt(const ServerUnderTest& s, const Client& c) {
     break;
   }
   if (a.after == Attempt::After::answered) {
-    a.session = SSL_get1_session(ssl);  // TLS 1.3 tickets come after the handshake: read by now
+    // TLS 1.3 tickets come after the handshake: read by now.
+    if (SSL_SESSION* got = SSL_get1_session(ssl)) a.session.reset(got, SSL_SESSION_free);
     if (c.close) {
       // MB-TCP-Security v2.1 §8.1 (TLS, RFC 8446 §6.1): each side sends
       // close_notify before closing its write side.
@@ -323,7 +325,6 @@ std::vector<Check> checks() {
                  c.close = true;
                  Attempt a = attempt(s, c);
                  if (a.after != Attempt::After::answered) return "error: the request was not answered: " + admission(a);
-                 if (a.session) SSL_SESSION_free(a.session);
                  return a.close_notify_back ? std::string("sent: the server answered close_notify with its own")
                                             : "not-sent: " + a.close_text;
                }});
@@ -335,10 +336,8 @@ std::vector<Check> checks() {
                  Attempt first = attempt(s, c);
                  if (!first.session) return "error: the first connection was not answered: " + admission(first);
                  Client again = with_cert(s.files.cert, s.files.key);
-                 again.session = first.session;
+                 again.session = first.session.get();
                  Attempt second = attempt(s, again);
-                 SSL_SESSION_free(first.session);
-                 if (second.session) SSL_SESSION_free(second.session);
                  if (!second.handshake) return "error: the second handshake failed: " + second.error;
                  return second.resumed ? fmt::format("resumed: {} session resumed", second.version)
                                        : fmt::format("not-resumed: {} full handshake again", second.version);

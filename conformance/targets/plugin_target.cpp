@@ -15,6 +15,7 @@
 // and a CPU-time limit (kCpuSeconds).
 // What the target can do follows the hooks the plugin fills in: handle_rtu
 // gives raw frames, power_cycle a power cycle, advance_time_us a virtual clock.
+#include <cstdlib>
 #include <fcntl.h>
 #include <fmt/core.h>
 #include <poll.h>
@@ -36,6 +37,17 @@
 #include "modbus/rtu.h"
 #include "targets/kinds.h"
 #include "targets/live_link.h"
+
+#if defined(__SANITIZE_ADDRESS__)
+#define MBC_ASAN 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define MBC_ASAN 1
+#endif
+#endif
+#ifndef MBC_ASAN
+#define MBC_ASAN 0
+#endif
 
 namespace mbc::conf {
 namespace {
@@ -99,8 +111,16 @@ class HostProcess {
       if (h == 0) {
         prctl(PR_SET_PDEATHSIG, SIGKILL);
         if (getppid() != intermediate) _exit(127);
+#if MBC_ASAN
+        // AddressSanitizer reserves terabytes of shadow address space, which
+        // RLIMIT_AS forbids: the sanitizer's own RSS limit kills the host instead.
+        std::string asan = getenv("ASAN_OPTIONS") ? getenv("ASAN_OPTIONS") : "";
+        asan += fmt::format("{}hard_rss_limit_mb={}", asan.empty() ? "" : ":", mem_mib);
+        setenv("ASAN_OPTIONS", asan.c_str(), 1);
+#else
         rlimit mem{rlim_t(mem_mib) << 20, rlim_t(mem_mib) << 20};
         setrlimit(RLIMIT_AS, &mem);
+#endif
         rlimit cpu{kCpuSeconds, kCpuSeconds};
         setrlimit(RLIMIT_CPU, &cpu);
         // dup2 onto the descriptor a pipe end already is keeps its O_CLOEXEC, and

@@ -220,7 +220,8 @@ TEST(Import, AVendorSheetInGbkWithChineseHeaders) {
 TEST(Import, DecimalCommas) {
   auto r = import_csv("address;name;access;scale;range\n1;Speed;rw;0,1;0,5~99,5\n", "eu.csv", "eu");
   ASSERT_TRUE(r.errors.empty()) << r.errors[0];
-  const auto* reg = load(r, "eu").find_register(1);
+  const spec::Spec s = load(r, "eu");
+  const auto* reg = s.find_register(1);
   ASSERT_TRUE(reg && reg->range);
   EXPECT_EQ(reg->scale, 0.1);
   EXPECT_EQ(reg->range->min, 0.5);
