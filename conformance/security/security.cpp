@@ -368,6 +368,12 @@ std::vector<std::string> check_names() {
   return out;
 }
 
+std::vector<CheckListing> check_listing() {
+  std::vector<CheckListing> out;
+  for (const auto& c : checks()) out.push_back({c.id, c.clause, c.title, c.requirement});
+  return out;
+}
+
 std::vector<CaseResult> check_server(const ServerUnderTest& s, const std::string& device_id) {
   std::vector<CaseResult> out;
   for (const auto& c : checks()) {

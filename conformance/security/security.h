@@ -40,6 +40,13 @@ ServerUnderTest from_uri(const std::string& uri);
 // The checks' ids under "<device>/security/" (for --filter and --list).
 std::vector<std::string> check_names();
 
+// Each check as --list and --plan show it (every one OBSERVED: no sentence
+// of the specification is in this project's sources).
+struct CheckListing {
+  std::string id, clause, title, requirement;
+};
+std::vector<CheckListing> check_listing();
+
 // Runs every check; ids are "<device>/security/<what>".
 std::vector<CaseResult> check_server(const ServerUnderTest& s, const std::string& device_id);
 

@@ -252,6 +252,11 @@ int run(RunArgs& a) {
       for (const auto& c : cases)
         fmt::print("{}{}  {}  {}  {}{}\n", column, c.id, conf::to_string(c.level), c.clause, c.title,
                    c.skip_reason.empty() ? "" : "  [skip: " + c.skip_reason + "]");
+      if (info.kind == "tls")
+        for (const auto& k : conf::security::check_listing())
+          if (keep(s.device.id + "/security/" + k.id))
+            fmt::print("{}{}/security/{}  {}  {}  {}  [a TLS check, made after the cases]\n", column, s.device.id, k.id,
+                       conf::to_string(conf::Level::observed), k.clause, k.title);
       continue;
     }
     if (a.plan) {
@@ -265,6 +270,16 @@ int run(RunArgs& a) {
         for (const auto& l : conf::check::case_lines(c, info.framing)) fmt::print("{}\n", l);
       }
       for (const auto& b : conf::cases::planned_broadcast_writes(cases)) fmt::print("# every drive on the line receives: {}\n", b);
+      if (info.kind == "tls") {
+        // Connections of their own, not frames of this plan: `run` makes them after the cases; replay does not.
+        bool any = false;
+        for (const auto& k : conf::security::check_listing())
+          if (keep(s.device.id + "/security/" + k.id)) {
+            if (!any) fmt::print("#\n# TLS checks `run` makes after the cases, each on connections of its own (replay does not make them):\n");
+            any = true;
+            fmt::print("#   {}/security/{}  OBSERVED  {}  {}\n", s.device.id, k.id, k.clause, k.title);
+          }
+      }
       continue;
     }
     fmt::print("{}: {} cases against {}\n", s.device.id, cases.size(), info.uri);

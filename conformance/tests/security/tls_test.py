@@ -104,6 +104,17 @@ def word(c):
 def test_standard():
     """The standard cases pass over TLS as over TCP (the MBAP ADU is carried
     unchanged, MB-TCP-Security v2.1 §6), and the handshake is the spec's."""
+    # --list and --plan name the security checks too (nothing is connected).
+    uri = target(802)
+    listed = subprocess.run([MB, "run", "--target", uri, "--device", "modbus-standard", "--list"], capture_output=True, text=True)
+    sec = [l for l in listed.stdout.splitlines() if "/security/" in l]
+    check(listed.returncode == 0 and len(sec) >= 10 and all("  OBSERVED  " in l for l in sec)
+          and any("modbus-standard/security/tls-1.0-refused " in l for l in sec),
+          f"run --list names the security checks, each OBSERVED (got {len(sec)}: {sec[:2]})")
+    planned = subprocess.run([MB, "run", "--target", uri, "--device", "modbus-standard", "--plan", "--filter", "security/"],
+                             capture_output=True, text=True)
+    check(planned.returncode == 0 and "modbus-standard/security/asks-client-certificate" in planned.stdout,
+          f"run --plan --filter security/ names them (exit {planned.returncode}: {planned.stderr.strip()[-200:]!r})")
     s = serve_tls(tcp=True)
     try:
         tls_port, tcp_port = s.port(0), s.port(1)
