@@ -215,6 +215,24 @@ class Session::View final : public Target {
   Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
     return take(s_.send_raw_on(*inner_, bytes, gap_after, wait_));
   }
+  // Pipelined where the target pipelines (Modbus TCP): every request of the
+  // batch passes the gate (and the journal) before the batch goes out; a
+  // batch with a refused request goes one by one, so the refusal is that
+  // request's.
+  bool pipelines() const override { return inner_->pipelines(); }
+  std::vector<Reply> transact_all(std::span<const Request> requests, size_t depth) override {
+    if (!inner_->pipelines() || requests.size() < 2) return Target::transact_all(requests, depth);
+    if (s_.stopped()) return Target::transact_all(requests, depth);
+    for (const auto& r : requests)
+      if (s_.before_write(*inner_, r.unit, r.pdu)) return Target::transact_all(requests, depth);
+    inner_->set_wait(wait_);
+    auto replies = inner_->transact_all(requests, depth);
+    for (size_t k = 0; k < replies.size(); ++k) {
+      if (s_.opt_.on_frame) s_.opt_.on_frame(++s_.frames_);
+      else ++s_.frames_;
+    }
+    return replies;
+  }
   std::optional<std::chrono::microseconds> split_gap() const override { return inner_->split_gap(); }
   void set_split_gap(std::chrono::microseconds g) override { inner_->set_split_gap(g); }
   std::chrono::microseconds silence_window() const override { return inner_->silence_window(); }
