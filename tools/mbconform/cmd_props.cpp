@@ -212,6 +212,7 @@ int run(PropsArgs& a) {
       dr.cases.push_back(std::move(c));
     }
     dr.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    dr.frames_sent = session.frames();  // every frame the properties sent, through the session
     if (info.live) dr.restore_failures = restore_and_say(session, "props");
     report.devices.push_back(std::move(dr));
     if (conf::stop_requested()) report.interrupted = true;
