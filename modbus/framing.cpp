@@ -14,4 +14,16 @@ const Framing kTcp{"tcp", kMbapHeader, 0, kMaxTcpAdu,
                    },
                    mbap_unframe};
 
+const char* to_string(Transport t) {
+  switch (t) {
+    case Transport::tcp: return "tcp";
+    case Transport::rtu_tcp: return "rtu-tcp";
+    case Transport::pty: return "pty";
+    case Transport::tls: return "tls";
+  }
+  return "?";
+}
+
+const Framing& framing_of(Transport t) { return t == Transport::tcp || t == Transport::tls ? kTcp : kRtu; }
+
 }  // namespace mbc

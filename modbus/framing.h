@@ -41,4 +41,12 @@ struct Framing {
 extern const Framing kRtu;  // rtu.h
 extern const Framing kTcp;  // mbap.h
 
+// How ADUs travel between a master and a slave: Modbus TCP, RTU frames over
+// TCP, RTU on a serial line (a pty here), MBAP inside TLS (MB-TCP-Security).
+// The one transport descriptor of serve, the client's scenario servers and
+// the targets' URIs; its framing is one of the two above.
+enum class Transport { tcp, rtu_tcp, pty, tls };
+const char* to_string(Transport t);      // "tcp", "rtu-tcp", "pty", "tls"
+const Framing& framing_of(Transport t);  // kTcp for tcp and tls, kRtu for rtu-tcp and pty
+
 }  // namespace mbc

@@ -346,7 +346,7 @@ std::optional<Step> Generator::malformed(const Bytes& pdu) {
   // only desynchronise the stream. On a byte stream without timing (TCP,
   // RTU over TCP) a frame whose length is wrong swallows the next request
   // (its end is found by counting bytes), so only length-keeping faults.
-  if (p_.info.framing != Framing::rtu) return std::nullopt;
+  if (p_.info.framing != &mbc::kRtu) return std::nullopt;
   const bool stream = p_.info.kind == "tcp" || p_.info.kind == "rtu-tcp";
   uint8_t unit = p_.info.unit;
   Step s = check::raw_rtu(rtu_frame(unit, pdu));

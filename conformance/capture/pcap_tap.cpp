@@ -54,7 +54,7 @@ class TapTarget : public Target {
  public:
   TapTarget(std::unique_ptr<Target> inner, std::shared_ptr<PcapFile> file) : inner_(std::move(inner)), file_(std::move(file)) {
     const TargetInfo& i = inner_->info();
-    mbap_ = i.framing == Framing::mbap;
+    mbap_ = i.framing == &mbc::kTcp;
     std::string what = strf("%s (%s)", i.uri.c_str(), mbap_ ? "Modbus TCP, drawn as 10.0.0.1 -> 10.0.0.2:502"
                                                               : "RTU ADUs; first byte: 0 to the device, 1 from it");
     iface_ = file_->add_interface(mbap_ ? pcapng::kLinkEthernet : pcapng::kLinkUser0, i.uri, what);

@@ -96,7 +96,7 @@ std::optional<Step> provoke(const GenContext& g, Violation v) {
       return st;
     }
     case Violation::crc_error: {
-      if (!first || !g.target.raw || g.target.framing != Framing::rtu) return std::nullopt;
+      if (!first || !g.target.raw || g.target.framing != &mbc::kRtu) return std::nullopt;
       st.kind = Step::Kind::raw;
       st.bytes = rtu_frame(g.target.unit, read_request(3, first->address, 1));
       st.bytes.back() ^= 0xFF;

@@ -173,7 +173,7 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
   } else {
     // A frame the manual corrupts on purpose: it goes out raw, re-addressed to
     // the target with the same CRC error (the XOR from the correct CRC is kept).
-    if (!g.target.raw || g.target.framing != Framing::rtu) {
+    if (!g.target.raw || g.target.framing != &mbc::kRtu) {
       b.skip = "the printed request has a wrong CRC and the target cannot send raw RTU frames";
       return;
     }

@@ -53,7 +53,7 @@ struct Gen {
   }
 
   bool needs_raw(Case& c) {
-    if (g.target.framing != Framing::rtu) {
+    if (g.target.framing != &mbc::kRtu) {
       c.skip_reason = "RTU framing case; the target frames MBAP";
       return false;
     }
@@ -86,7 +86,7 @@ struct Gen {
       uint8_t other = g.target.unit == 247 ? 246 : 247;
       c.title = fmt::format("a request for slave {} gets no reply from slave {}", other, g.target.unit);
       c.requirement = "Only the addressed slave answers (MB-SL v1.02 §2.2: the master addresses one slave; others ignore the request).";
-      if (g.target.framing != Framing::rtu) {
+      if (g.target.framing != &mbc::kRtu) {
         c.skip_reason = "RTU addressing; an MBAP unit id is routed by the gateway";
       } else {
         Step s;

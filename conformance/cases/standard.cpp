@@ -263,7 +263,7 @@ struct Gen {
   // FC 08 is serial line only (MBAP v1.1b3 §6.8).
   void diagnostics() {
     if (!cases::has_fc(g.spec, 8)) return;
-    std::string serial_only = g.target.framing == Framing::rtu ? "" : "FC 08 is for serial line only (MBAP v1.1b3 §6.8); the target frames MBAP";
+    std::string serial_only = g.target.framing == &mbc::kRtu ? "" : "FC 08 is for serial line only (MBAP v1.1b3 §6.8); the target frames MBAP";
     {
       Case c = base("fc08", "return-query-data", "MBAP v1.1b3 §6.8.1, sub-function 00", Level::must);
       c.title = "FC 08 / 00 Return Query Data with 0xA537";
@@ -393,11 +393,11 @@ struct Gen {
       Case c = base("mbap", what, "TCP IG v1.0b §3.1.3; " + std::string("MBAP v1.1b3 §7"), Level::observed);
       c.title = title;
       c.requirement = req + " The standard does not state the answer: recorded; the next good request must be answered.";
-      if (g.target.framing != Framing::mbap) c.skip_reason = "an MBAP case; the target frames RTU (framing/rtu/* checks its frames)";
+      if (g.target.framing != &mbc::kTcp) c.skip_reason = "an MBAP case; the target frames RTU (framing/rtu/* checks its frames)";
       else if (!g.target.raw) c.skip_reason = "the target cannot send raw frames";
       Step s;
       s.kind = Step::Kind::raw;
-      s.framing = Framing::mbap;  // the bytes are an MBAP ADU (TCP IG v1.0b §3.1.3)
+      s.framing = &mbc::kTcp;  // the bytes are an MBAP ADU (TCP IG v1.0b §3.1.3)
       s.bytes = std::move(adu);
       s.note = title;
       s.expect = std::move(e);

@@ -55,7 +55,7 @@ Step frame(Framing framing, uint8_t unit, Bytes pdu, Expect expect, std::string 
 Step raw_rtu(Bytes adu, std::optional<size_t> gap, Expect expect, std::string note) {
   Step s;
   s.kind = Step::Kind::raw;
-  s.framing = Framing::rtu;
+  s.framing = &mbc::kRtu;
   s.bytes = std::move(adu);
   s.gap = gap;
   s.expect = std::move(expect);
@@ -65,7 +65,7 @@ Step raw_rtu(Bytes adu, std::optional<size_t> gap, Expect expect, std::string no
 
 Step raw_mbap(Bytes adu, Expect expect, std::string note) {
   Step s = raw_rtu(std::move(adu), std::nullopt, std::move(expect), std::move(note));
-  s.framing = Framing::mbap;
+  s.framing = &mbc::kTcp;
   return s;
 }
 
@@ -85,12 +85,12 @@ Step power_cycle() {
 Bytes wire_bytes(const Step& s, Framing framing) {
   if (s.kind == Step::Kind::raw) return s.bytes;
   if (s.kind != Step::Kind::frame) return {};
-  return framing == Framing::rtu ? rtu_frame(s.unit, s.pdu) : mbap_frame(s.tid.value_or(0), s.unit, s.pdu);
+  return framing == &mbc::kRtu ? rtu_frame(s.unit, s.pdu) : mbap_frame(s.tid.value_or(0), s.unit, s.pdu);
 }
 
 bool is_broadcast_write(const Step& st) {
   if (st.kind == Step::Kind::frame) return st.unit == 0 && !st.pdu.empty() && (st.pdu[0] < 1 || st.pdu[0] > 4);
-  if (st.kind == Step::Kind::raw && st.framing == Framing::rtu)
+  if (st.kind == Step::Kind::raw && st.framing == &mbc::kRtu)
     return st.bytes.size() >= 2 && st.bytes[0] == 0 && (st.bytes[1] < 1 || st.bytes[1] > 4);
   if (st.kind == Step::Kind::raw)
     return st.bytes.size() > kMbapHeader && st.bytes[6] == 0 && (st.bytes[7] < 1 || st.bytes[7] > 4);

@@ -75,7 +75,7 @@ struct Step {
   } kind = Kind::frame;
   // frame: the framing it was written in (how it is printed); raw: the
   // framing its bytes belong to, which the target must have.
-  Framing framing = Framing::rtu;
+  Framing framing = &mbc::kRtu;
   uint8_t unit = 0;                   // frame (0 = broadcast)
   Bytes pdu{};                          // frame
   std::optional<uint16_t> tid{};        // frame printed as MBAP: its transaction id; nullopt prints '*'

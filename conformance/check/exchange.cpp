@@ -174,8 +174,8 @@ CaseResult run_case(Exchange& x, const spec::Spec& spec, const Case& c) {
     if (st.kind == Step::Kind::power_cycle && !info.power_cycle) return skipped(res, "the target cannot be power-cycled");
     if (st.kind == Step::Kind::raw && !info.raw) return skipped(res, "the target cannot send raw frames");
     if (st.kind == Step::Kind::raw && st.framing != info.framing)
-      return skipped(res, fmt::format("raw {} bytes; the target frames {}", st.framing == Framing::rtu ? "RTU" : "MBAP",
-                                      info.framing == Framing::rtu ? "RTU" : "MBAP"));
+      return skipped(res, fmt::format("raw {} bytes; the target frames {}", st.framing == &mbc::kRtu ? "RTU" : "MBAP",
+                                      info.framing == &mbc::kRtu ? "RTU" : "MBAP"));
   }
   auto saved = save(x, spec, c);
 
@@ -228,7 +228,7 @@ CaseResult run_case(Exchange& x, const spec::Spec& spec, const Case& c) {
     fr.expected = expected_bytes(st, ctx);
     if (fr.expected) {
       const Bytes& e = *fr.expected;
-      bool adu = info.framing == Framing::rtu && e.size() >= 4 && crc_ok(e);
+      bool adu = info.framing == &mbc::kRtu && e.size() >= 4 && crc_ok(e);
       fr.expected_decoded = describe_pdu(adu ? rtu_unframe(e).pdu : e, false);
     }
     auto miss = judge_expect(st.expect, st, reply, ctx);

@@ -13,7 +13,7 @@ std::optional<Bytes> request_pdu(const Step& s, uint8_t unit) {
   if (s.kind == Step::Kind::frame) return s.pdu;
   if (s.kind != Step::Kind::raw) return std::nullopt;
   std::span<const uint8_t> all(s.bytes);
-  if (s.framing == Framing::mbap) {
+  if (s.framing == &mbc::kTcp) {
     // The receiver frames by the MBAP header (TCP IG v1.0b §3.1.3): a PDU only
     // when the header is whole, protocol 0, and its length counts the bytes.
     Unframed u = mbap_unframe(all);
@@ -100,7 +100,7 @@ std::optional<Mismatch> judge_expect(const Expect& e, const Step& s, const Reply
     case K::reply: {
       bool exc = !pdu.empty() && (pdu[0] & 0x80);
       if (pdu != e.pdu) return Mismatch{exc ? M::refused : M::different, fmt::format("PDU differs (expected {})", to_hex(e.pdu))};
-      if (e.adu && ctx.framing == Framing::rtu && r.frame != *e.adu)
+      if (e.adu && ctx.framing == &mbc::kRtu && r.frame != *e.adu)
         return Mismatch{M::different, fmt::format("frame differs (expected {})", to_hex(*e.adu))};
       return std::nullopt;
     }
@@ -179,10 +179,10 @@ std::string judge_reading(const Step& s, const Reply& r, const JudgeContext& ctx
 std::optional<Bytes> expected_bytes(const Step& st, const JudgeContext& ctx) {
   const Expect& e = st.expect;
   auto req = request_pdu(st, ctx.unit);
-  bool rtu_frame_step = ctx.framing == Framing::rtu && st.kind == Step::Kind::frame;
+  bool rtu_frame_step = ctx.framing == &mbc::kRtu && st.kind == Step::Kind::frame;
   auto framed = [&](Bytes pdu) { return rtu_frame_step ? rtu_frame(st.unit, pdu) : pdu; };
   switch (e.kind) {
-    case Expect::Kind::reply: return e.adu && ctx.framing == Framing::rtu ? *e.adu : e.pdu;
+    case Expect::Kind::reply: return e.adu && ctx.framing == &mbc::kRtu ? *e.adu : e.pdu;
     case Expect::Kind::exception:
       if (!req || req->empty()) return std::nullopt;
       return framed(Bytes{uint8_t((*req)[0] | 0x80), e.code});

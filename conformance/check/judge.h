@@ -29,7 +29,7 @@ struct Mismatch {
 // What the judge needs beyond the step and the reply.
 struct JudgeContext {
   uint8_t unit = 1;                  // the unit the target is addressed as
-  Framing framing = Framing::rtu;    // the target's framing (an exact ADU is checked on RTU only)
+  Framing framing = &mbc::kRtu;    // the target's framing (an exact ADU is checked on RTU only)
   const spec::Spec* spec = nullptr;  // adds the exception codes the device documents
   // The replies (PDUs) of the earlier steps of the same case (`same`).
   std::span<const std::optional<Bytes>> earlier;

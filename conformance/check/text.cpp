@@ -164,7 +164,7 @@ std::string line(const Step& s, std::optional<Framing> framing) {
   std::string l;
   switch (s.kind) {
     case Step::Kind::frame:
-      if (framing.value_or(s.framing) == Framing::rtu) {
+      if (framing.value_or(s.framing) == &mbc::kRtu) {
         l = "rtu " + to_hex(rtu_frame(s.unit, s.pdu));
       } else {
         Bytes adu = mbap_frame(s.tid.value_or(0), s.unit, s.pdu);
@@ -172,7 +172,7 @@ std::string line(const Step& s, std::optional<Framing> framing) {
       }
       break;
     case Step::Kind::raw: {
-      l = s.framing == Framing::rtu ? "raw-rtu" : "raw-mbap";
+      l = s.framing == &mbc::kRtu ? "raw-rtu" : "raw-mbap";
       for (size_t i = 0; i < s.bytes.size(); ++i) {
         if (s.gap && *s.gap == i) l += " |";
         l += fmt::format(" {:02X}", s.bytes[i]);
@@ -215,7 +215,7 @@ std::string format(const Script& s) {
   if (!s.fault.empty()) out += "fault " + s.fault + "\n";
   for (const auto& st : s.steps) out += line(st) + "\n";
   for (const auto& cs : s.cases)
-    for (const auto& l : case_lines(cs, Framing::rtu)) out += l + "\n";
+    for (const auto& l : case_lines(cs, &mbc::kRtu)) out += l + "\n";
   return out;
 }
 
@@ -344,7 +344,7 @@ Script parse(const std::string& text, const std::string& file) {
       if (adu.size() < 4) p.fail(w[0].col, "rtu", "an RTU frame is at least unit, function code and CRC (4 bytes)");
       if (!crc_ok(adu)) p.fail(w[0].col, "crc", "the CRC is wrong; a frame that must go out with a bad CRC is written raw-rtu");
       Unframed u = rtu_unframe(adu);
-      st.framing = Framing::rtu;
+      st.framing = &mbc::kRtu;
       st.unit = u.unit;
       st.pdu = std::move(u.pdu);
     } else if (kw == "mbap") {
@@ -356,12 +356,12 @@ Script parse(const std::string& text, const std::string& file) {
       if (adu[2] != 0 || adu[3] != 0) p.fail(w[0].col, "mbap", "protocol id is not 0; such a frame is written raw-mbap");
       if (!u.ok()) p.fail(w[0].col, "mbap", "the length field does not count unit id and PDU; such a frame is written raw-mbap");
       if (!star) st.tid = u.transaction;
-      st.framing = Framing::mbap;
+      st.framing = &mbc::kTcp;
       st.unit = u.unit;
       st.pdu = std::move(u.pdu);
     } else if (kw == "raw-rtu" || kw == "raw-mbap") {
       st.kind = Step::Kind::raw;
-      st.framing = kw == "raw-rtu" ? Framing::rtu : Framing::mbap;
+      st.framing = kw == "raw-rtu" ? &mbc::kRtu : &mbc::kTcp;
       st.bytes = p.hex(w, 1, arrow, kw == "raw-rtu" ? &st.gap : nullptr);
       if (st.bytes.empty()) p.fail(w[0].col, "step", kw + " needs the bytes as hex");
     } else if (kw == "advance" || kw == "wait") {

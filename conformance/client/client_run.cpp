@@ -32,7 +32,6 @@ constexpr milliseconds kConnectWait{5000};
 constexpr milliseconds kHangMargin{3000};   // beyond the step's own delays: the adapter hangs
 constexpr milliseconds kSettle{30};         // quiet after the server's last send, before the next step
 
-const Framing& framing_of(Transport t) { return t == Transport::tcp ? kTcp : kRtu; }
 
 json connect_message(const ClientOptions& o, const ScenarioServer& s) {
   json c{{"timeout_ms", o.timeout.count()}, {"retries", 0}};
@@ -302,9 +301,9 @@ std::vector<Scenario> selected(const ClientOptions& o, const std::function<bool(
     for (auto& s : v)
       if (keep(s.id)) out.push_back(std::move(s));
   };
-  add(scenarios(wire_of(o.transport), o.transport == Transport::pty, standard_limits()));
+  add(scenarios(framing_of(o.transport), o.transport == Transport::pty, standard_limits()));
   // A pty is the only serial line here: its timing checks are OBSERVED.
-  add(run_wide_checks(wire_of(o.transport), o.transport == Transport::pty, o.transport == Transport::pty));
+  add(run_wide_checks(framing_of(o.transport), o.transport == Transport::pty, o.transport == Transport::pty));
   return out;
 }
 

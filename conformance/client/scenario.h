@@ -18,12 +18,13 @@
 
 #include <nlohmann/json.hpp>
 
+#include "modbus/framing.h"
 #include "report/result.h"
 
 namespace mbc::client {
 
-// The framing a run speaks: Modbus TCP, or RTU frames (RTU over TCP, a pty).
-enum class Wire { tcp, rtu };
+// The framing a run speaks is modbus/'s descriptor: kTcp (Modbus TCP, TLS)
+// or kRtu (RTU frames: RTU over TCP, a pty).
 
 // How the scenario server answers the request a step provokes.
 enum class Fault {
@@ -97,10 +98,10 @@ Limits standard_limits();
 
 // Every scenario for a wire, in report order. `timing_on_pty`: the RTU run is
 // on a pty (t1.5/t3.5 checks OBSERVED there, MUST on a real line).
-std::vector<Scenario> scenarios(Wire wire, bool timing_on_pty, const Limits& limits);
+std::vector<Scenario> scenarios(const Framing& wire, bool timing_on_pty, const Limits& limits);
 
 // The run-wide checks computed over every request seen (transaction ids on
 // TCP, t1.5 / t3.5 on a serial line): their headers; the runner fills in the outcome.
-std::vector<Scenario> run_wide_checks(Wire wire, bool serial_line, bool timing_on_pty);
+std::vector<Scenario> run_wide_checks(const Framing& wire, bool serial_line, bool timing_on_pty);
 
 }  // namespace mbc::client

@@ -138,17 +138,17 @@ Passing right_or_error(const json& request) {
   return p;
 }
 
-void request_scenarios(std::vector<Scenario>& out, Wire wire) {
+void request_scenarios(std::vector<Scenario>& out, const Framing& wire) {
   for (auto& c : op_cases()) {
     std::string name = c.request.at("op").get<std::string>();
     Scenario s;
     s.id = "client/request/" + name;
     s.family = "client-requests";
-    s.clause = std::string(c.clause) + (wire == Wire::tcp ? "; TCP IG v1.0b §3.1.3" : "; MB-SL v1.02 §2.5.1");
+    s.clause = std::string(c.clause) + (&wire == &kTcp ? "; TCP IG v1.0b §3.1.3" : "; MB-SL v1.02 §2.5.1");
     s.level = Level::must;
     s.title = fmt::format("{} (FC {:02X}): the request is well formed, for the unit asked, and the reply's values reach the caller",
                           name, model::function_of(name));
-    s.requirement = fmt::format("{} {}. {} {}", c.clause, c.layout, wire == Wire::tcp ? kMbapFields : kCrc, kUnitRouting);
+    s.requirement = fmt::format("{} {}. {} {}", c.clause, c.layout, &wire == &kTcp ? kMbapFields : kCrc, kUnitRouting);
     s.op = name;
     s.steps.push_back(step(c.request, Fault::none, correct_answer(c.request)));
     out.push_back(std::move(s));
@@ -222,8 +222,8 @@ Scenario reply_scenario(const char* id, const char* clause, Level level, std::st
   return s;
 }
 
-void reply_scenarios(std::vector<Scenario>& out, Wire wire) {
-  bool tcp = wire == Wire::tcp;
+void reply_scenarios(std::vector<Scenario>& out, const Framing& wire) {
+  bool tcp = &wire == &kTcp;
   json r = read5();
   Passing right = correct_answer(r);
   Passing error = kinds({"invalid_reply", "timeout"});
@@ -395,7 +395,7 @@ Limits standard_limits() {
   return l;
 }
 
-std::vector<Scenario> scenarios(Wire wire, bool timing_on_pty, const Limits& limits) {
+std::vector<Scenario> scenarios(const Framing& wire, bool timing_on_pty, const Limits& limits) {
   std::vector<Scenario> out;
   request_scenarios(out, wire);
   limit_scenarios(out, limits);
@@ -403,9 +403,9 @@ std::vector<Scenario> scenarios(Wire wire, bool timing_on_pty, const Limits& lim
   return out;
 }
 
-std::vector<Scenario> run_wide_checks(Wire wire, bool serial_line, bool timing_on_pty) {
+std::vector<Scenario> run_wide_checks(const Framing& wire, bool serial_line, bool timing_on_pty) {
   std::vector<Scenario> out;
-  if (wire == Wire::tcp) {
+  if (&wire == &kTcp) {
     Scenario s;
     s.id = "client/request/transaction-ids";
     s.family = "client-requests";

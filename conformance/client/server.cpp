@@ -43,14 +43,6 @@ constexpr milliseconds kStreamQuiet{50};
 
 }  // namespace
 
-const char* to_string(Transport t) {
-  switch (t) {
-    case Transport::tcp: return "tcp";
-    case Transport::rtu_tcp: return "rtu-tcp";
-    case Transport::pty: return "pty";
-  }
-  return "?";
-}
 
 ScenarioServer::ScenarioServer(Transport t, std::string pty_path, int baud)
     : transport_(t), pty_path_(std::move(pty_path)), baud_(baud) {

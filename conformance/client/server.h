@@ -19,14 +19,14 @@
 
 #include "client/scenario.h"
 #include "modbus/bytes.h"
+#include "modbus/framing.h"
 
 namespace mbc::client {
 
 using Clock = std::chrono::steady_clock;
 
-enum class Transport { tcp, rtu_tcp, pty };
-const char* to_string(Transport);  // "tcp", "rtu-tcp", "pty"
-inline Wire wire_of(Transport t) { return t == Transport::tcp ? Wire::tcp : Wire::rtu; }
+// Transport: modbus/framing.h's. The scenario servers serve tcp, rtu-tcp and
+// pty; tls is tcp behind a TLS front (client/tls_front.h).
 
 // One request frame as the master sent it.
 struct SeenRequest {

@@ -322,7 +322,7 @@ std::vector<Invariant> make_invariants() {
                "Frames for another slave id, and frames with any corrupted byte, never change state and never get a "
                "reply other than what the policy allows.",
                [](const SpecView& v, const TargetInfo& t, const DeviceFacts*) {
-                 if (t.framing != Framing::rtu) return std::string("not an RTU target");
+                 if (t.framing != &mbc::kRtu) return std::string("not an RTU target");
                  return v.image_reads().empty() ? std::string("no FC 03 image to compare") : std::string();
                },
                foreign_or_corrupt_ignored});

@@ -43,7 +43,7 @@ Step frame_step(const Reply& r, const TargetInfo& info, Bytes rtu, const std::st
   Step s;
   s.frame = std::move(rtu);
   s.framing = info.framing;
-  if (info.framing == Framing::mbap && r.request.size() >= 2) s.tid = uint16_t(r.request[0] << 8 | r.request[1]);
+  if (info.framing == &mbc::kTcp && r.request.size() >= 2) s.tid = uint16_t(r.request[0] << 8 | r.request[1]);
   if (!r.silent()) s.reply = r.frame;
   s.reply_pdu = r.pdu;
   s.note = note;
@@ -96,7 +96,7 @@ std::vector<FrameRecord> records_of(const std::vector<Step>& steps) {
     f.step = s.note.empty() ? s.line() : s.note;
     if (s.kind == Step::Kind::frame) {
       check::Step sc = s.script();
-      f.request = check::wire_bytes(sc, sc.kind == check::Step::Kind::raw ? Framing::rtu : s.framing);
+      f.request = check::wire_bytes(sc, sc.kind == check::Step::Kind::raw ? &mbc::kRtu : s.framing);
       f.actual = s.reply;
       if (s.frame.size() >= 4) f.request_decoded = describe_pdu(std::span(s.frame).subspan(1, s.frame.size() - 3), true);
       if (s.reply_pdu) f.actual_decoded = describe_pdu(*s.reply_pdu, false);

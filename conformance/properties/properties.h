@@ -34,7 +34,7 @@ namespace mbc::conf::props {
 struct Step {
   enum class Kind { frame, advance, power_cycle } kind = Kind::frame;
   Bytes frame;          // the frame as an RTU ADU (slave, PDU, CRC; possibly corrupted): what the model reads
-  Framing framing = Framing::rtu;  // how the target framed it: how it is printed
+  Framing framing = &mbc::kRtu;  // how the target framed it: how it is printed
   std::optional<uint16_t> tid;     // MBAP: the transaction id it went with
   uint64_t advance_us = 0;
   std::optional<Bytes> reply;      // as received, in the target's framing; nullopt = silence (frames only)

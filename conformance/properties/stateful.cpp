@@ -212,7 +212,8 @@ Prediction predict(const Model& m, std::span<const uint8_t> adu) {
     silence.why = fmt::format("for slave {} (MB-SL v1.02 §2.2)", adu[0]);
     return silence;
   }
-  Prediction p = predict_pdu(m, adu.subspan(1, adu.size() - 3));
+  const Bytes pdu = rtu_unframe(adu).pdu;  // the CRC was checked above
+  Prediction p = predict_pdu(m, pdu);
   if (!broadcast) return p;
   // MB-SL v1.02 §2.1: no reply to broadcast; writes act per the spec.
   silence.why = "broadcast (MB-SL v1.02 §2.1)";
@@ -388,7 +389,7 @@ std::optional<Model> initial_model(Session& s, std::string& error) {
   m.facts = s.facts();
   m.unit = s.unit();
   const TargetInfo& t = s.target().info();
-  m.raw = t.raw && t.framing == Framing::rtu;
+  m.raw = t.raw && t.framing == &mbc::kRtu;
   m.virtual_clock = t.virtual_clock;
   m.power_cycle = t.power_cycle;
   m.live = t.live;
@@ -598,7 +599,7 @@ std::string replay(Session& s, const std::vector<Step>& steps) {
     if (std::string why = judge(*m, p, st.frame, rep); !why.empty())
       return fmt::format("step {} ({}): {}", i + 1, st.line(), why);
     // The expectation written in the file holds too.
-    if (auto miss = check::judge(st.script(), rep, check::JudgeContext{m->unit, Framing::rtu, &s.spec(), {}}))
+    if (auto miss = check::judge(st.script(), rep, check::JudgeContext{m->unit, &mbc::kRtu, &s.spec(), {}}))
       return fmt::format("step {} ({}): {}", i + 1, st.line(), miss->why);
     apply_frame(*m, p, &rep);
   }
@@ -623,7 +624,7 @@ Regression parse_regression(const std::string& path) {
         s.tid = st.tid;
         break;
       case check::Step::Kind::raw:
-        if (st.framing != Framing::rtu || st.gap)
+        if (st.framing != &mbc::kRtu || st.gap)
           throw check::ParseError(fmt::format("{}:{}:1: error: step: the model replays RTU frames without pauses", path, st.line));
         s.frame = st.bytes;
         break;

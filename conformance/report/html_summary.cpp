@@ -13,6 +13,7 @@
 #include <regex>
 #include <set>
 
+#include "modbus/framing.h"
 #include "report/html_util.h"
 #include "report/report.h"
 
@@ -25,12 +26,10 @@ constexpr size_t kShown = 6;
 // The PDU inside a framed request or reply: MBAP has a 7-byte header, RTU a
 // slave byte before and a CRC after.
 std::optional<Bytes> pdu_of(const Bytes& frame, bool mbap) {
-  if (mbap) {
-    if (frame.size() < 8) return std::nullopt;
-    return Bytes(frame.begin() + 7, frame.end());
-  }
-  if (frame.size() < 4) return std::nullopt;
-  return Bytes(frame.begin() + 1, frame.end() - 2);
+  // modbus/'s framing: what an ADU carries, even when its CRC or length is wrong.
+  Unframed u = (mbap ? kTcp : kRtu).unframe(frame);
+  if (u.pdu.empty()) return std::nullopt;
+  return u.pdu;
 }
 
 bool is_mbap(const DeviceRun& d) { return d.target_uri.rfind("tcp://", 0) == 0; }

@@ -248,15 +248,15 @@ std::vector<Case> select_cases(std::vector<Case> cases, const std::string& f,
 }
 
 std::optional<std::pair<int, std::string>> unsupported(const check::Script& sc, const TargetInfo& info) {
-  const char* kind = info.framing == Framing::rtu ? "RTU" : "MBAP";
+  const char* kind = info.framing == &mbc::kRtu ? "RTU" : "MBAP";
   for (const auto& s : sc.steps) {
     switch (s.kind) {
       case check::Step::Kind::raw:
         if (s.framing != info.framing)
           return std::pair{s.line, fmt::format("raw {} bytes cannot go to {}, whose frames are {}",
-                                               s.framing == Framing::rtu ? "RTU" : "MBAP", info.uri, kind)};
+                                               s.framing == &mbc::kRtu ? "RTU" : "MBAP", info.uri, kind)};
         if (!info.raw) return std::pair{s.line, info.uri + " cannot send raw bytes"};
-        if (s.gap && info.framing != Framing::rtu) return std::pair{s.line, "a pause inside a frame needs an RTU target"};
+        if (s.gap && info.framing != &mbc::kRtu) return std::pair{s.line, "a pause inside a frame needs an RTU target"};
         break;
       case check::Step::Kind::advance:
         if (!info.virtual_clock) return std::pair{s.line, info.uri + " has no virtual clock to advance (in-process targets only)"};

@@ -231,7 +231,7 @@ std::string broadcast_forbidden(const TargetInfo& target, const WritePolicy& p, 
 }
 
 std::string broadcast_not_applicable(const TargetInfo& target) {
-  if (target.framing == Framing::rtu) return "";
+  if (target.framing == &mbc::kRtu) return "";
   return "Modbus TCP: unit 0 addresses a server reached directly, not a broadcast (TCP Implementation Guide "
          "§4.4.1.2); MB-SL v1.02 §2.1 broadcast is checked on RTU targets";
 }

@@ -43,7 +43,7 @@ std::optional<WriteRange> writes_of(std::span<const uint8_t> pdu) {
 std::vector<std::pair<uint8_t, Bytes>> frames_in(Framing framing, std::span<const uint8_t> bytes, std::optional<size_t> gap_after) {
   std::vector<std::pair<uint8_t, Bytes>> out;
   auto scan = [&](std::span<const uint8_t> b) {
-    if (framing == Framing::mbap) {
+    if (framing == &mbc::kTcp) {
       // A receiver takes unit and PDU after the 7-byte header, up to the length it states.
       if (b.size() < 8) return;
       size_t len = be16(b, 4);

@@ -275,7 +275,7 @@ class PluginTarget final : public Target {
     hooks_ = unsigned(std::stoul(hello.substr(0, space)));
 
     info_.kind = "plugin";
-    info_.framing = Framing::rtu;
+    info_.framing = &mbc::kRtu;
     info_.unit = uint8_t(unit);
     info_.raw = hooks_ & host::kHasRtu;
     info_.power_cycle = hooks_ & host::kHasPowerCycle;

@@ -56,7 +56,7 @@ class RefTarget final : public Target {
     }
     int unit = int_param(u, "unit", s.serial.slave_default.value_or(1), 1, 247);
     info_.kind = "ref";
-    info_.framing = Framing::rtu;
+    info_.framing = &mbc::kRtu;
     info_.unit = uint8_t(unit);
     info_.virtual_clock = true;
     info_.power_cycle = true;
@@ -126,8 +126,10 @@ class RefTarget final : public Target {
   // reading=: a printed frame the variant answers the other way (an empty
   // frame stands for no reply); nullopt leaves the request to the device.
   std::optional<Bytes> answer_otherwise(const Bytes& adu) const {
-    if (answers_.empty() || adu.size() < 4 || adu[0] != info_.unit || !crc_ok(adu)) return std::nullopt;
-    Bytes pdu(adu.begin() + 1, adu.end() - 2);
+    if (answers_.empty()) return std::nullopt;
+    Unframed u = rtu_unframe(adu);
+    if (!u.ok() || u.unit != info_.unit) return std::nullopt;
+    const Bytes& pdu = u.pdu;
     for (const auto& [req, reply] : answers_)
       if (req == pdu) return reply ? rtu_frame(info_.unit, *reply) : Bytes{};
     return std::nullopt;

@@ -123,7 +123,7 @@ class RtuTarget final : public Target {
     if (serial_ || u.param("baud")) baud = int_param(u, uri_text_, "baud", kDefaultBaud, 300, 4000000);
 
     info_.kind = u.scheme;
-    info_.framing = Framing::rtu;
+    info_.framing = &mbc::kRtu;
     info_.unit = uint8_t(unit);
     info_.live = true;
     info_.raw = true;

@@ -14,18 +14,19 @@
 #include <string>
 #include <vector>
 
+#include "modbus/framing.h"
 #include "modbus/hex.h"
 
 namespace mbc::conf {
 
-// How frames travel: RTU kinds carry slave + PDU + CRC; MBAP kinds carry the
-// Modbus TCP header + PDU.
-enum class Framing { rtu, mbap };
+// How the target frames a PDU: modbus/'s one descriptor (mbc::kRtu: RTU,
+// on a serial line or over TCP; mbc::kTcp: the MBAP header, on TCP or TLS).
+using Framing = const mbc::Framing*;
 
 struct TargetInfo {
   std::string uri;        // as given (normalised)
   std::string kind;       // ref | tcp | rtu-tcp | rtu | plugin
-  Framing framing = Framing::rtu;
+  Framing framing = &mbc::kRtu;
   uint8_t unit = 1;       // the slave id / unit id cases address
   bool live = false;      // a real device: the safety rules apply
   bool virtual_clock = false;  // advance() moves the device's time

@@ -46,7 +46,7 @@ class TcpTarget final : public Target {
     window_ = SilenceWindow(timeout_, false, fixed);
     info_.uri = fmt::format("{}?unit={}", base, unit);
     info_.kind = "tcp";
-    info_.framing = Framing::mbap;
+    info_.framing = &mbc::kTcp;
     info_.unit = uint8_t(unit);
     info_.live = true;
     info_.raw = true;

@@ -41,15 +41,6 @@ using std::chrono::duration_cast;
 using std::chrono::microseconds;
 using std::chrono::milliseconds;
 
-const char* to_string(Transport t) {
-  switch (t) {
-    case Transport::tcp: return "tcp";
-    case Transport::rtu_tcp: return "rtu-tcp";
-    case Transport::pty: return "pty";
-    case Transport::tls: return "tls";
-  }
-  return "?";
-}
 
 Endpoint parse_endpoint(Transport t, const std::string& text) {
   Endpoint e;

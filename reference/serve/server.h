@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "modbus/framing.h"
 #include "engine/device.h"
 #include "faults/faults.h"
 #include "serve/tls_door.h"
@@ -18,8 +19,7 @@
 namespace mbc::serve {
 
 // tls: Modbus/TCP Security (MBAP inside TLS, tls_door.h).
-enum class Transport { tcp, rtu_tcp, pty, tls };
-const char* to_string(Transport t);  // "tcp", "rtu-tcp", "pty", "tls"
+// Transport: modbus/framing.h's (tcp, rtu-tcp, pty, tls).
 
 struct Endpoint {
   Transport transport = Transport::tcp;

@@ -49,10 +49,10 @@ std::string stamp(const char* format) {
 
 int run(const ClientArgs& a) {
   client::ClientOptions o;
-  if (a.transport == "tcp") o.transport = client::Transport::tcp;
-  else if (a.transport == "rtu-tcp") o.transport = client::Transport::rtu_tcp;
-  else if (a.transport == "pty") o.transport = client::Transport::pty;
-  else if (a.transport == "tls") o.transport = client::Transport::tcp;  // MBAP inside TLS (client/tls_front.h)
+  if (a.transport == "tcp") o.transport = mbc::Transport::tcp;
+  else if (a.transport == "rtu-tcp") o.transport = mbc::Transport::rtu_tcp;
+  else if (a.transport == "pty") o.transport = mbc::Transport::pty;
+  else if (a.transport == "tls") o.transport = mbc::Transport::tcp;  // MBAP inside TLS (client/tls_front.h)
   else {
     fmt::print(stderr, "mbconform client: error: --transport {}: expected tcp, rtu-tcp, pty or tls\n", a.transport);
     return kExitUsage;
@@ -66,7 +66,7 @@ int run(const ClientArgs& a) {
   o.baud = a.baud;
   o.timeout = std::chrono::milliseconds(a.timeout_ms);
   o.pty_path = a.pty;
-  if (!a.pcap.empty()) o.on_wire = [w = conf::capture::client_pcap(a.pcap, o.transport == client::Transport::tcp, "client " + a.transport)](
+  if (!a.pcap.empty()) o.on_wire = [w = conf::capture::client_pcap(a.pcap, o.transport == mbc::Transport::tcp, "client " + a.transport)](
                                       const auto& seen, const auto& sent) {
     std::vector<conf::capture::ClientFrame> f;
     for (const auto& q : seen) f.emplace_back(q.last, true, q.adu);

@@ -85,7 +85,7 @@ conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   conf::TargetInfo i;
   i.uri = uri;
   i.kind = u.scheme == "mbtls" ? "tls" : u.scheme;
-  i.framing = u.scheme == "tcp" || u.scheme == "mbtls" ? conf::Framing::mbap : conf::Framing::rtu;
+  i.framing = u.scheme == "tcp" || u.scheme == "mbtls" ? &mbc::kTcp : &mbc::kRtu;
   i.live = u.scheme != "ref" && u.scheme != "plugin";
   i.raw = true;  // every kind sends raw frames in its own framing (tcp: raw MBAP), as the opened target says
   i.unit = uint8_t(std::stoi(u.param("unit").value_or(std::to_string(s.serial.slave_default.value_or(1)))));
@@ -263,7 +263,7 @@ int run(RunArgs& a) {
       // A frame script (conformance/check/README.md): `mbconform replay` runs it.
       if (&uri == &targets.front()) fmt::print("{}\n", conf::check::kHeader);
       fmt::print("#\n# {}: {} cases, unit {}, {}\ndevice {}\n", info.uri, cases.size(), info.unit,
-                 info.framing == conf::Framing::rtu ? "RTU frames" : "MBAP frames (transaction id * : the target numbers its own)",
+                 info.framing == &mbc::kRtu ? "RTU frames" : "MBAP frames (transaction id * : the target numbers its own)",
                  s.device.id);
       for (const auto& c : cases) {
         fmt::print("#\n");

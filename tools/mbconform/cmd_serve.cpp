@@ -14,7 +14,7 @@ namespace {
 struct ServeArgs {
   std::vector<std::string> devices, tcp, rtu_tcp, pty, tls;
   serve::TlsOptions tls_options;
-  std::vector<std::pair<serve::Transport, std::string>> endpoints;  // in command-line order
+  std::vector<std::pair<mbc::Transport, std::string>> endpoints;  // in command-line order
   std::string eeprom_dir;
   std::optional<int> baud, line_rate;
   bool trace = false;
@@ -117,10 +117,10 @@ void add_serve_command(CLI::App& app, int& exit_code) {
     // Endpoints open and print their "listening" lines in command-line order.
     size_t next_tcp = 0, next_rtu_tcp = 0, next_pty = 0, next_tls = 0;
     for (const CLI::Option* opt : cmd->parse_order()) {
-      if (opt == tcp) a.endpoints.emplace_back(serve::Transport::tcp, a.tcp.at(next_tcp++));
-      if (opt == rtu_tcp) a.endpoints.emplace_back(serve::Transport::rtu_tcp, a.rtu_tcp.at(next_rtu_tcp++));
-      if (opt == pty) a.endpoints.emplace_back(serve::Transport::pty, a.pty.at(next_pty++));
-      if (opt == tls) a.endpoints.emplace_back(serve::Transport::tls, a.tls.at(next_tls++));
+      if (opt == tcp) a.endpoints.emplace_back(mbc::Transport::tcp, a.tcp.at(next_tcp++));
+      if (opt == rtu_tcp) a.endpoints.emplace_back(mbc::Transport::rtu_tcp, a.rtu_tcp.at(next_rtu_tcp++));
+      if (opt == pty) a.endpoints.emplace_back(mbc::Transport::pty, a.pty.at(next_pty++));
+      if (opt == tls) a.endpoints.emplace_back(mbc::Transport::tls, a.tls.at(next_tls++));
     }
     if (a.tls.empty() && (!a.tls_options.files.cert.empty() || !a.tls_options.roles_file.empty()))
       throw CLI::ValidationError("--cert/--key/--ca/--roles", "only with --tls");

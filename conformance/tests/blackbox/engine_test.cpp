@@ -24,7 +24,7 @@ TargetInfo live_rtu(uint8_t unit) {
   TargetInfo i;
   i.uri = "rtu:///dev/null";
   i.kind = "rtu";
-  i.framing = Framing::rtu;
+  i.framing = &mbc::kRtu;
   i.unit = unit;
   i.live = true;
   i.raw = true;
@@ -109,7 +109,7 @@ TEST(Generator, TcpTargetGetsNoRtuBytes) {
   spec::Spec s = spec::load_spec_by_id("modbus-standard");
   TargetInfo i = live_rtu(1);
   i.kind = "tcp";
-  i.framing = Framing::mbap;
+  i.framing = &mbc::kTcp;
   Plan p = make_plan(s, i, WritePolicy{});
   Generator gen(p, 3);
   for (int n = 0; n < 3000; ++n) {
@@ -141,13 +141,13 @@ struct JudgeTest : ::testing::Test {
 };
 
 TEST_F(JudgeTest, WellFormedRepliesAreNoFinding) {
-  Step read = generated(check::frame(Framing::rtu, 1, {0x03, 0x00, 0x00, 0x00, 0x01}));
+  Step read = generated(check::frame(&mbc::kRtu, 1, {0x03, 0x00, 0x00, 0x00, 0x01}));
   EXPECT_EQ(kind(read, reply(1, {0x03, 0x02, 0x12, 0x34})), "");
   EXPECT_EQ(kind(read, reply(1, {0x83, 0x02})), "");  // MBAP v1.1b3 §7: 02 illegal data address
 }
 
 TEST_F(JudgeTest, MalformedReplyAndUnknownException) {
-  Step read = generated(check::frame(Framing::rtu, 1, {0x03, 0x00, 0x00, 0x00, 0x01}));
+  Step read = generated(check::frame(&mbc::kRtu, 1, {0x03, 0x00, 0x00, 0x00, 0x01}));
   // One register asked, a byte count of 4 (MBAP v1.1b3 §6.3: 2 x N).
   EXPECT_EQ(kind(read, reply(1, {0x03, 0x04, 0x12, 0x34, 0x00, 0x00})), "malformed-reply");
   EXPECT_EQ(kind(read, reply(1, {0x83, 0x55})), "unknown-exception-code");
@@ -217,7 +217,7 @@ TEST(Reducer, RealTargetReducesToTheFrameThatFails) {
   Plan p = make_plan(s, t->info(), WritePolicy{});
   std::vector<Step> steps;
   for (int i = 0; i < 40; ++i) {
-    Step st = check::frame(Framing::rtu, 1, read_request(3, uint16_t(i % 4), 1));
+    Step st = check::frame(&mbc::kRtu, 1, read_request(3, uint16_t(i % 4), 1));
     st.expect = expect_for(p, st);
     steps.push_back(st);
   }

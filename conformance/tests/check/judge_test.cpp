@@ -34,7 +34,7 @@ Expect expect(Expect::Kind k, uint8_t code = 0) {
 
 // MBAP v1.1b3 §7: an exception reply is the function code | 0x80 and one code.
 TEST(Judge, AOneByteExceptionReplyIsTooShortNotTooLong) {
-  Step s = frame(Framing::rtu, 1, {0x0C}, expect(Expect::Kind::answered));
+  Step s = frame(&mbc::kRtu, 1, {0x0C}, expect(Expect::Kind::answered));
   auto m = judge(s, reply_of({0x8C}), JudgeContext{});
   ASSERT_TRUE(m);
   EXPECT_NE(m->why.find("exception reply of 1 byte"), std::string::npos) << m->why;
@@ -51,7 +51,7 @@ TEST(Judge, AOneByteExceptionReplyIsTooShortNotTooLong) {
 }
 
 TEST(Judge, AClosedConnectionIsNamedNotCalledSilence) {
-  Step s = frame(Framing::mbap, 1, read_request(3, 0, 1), expect(Expect::Kind::normal));
+  Step s = frame(&mbc::kTcp, 1, read_request(3, 0, 1), expect(Expect::Kind::normal));
   Reply closed;
   closed.closed = true;
   auto m = judge(s, closed, JudgeContext{});
@@ -73,7 +73,7 @@ TEST(Judge, RawMbapRequestsAreReadAsMbap) {
   EXPECT_EQ(*req, shorter);
   EXPECT_FALSE(request_pdu(s, 2));  // another unit
   JudgeContext ctx;
-  ctx.framing = Framing::mbap;
+  ctx.framing = &mbc::kTcp;
   Reply r;
   r.frame = mbap_frame(0x5301, 1, Bytes{0x83, 0x03});
   r.pdu = Bytes{0x83, 0x03};
@@ -95,22 +95,22 @@ TEST(Text, ACaseReadsBackAsTheSameCase) {
   c.title = "a title # with a hash";
   c.touches = {{0x0020, 2}};
   c.functions_optional = true;
-  Step w = frame(Framing::rtu, 1, write_multiple_registers(0x0020, std::vector<uint16_t>{0, 0}), expect(Expect::Kind::reply));
+  Step w = frame(&mbc::kRtu, 1, write_multiple_registers(0x0020, std::vector<uint16_t>{0, 0}), expect(Expect::Kind::reply));
   w.expect.pdu = {0x10, 0x00, 0x20, 0x00, 0x02};
   w.expect.adu = rtu_frame(1, w.expect.pdu);
   w.expect.text = "FC, address and quantity";
   w.note = "write 0x0020 x2";
   w.setup = true;
-  Step r = frame(Framing::rtu, 1, read_request(3, 0x0020, 2), expect(Expect::Kind::registers));
+  Step r = frame(&mbc::kRtu, 1, read_request(3, 0x0020, 2), expect(Expect::Kind::registers));
   r.expect.words = {0x0001, 0xFFFF};
   r.may_go_unanswered = true;
-  Step same = frame(Framing::rtu, 0, write_multiple_registers(0x0020, std::vector<uint16_t>{0, 0}), expect(Expect::Kind::same));
+  Step same = frame(&mbc::kRtu, 0, write_multiple_registers(0x0020, std::vector<uint16_t>{0, 0}), expect(Expect::Kind::same));
   same.expect.memo = 1;
   same.words_from = 1;
   same.expect.either = {expect(Expect::Kind::silence), expect(Expect::Kind::none)};
   c.steps = {w, r, same, advance(1000)};
   std::string text = std::string(kHeader) + "\n";
-  for (const auto& l : case_lines(c, Framing::mbap)) text += l + "\n";
+  for (const auto& l : case_lines(c, &mbc::kTcp)) text += l + "\n";
   Script sc = parse(text, "t.txt");
   ASSERT_EQ(sc.cases.size(), 1u) << text;
   const Case& b = sc.cases[0];
@@ -141,12 +141,12 @@ TEST(Text, ACaseReadsBackAsTheSameCase) {
   EXPECT_EQ(b.steps[3].kind, Step::Kind::advance);
   // Written again, it is the same text.
   std::string again = std::string(kHeader) + "\n";
-  for (const auto& l : case_lines(b, Framing::mbap)) again += l + "\n";
+  for (const auto& l : case_lines(b, &mbc::kTcp)) again += l + "\n";
   EXPECT_EQ(again, text);
   // A skipped case keeps its reason; its steps are commented out.
   c.skip_reason = "the target cannot send raw frames";
   text = std::string(kHeader) + "\n";
-  for (const auto& l : case_lines(c, Framing::rtu)) text += l + "\n";
+  for (const auto& l : case_lines(c, &mbc::kRtu)) text += l + "\n";
   sc = parse(text, "t.txt");
   ASSERT_EQ(sc.cases.size(), 1u);
   EXPECT_EQ(sc.cases[0].skip_reason, c.skip_reason);

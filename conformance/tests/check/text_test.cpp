@@ -47,7 +47,7 @@ TEST(ScriptFormat, ReadsEveryKindOfLine) {
   EXPECT_EQ(s.steps[0].pdu, (Bytes{0x06, 0x00, 0x00, 0x00, 0x01}));
   EXPECT_EQ(s.steps[0].expect.kind, Expect::Kind::reply);
   EXPECT_EQ(s.steps[0].note, "write");
-  EXPECT_EQ(s.steps[1].framing, Framing::mbap);
+  EXPECT_EQ(s.steps[1].framing, &mbc::kTcp);
   EXPECT_FALSE(s.steps[1].tid);
   EXPECT_EQ(s.steps[1].pdu, (Bytes{0x03, 0x00, 0x00, 0x00, 0x01}));
   EXPECT_EQ(s.steps[2].unit, 2);
@@ -56,7 +56,7 @@ TEST(ScriptFormat, ReadsEveryKindOfLine) {
   EXPECT_EQ(s.steps[3].kind, Step::Kind::raw);
   EXPECT_EQ(s.steps[3].gap, 3u);
   EXPECT_EQ(s.steps[3].bytes.size(), 8u);
-  EXPECT_EQ(s.steps[4].framing, Framing::mbap);
+  EXPECT_EQ(s.steps[4].framing, &mbc::kTcp);
   EXPECT_EQ(s.steps[5].us, 20000u);
   EXPECT_EQ(s.steps[6].us, 100000u);
   EXPECT_EQ(s.steps[7].kind, Step::Kind::power_cycle);
@@ -85,9 +85,9 @@ TEST(ScriptFormat, MalformedLinesNameFileLineColumnAndRule) {
 
 TEST(ScriptFormat, FramesPrintInTheFramingSent) {
   Bytes pdu{0x03, 0x00, 0x20, 0x00, 0x01};
-  EXPECT_EQ(line(frame(Framing::rtu, 1, pdu)), "rtu 01 03 00 20 00 01 85 C0");
-  EXPECT_EQ(line(frame(Framing::mbap, 1, pdu, Expect{.kind = Expect::Kind::silence})), "mbap * 00 00 00 06 01 03 00 20 00 01  -> silence");
-  Step known = frame(Framing::mbap, 1, pdu);
+  EXPECT_EQ(line(frame(&mbc::kRtu, 1, pdu)), "rtu 01 03 00 20 00 01 85 C0");
+  EXPECT_EQ(line(frame(&mbc::kTcp, 1, pdu, Expect{.kind = Expect::Kind::silence})), "mbap * 00 00 00 06 01 03 00 20 00 01  -> silence");
+  Step known = frame(&mbc::kTcp, 1, pdu);
   known.tid = 0x0102;
   EXPECT_EQ(line(known), "mbap 01 02 00 00 00 06 01 03 00 20 00 01");
 }
@@ -97,14 +97,14 @@ TEST(ScriptReplay, RawBytesOfAnotherFramingAndInProcessStepsCannotRunLive) {
                    "advance 10\n", "t.txt");
   TargetInfo tcp;
   tcp.uri = "tcp://127.0.0.1:1502";
-  tcp.framing = Framing::mbap;
+  tcp.framing = &mbc::kTcp;
   tcp.raw = true;
   tcp.live = true;
   auto u = unsupported(s, tcp);
   ASSERT_TRUE(u);
   EXPECT_EQ(u->first, 3);
   TargetInfo rtu = tcp;
-  rtu.framing = Framing::rtu;
+  rtu.framing = &mbc::kRtu;
   u = unsupported(s, rtu);
   ASSERT_TRUE(u);
   EXPECT_EQ(u->first, 4);  // a live drive has no virtual clock

@@ -38,7 +38,7 @@ TargetInfo full_target() {
   TargetInfo t;
   t.uri = "ref:fixture";
   t.kind = "ref";
-  t.framing = Framing::rtu;
+  t.framing = &mbc::kRtu;
   t.virtual_clock = t.power_cycle = t.raw = true;
   return t;
 }

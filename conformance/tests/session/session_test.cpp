@@ -71,17 +71,17 @@ TEST(Gate, WritesOfEveryWriteFunction) {
 TEST(Gate, RawBytesAreJudgedByWhatAReceiverCouldTake) {
   Bytes frame = {0x02, 0x06, 0x00, 0x20, 0x00, 0x07};
   append_crc(frame);
-  auto frames = frames_in(Framing::rtu, frame, std::nullopt);
+  auto frames = frames_in(&mbc::kRtu, frame, std::nullopt);
   ASSERT_EQ(frames.size(), 1u);
   EXPECT_EQ(frames[0].first, 2);
   // Over-long: the valid prefix is still a frame to a receiver that frames by length.
   Bytes longer = frame;
   longer.push_back(0x55);
-  EXPECT_EQ(frames_in(Framing::rtu, longer, std::nullopt).size(), 1u);
+  EXPECT_EQ(frames_in(&mbc::kRtu, longer, std::nullopt).size(), 1u);
   // A corrupted byte: nothing a receiver takes.
   Bytes bad = frame;
   bad[3] ^= 0x10;
-  EXPECT_TRUE(frames_in(Framing::rtu, bad, std::nullopt).empty());
+  EXPECT_TRUE(frames_in(&mbc::kRtu, bad, std::nullopt).empty());
 }
 
 TEST(Gate, NeverAValidWriteToAnotherUnitAndOptInsForTheRest) {

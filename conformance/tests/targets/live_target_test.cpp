@@ -64,7 +64,7 @@ class LiveTarget : public ::testing::TestWithParam<std::string> {
  protected:
   Served served;
   std::unique_ptr<Target> target = open_target(served.uri(GetParam()));
-  bool rtu() const { return target->info().framing == Framing::rtu; }
+  bool rtu() const { return target->info().framing == &mbc::kRtu; }
 };
 
 TEST_P(LiveTarget, InfoDescribesTheLink) {
@@ -74,7 +74,7 @@ TEST_P(LiveTarget, InfoDescribesTheLink) {
   EXPECT_FALSE(i.power_cycle);
   EXPECT_FALSE(i.virtual_clock);
   EXPECT_EQ(i.unit, served.slave);
-  EXPECT_EQ(i.framing, GetParam() == "tcp" ? Framing::mbap : Framing::rtu);
+  EXPECT_EQ(i.framing, GetParam() == "tcp" ? &mbc::kTcp : &mbc::kRtu);
   EXPECT_EQ(i.baud.has_value(), GetParam() == "pty");
   EXPECT_THROW(target->power_cycle(), std::logic_error);
   EXPECT_THROW(target->advance(1ms), std::logic_error);
