@@ -9,6 +9,7 @@
 
 #include "check/judge.h"
 #include "modbus/pdu.h"
+#include "session/session.h"
 
 namespace mbc::conf {
 namespace {
@@ -36,17 +37,6 @@ bool answered_a_split_frame(const Case& c, const CaseResult& r) {
 std::string lost_message(const check::LineState& line, const std::string& what) {
   return fmt::format("{} after the request {} ({}); the cause cannot be told from outside the device",
                      what, line.last_request.empty() ? "(none)" : to_hex(line.last_request), line.last_what);
-}
-
-// The first readable item the profile can read (FC 03/04/01/02), one item:
-// any reply, even an exception, shows the target is there.
-Bytes probe_request(const spec::Spec& s) {
-  for (const auto& r : s.registers) {
-    if (r.access == spec::Access::wo || r.access == spec::Access::command) continue;
-    int fc = r.table == spec::Table::holding ? 3 : r.table == spec::Table::input ? 4 : r.table == spec::Table::coil ? 1 : 2;
-    if (s.profile.function(fc)) return read_request(uint8_t(fc), r.address, 1);
-  }
-  return read_request(3, 0, 1);
 }
 
 bool alive(check::Exchange& x, const spec::Spec& s) {
@@ -203,26 +193,6 @@ DeviceRun run_cases(Link& link, const spec::Spec& spec, const std::vector<Case>&
 DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Case>& cases, const RunOptions& opt) {
   DirectLink link(target);
   return run_cases(link, spec, cases, opt);
-}
-
-std::string unreachable(Link& link, const spec::Spec& spec) {
-  DeviceRun scratch;
-  check::Exchange x(link, scratch);
-  std::string why = "no reply";
-  for (int attempt = 0; attempt < kMaxTargetErrors; ++attempt) {
-    if (attempt > 0) link.reconnect();
-    try {
-      if (alive(x, spec)) return "";
-    } catch (const std::exception& e) {
-      why = e.what();
-    }
-  }
-  return fmt::format("{} does not answer ({} tries, with reconnects; last: {})", link.info().uri, kMaxTargetErrors, why);
-}
-
-std::string unreachable(Target& target, const spec::Spec& spec) {
-  DirectLink link(target);
-  return unreachable(link, spec);
 }
 
 std::vector<Case> select_cases(std::vector<Case> cases, const std::string& f,

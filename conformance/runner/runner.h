@@ -39,8 +39,6 @@ DeviceRun run_cases(Target& target, const spec::Spec& spec, const std::vector<Ca
 // Whether a live target answers at all before a run: one read the spec says
 // is answered, retried with a reconnect (3 tries). Empty when it answered,
 // else why not (the run cannot be done: exit 2).
-std::string unreachable(Link& link, const spec::Spec& spec);
-std::string unreachable(Target& target, const spec::Spec& spec);
 
 // The cases whose id `filter` selects (`run --filter`). A filter matches
 // literally, as a part of the id ("fc15/quantity-limit+1" selects that case

@@ -99,15 +99,7 @@ std::vector<std::optional<std::vector<uint16_t>>> read_entries(Target& t, const 
 // one item, three tries with reconnects; any reply, even an exception, is
 // an answer. Empty when it answers, else why not.
 std::string unreachable(Target& t, const spec::Spec& s) {
-  Bytes pdu = read_request(3, 0, 1);
-  for (const auto& r : s.registers) {
-    if (r.access == spec::Access::wo || r.access == spec::Access::command) continue;
-    int fc = r.table == spec::Table::holding ? 3 : r.table == spec::Table::input ? 4 : r.table == spec::Table::coil ? 1 : 2;
-    if (s.profile.function(fc)) {
-      pdu = read_request(uint8_t(fc), r.address, 1);
-      break;
-    }
-  }
+  const Bytes pdu = probe_request(s);
   // Bytes that never decode as a frame of the target's framing are no answer
   // either: the framing is wrong (an RTU drive behind a tcp:// URI, a TLS
   // server without the MBAP header), and every case would fail for it.
@@ -137,6 +129,15 @@ constexpr std::chrono::milliseconds kSettle{300};
 constexpr int kSettleRounds = 3;
 
 }  // namespace
+
+Bytes probe_request(const spec::Spec& s) {
+  for (const auto& r : s.registers) {
+    if (r.access == spec::Access::wo || r.access == spec::Access::command) continue;
+    int fc = r.table == spec::Table::holding ? 3 : r.table == spec::Table::input ? 4 : r.table == spec::Table::coil ? 1 : 2;
+    if (s.profile.function(fc)) return read_request(uint8_t(fc), r.address, 1);
+  }
+  return read_request(3, 0, 1);
+}
 
 // ---- line settings ---------------------------------------------------------
 
@@ -227,10 +228,7 @@ class Session::View final : public Target {
       if (s_.before_write(*inner_, r.unit, r.pdu)) return Target::transact_all(requests, depth);
     inner_->set_wait(wait_);
     auto replies = inner_->transact_all(requests, depth);
-    for (size_t k = 0; k < replies.size(); ++k) {
-      if (s_.opt_.on_frame) s_.opt_.on_frame(++s_.frames_);
-      else ++s_.frames_;
-    }
+    for (size_t k = 0; k < replies.size(); ++k) s_.count_frame();
     return replies;
   }
   std::optional<std::chrono::microseconds> split_gap() const override { return inner_->split_gap(); }
@@ -398,8 +396,7 @@ Sent Session::send_on(Target& t, uint8_t unit, std::span<const uint8_t> pdu, Tar
   }
   t.set_wait(wait);
   Sent sent{t.transact(unit, pdu), std::nullopt, false};
-  if (opt_.on_frame) opt_.on_frame(++frames_);
-  else ++frames_;
+  count_frame();
   return sent;
 }
 
@@ -416,8 +413,7 @@ Sent Session::send_raw_on(Target& t, std::span<const uint8_t> adu, std::optional
     }
   t.set_wait(wait);
   Sent sent{t.send_raw(adu, gap_after), std::nullopt, false};
-  if (opt_.on_frame) opt_.on_frame(++frames_);
-  else ++frames_;
+  count_frame();
   return sent;
 }
 

@@ -77,6 +77,10 @@ struct LineSettings {
 // Throws std::invalid_argument on a bad URI.
 LineSettings line_settings(const std::string& uri, const spec::Spec* spec);
 
+// The liveness probe: a read of one item, the first the profile can read
+// (FC 03/04/01/02); any reply, even an exception, shows the target is there.
+Bytes probe_request(const spec::Spec& s);
+
 struct RestoreReport {
   size_t kept = 0;       // addresses journaled
   size_t restored = 0;   // written back (they had changed)
@@ -163,6 +167,10 @@ class Session final : public Link {
   Sent send_raw_on(Target& t, std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait);
   std::optional<Refusal> before_write(Target& t, uint8_t unit, std::span<const uint8_t> pdu);
   std::optional<Refusal> journal_range(Target& t, const WriteRange& w);
+  void count_frame() {
+    ++frames_;
+    if (opt_.on_frame) opt_.on_frame(frames_);
+  }
 
   const spec::Spec* spec_;
   SessionOptions opt_;
