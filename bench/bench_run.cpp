@@ -8,13 +8,13 @@
 // (the least a master can wait before it calls a silence). Targets: wall <=
 // 1.5 x the wire-time bound, and <= 1.1 x the bound with the silences.
 //
-// Then, for each third-party server of conformance/tests/peers/ (libmodbus,
+// Then, for each third-party server of conformance/peers/servers/ (libmodbus,
 // pymodbus, modbus-serial when built), what `run --map auto --device
 // modbus-standard --allow-writes` costs over loopback TCP: the probe's time
 // and requests, the run's time, and the probe as a fraction of the whole.
 //
 //   build/bin/mbc_bench_run [path/to/mbconform] [--baud 115200] [--baud 9600] [--device ID]... [--no-peers]
-// (from the source root: the peers' scripts are read from conformance/tests/peers/)
+// (from the source root: the peers' scripts are read from conformance/peers/servers/)
 #include <fmt/core.h>
 #include <signal.h>
 #include <sys/wait.h>
@@ -104,7 +104,7 @@ double since(std::chrono::steady_clock::time_point t0) {
 // third-party server: the probe's and the run's time.
 void bench_peers(const std::string& exe, const mbc::spec::Spec& standard) {
   namespace fs = std::filesystem;
-  fs::path bin = fs::path(exe).parent_path(), peers = "conformance/tests/peers";
+  fs::path bin = fs::path(exe).parent_path(), peers = "conformance/peers/servers";
   struct Peer {
     std::string name;
     std::vector<std::string> argv, env;

@@ -37,7 +37,7 @@ set(roots_fuzz "${SOURCE_DIR}/fuzz")
 set(roots_bench "${SOURCE_DIR}/bench")
 
 # conformance/<part>/ may include these parts (its own included).
-set(conf_parts targets report plugin session safety check cases map quirks blackbox properties runner client peers)
+set(conf_parts targets report plugin session safety check cases map blackbox properties runner client peers)
 set(conf_may_targets targets)
 set(conf_may_report report)
 set(conf_may_plugin plugin)
@@ -46,12 +46,11 @@ set(conf_may_safety safety targets)
 set(conf_may_check check session targets report)
 set(conf_may_cases cases check safety targets report)
 set(conf_may_map map cases check safety targets report)
-set(conf_may_quirks quirks report)
 set(conf_may_blackbox blackbox check session safety targets report)
 set(conf_may_properties properties check session safety targets report)
 set(conf_may_runner runner check session targets report)
-set(conf_may_client client quirks report targets)
-set(conf_may_peers peers)
+set(conf_may_client client report targets)
+set(conf_may_peers peers client)  # the broken master is built on the client's model
 
 # The floor a file under SOURCE_DIR belongs to, or "" outside the floors.
 function(floor_of path out)

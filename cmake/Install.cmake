@@ -26,8 +26,8 @@ install(DIRECTORY ${CMAKE_SOURCE_DIR}/conformance/plugin/example/ DESTINATION ${
 
 # The client adapters (`mbconform client`) and the npm lock file of the peers
 # they drive, when the tree has them.
-if(IS_DIRECTORY ${CMAKE_SOURCE_DIR}/conformance/client/adapters)
-  install(DIRECTORY ${CMAKE_SOURCE_DIR}/conformance/client/adapters/ DESTINATION ${MBC_SHARE}/client/adapters)
+if(IS_DIRECTORY ${CMAKE_SOURCE_DIR}/conformance/peers/adapters)
+  install(DIRECTORY ${CMAKE_SOURCE_DIR}/conformance/peers/adapters/ DESTINATION ${MBC_SHARE}/client/adapters)
 endif()
 foreach(adapter libmodbus_adapter)
   if(TARGET ${adapter})

@@ -29,7 +29,7 @@ done
 if [ -e "$build/bin/mbconform-plugin-host" ]; then
   [ -x "$prefix/bin/mbconform-plugin-host" ] || fail "the plugin host is built but not installed"
 fi
-if [ -d "$src/conformance/client/adapters" ]; then
+if [ -d "$src/conformance/peers/adapters" ]; then
   [ -d "$prefix/share/mbconform/client/adapters" ] || fail "the client adapters are not installed"
 fi
 if [ -e "$src/conformance/peers/package-lock.json" ]; then

@@ -518,16 +518,4 @@ std::vector<std::string> plan_lines(const Scenario& s, Transport t) {
   return lines;
 }
 
-void apply_quirks(conf::DeviceRun& run, conf::quirks::Quirks& quirks) {
-  for (auto& c : run.cases) {
-    if (c.outcome != Outcome::fail) continue;
-    const conf::quirks::Quirk* q = quirks.for_case(c.id);
-    if (!q) continue;
-    quirks.list[size_t(q - quirks.list.data())].used = true;
-    c.outcome = Outcome::observed;
-    c.extra["quirk"] = q->reason;
-    c.message = "known quirk (" + q->reason + "): " + c.message;
-  }
-}
-
 }  // namespace mbc::client

@@ -13,7 +13,6 @@
 
 #include "client/scenario.h"
 #include "client/server.h"
-#include "quirks/quirks.h"
 #include "report/result.h"
 
 namespace mbc::client {
@@ -52,10 +51,5 @@ ClientRun run_client(const ClientOptions& o, const std::vector<Scenario>& list);
 // One line per step, for --plan: the request asked, the frame a correct
 // master sends, how the server answers, what passes.
 std::vector<std::string> plan_lines(const Scenario& s, Transport t);
-
-// Turns each failing case a quirk (conformance/quirks: the one quirks file
-// format of run, fuzz and client) names into OBSERVED ("known quirk:
-// reason") and marks the quirk used.
-void apply_quirks(conf::DeviceRun& run, conf::quirks::Quirks& quirks);
 
 }  // namespace mbc::client

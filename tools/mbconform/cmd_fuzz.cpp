@@ -24,7 +24,7 @@
 #include "commands.h"
 #include "conventions.h"
 #include "options.h"
-#include "quirks/quirks.h"
+#include "report/quirks.h"
 #include "report/report.h"
 #include "safety/safety.h"
 #include "session/session.h"

@@ -5,7 +5,8 @@
 //   mbconform run --target tcp://10.0.0.5:502?unit=3 --device hsc60 --allow-motion
 //   mbconform run --target ref:hsc60 --filter '*/registers/*' --plan
 //
-// Exit codes: 0 every MUST case passed; 1 a MUST case failed; 2 the run could
+// Exit codes: 0 every MUST case passed; 1 a MUST case failed (or a declared
+// quirk is gone: its cases ran and passed); 2 the run could
 // not be done (bad target, bad spec, bad arguments, interrupted).
 #include <fmt/core.h>
 #include <re2/re2.h>
@@ -26,7 +27,7 @@
 #include "loader.h"
 #include "map/map.h"
 #include "options.h"
-#include "quirks/quirks.h"
+#include "report/quirks.h"
 #include "report/report.h"
 #include "runner/runner.h"
 #include "check/text.h"
@@ -155,6 +156,7 @@ int run(RunArgs& a) {
     return kExitUsage;
   }
   conf::RunReport report;
+  std::vector<std::string> quirks_gone;  // declared quirks whose cases ran and passed (in the notes too)
   report.command = "run";
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
   report.version = "mbconform 0.1";
@@ -334,7 +336,8 @@ int run(RunArgs& a) {
       dr.notes.push_back(fmt::format("--deadline {} ran out: the cases not run are listed as errors", a.deadline));
     }
     dr.notes.insert(dr.notes.begin(), notes.begin(), notes.end());
-    if (!quirks.empty()) conf::quirks::apply(quirks, dr);
+    if (!quirks.empty())
+      for (auto& g : conf::quirks::apply(quirks, dr)) quirks_gone.push_back(std::move(g));
     report.devices.push_back(std::move(dr));
     if (stop_run.load()) {
       report.interrupted = true;
@@ -361,7 +364,7 @@ int run(RunArgs& a) {
   // Interrupted: the run was not done (2), whatever it found so far. A lost
   // target is recorded as the FAIL of the case it was lost in (1).
   if (report.interrupted) return kExitUsage;
-  if (run_failed(report)) return kExitFailed;
+  if (run_failed(report) || !quirks_gone.empty()) return kExitFailed;
   for (const auto& d : report.devices)
     if (!d.error.empty()) return kExitUsage;
   return kExitOk;

@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """A test adapter for the protocol runner: it says hello, connects, hangs
 forever on its first read_coils, and answers "unsupported" to anything else.
-(The real libraries' adapters are in conformance/client/adapters/.)"""
+(The real libraries' adapters are in conformance/peers/adapters/.)"""
 import json
 import sys
 import time

@@ -103,6 +103,12 @@ TEST(RunCli, QuirksFileDeclaresKnownDeviations) {
   EXPECT_NE(ok.text.find("'sihong-57hs-r/no-such/*' did not occur"), std::string::npos) << ok.text;
   auto j = nlohmann::json::parse(slurp(dir / "ok/report.json"));
   EXPECT_GT(j["devices"][0]["counts"]["quirks"].get<int>(), 0);
+  // A declared deviation that is gone (its cases ran and passed: the drive as
+  // its manual prints it) fails the gate until the file is updated.
+  Out gone = run({"run", "--quiet", "--target", "ref:sihong-57hs-r", "--quirks", dir / "quirks.yaml", "--out", dir / "gone"});
+  EXPECT_EQ(gone.rc, 1) << gone.text;
+  EXPECT_NE(gone.text.find("'sihong-57hs-r/registers/*' is gone"), std::string::npos) << gone.text;
+  EXPECT_EQ(gone.text.find("'sihong-57hs-r/no-such/*' is gone"), std::string::npos) << gone.text;
   // Only part of the failures declared: the rest still fails the gate.
   std::ofstream(dir / "some.yaml") << "- case: \"sihong-57hs-r/registers/0x0020/*\"\n  reason: \"some\"\n";
   EXPECT_EQ(run({"run", "--quiet", "--target", target, "--quirks", dir / "some.yaml", "--out", dir / "some"}).rc, 1);

@@ -3,7 +3,7 @@
 // those and fails on anything new; the reports list the declared quirks in a
 // section of their own, and the ones that no longer occur. One format and
 // one parser for `run`, `fuzz` (finding kinds) and `client` (its
-// conformance/client/deviations/*.yaml). Format: conformance/README.md,
+// conformance/peers/deviations/*.yaml). Format: conformance/README.md,
 // "Quirks files": a YAML list (an empty file is an empty list)
 //
 //   - case: "modbus-standard/function-codes/fc*/quantity-0"
@@ -24,7 +24,7 @@ struct Quirk {
   std::string pattern;  // a glob ('*' crosses '/'), or an exact id / kind
   std::string reason;   // why it is known: the clause, and the library's line that explains it
   int line = 0;         // where it is declared
-  bool used = false;    // set by apply() (and client::apply_quirks) when it matched a failure
+  bool used = false;    // set by apply() when it matched a failure
 };
 
 struct Quirks {
@@ -40,9 +40,13 @@ struct Quirks {
 // that cannot be read or does not follow the format.
 Quirks load(const std::string& path);
 
-// Marks every failed case of `run` that a case quirk declares (CaseResult::
-// quirk = the reason, Quirk::used); notes the case quirks that matched
-// nothing (the library may have fixed them) in run.notes.
-void apply(Quirks&, DeviceRun& run);
+// The one way a quirks file changes a run, for `run` and `client` alike.
+// Every failed case a case quirk declares stays a failure, reported apart as
+// a declared quirk (CaseResult::quirk = the reason; Quirk::used): it does not
+// fail the gate. A case quirk whose cases ran and none failed is a deviation
+// gone (the library changed): its line is returned, the command prints it and
+// exits 1, and it is in run.notes. A case quirk that names no case that ran
+// (a --filter, a skipped case) is only noted.
+std::vector<std::string> apply(Quirks&, DeviceRun& run);
 
 }  // namespace mbc::conf::quirks

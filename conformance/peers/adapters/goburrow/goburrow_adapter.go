@@ -5,7 +5,7 @@
 // and "rtu-tcp" answers ready: false. One JSON object a line on stdin, one
 // answer a line on stdout; the package's transmission log goes to stderr.
 //
-// Built offline in GOPATH mode with Debian's Go (conformance/client/adapters/CMakeLists.txt):
+// Built offline in GOPATH mode with Debian's Go (conformance/peers/adapters/CMakeLists.txt):
 //   GO111MODULE=off GOPATH=/usr/share/gocode GOPROXY=off go build -o goburrow_adapter goburrow_adapter.go
 package main
 

@@ -1,4 +1,4 @@
-#include "quirks/quirks.h"
+#include "report/quirks.h"
 
 #include <fmt/core.h>
 #include <fnmatch.h>
@@ -12,9 +12,13 @@
 namespace mbc::conf::quirks {
 namespace {
 
+bool matches(const Quirk& q, const std::string& what) {
+  return q.pattern == what || fnmatch(q.pattern.c_str(), what.c_str(), 0) == 0;
+}
+
 const Quirk* first_match(const std::vector<Quirk>& list, Quirk::By by, const std::string& what) {
   for (const auto& q : list)
-    if (q.by == by && (q.pattern == what || fnmatch(q.pattern.c_str(), what.c_str(), 0) == 0)) return &q;
+    if (q.by == by && matches(q, what)) return &q;
   return nullptr;
 }
 
@@ -60,7 +64,7 @@ Quirks load(const std::string& path) {
   return out;
 }
 
-void apply(Quirks& q, DeviceRun& run) {
+std::vector<std::string> apply(Quirks& q, DeviceRun& run) {
   for (auto& r : run.cases) {
     if (r.outcome != Outcome::fail) continue;
     if (const Quirk* k = q.for_case(r.id)) {
@@ -68,9 +72,25 @@ void apply(Quirks& q, DeviceRun& run) {
       q.list[size_t(k - q.list.data())].used = true;
     }
   }
-  for (size_t i = 0; i < q.list.size(); ++i)
-    if (q.list[i].by == Quirk::By::case_id && !q.list[i].used)
-      run.notes.push_back(fmt::format("declared quirk {}:{} '{}' did not occur", q.path, q.list[i].line, q.list[i].pattern));
+  std::vector<std::string> gone;
+  for (const Quirk& k : q.list) {
+    if (k.by != Quirk::By::case_id || k.used) continue;
+    // Did a case it names run and come out without the deviation?
+    const CaseResult* ran = nullptr;
+    for (const auto& r : run.cases)
+      if ((r.outcome == Outcome::pass || r.outcome == Outcome::observed) && matches(k, r.id)) {
+        ran = &r;
+        break;
+      }
+    if (ran) {
+      gone.push_back(fmt::format("declared quirk {}:{} '{}' is gone: {} ran and did not fail (the library changed; update {})",
+                                 q.path, k.line, k.pattern, ran->id, q.path));
+      run.notes.push_back(gone.back());
+    } else {
+      run.notes.push_back(fmt::format("declared quirk {}:{} '{}' did not occur (no case it names ran)", q.path, k.line, k.pattern));
+    }
+  }
+  return gone;
 }
 
 }  // namespace mbc::conf::quirks

@@ -10,8 +10,8 @@ and writes OUT/matrix.json, a self-contained OUT/matrix.html (one row per
 library, side and transport, one column per case family) and each run's
 report in OUT/runs/<row>/report.html.
 
-usage: tools/matrix.py [--build DIR] [--out DIR] [--only NAME,...] [--mbconform BIN]
-       tools/matrix.py --check docs/matrix/matrix.json [--out DIR] ...
+usage: conformance/peers/matrix.py [--build DIR] [--out DIR] [--only NAME,...] [--mbconform BIN]
+       conformance/peers/matrix.py --check docs/matrix/matrix.json [--out DIR] ...
   --out    where to write (default docs/matrix)
   --check  regenerate into --out (default build/matrix) and compare the
            verdicts with a committed matrix.json: per row its status, counts
@@ -34,7 +34,7 @@ import time
 
 import yaml
 
-SOURCE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SOURCE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SIDES = ("server", "master")
 TRANSPORTS = ("tcp", "rtu-tcp", "pty", "tls")
 DEVICE = "modbus-standard"
@@ -241,7 +241,7 @@ def run_server(lib, transport, cmd, ctx, args, row, run_dir):
 
 def run_master(lib, transport, ctx, args, row, run_dir):
     adapter = fill(lib["master"]["adapter"], ctx)
-    deviations = os.path.join(SOURCE, "conformance/client/deviations", lib["master"]["deviations"][transport] + ".yaml")
+    deviations = os.path.join(SOURCE, "conformance/peers/deviations", lib["master"]["deviations"][transport] + ".yaml")
     mb = [args.mbconform, "client", "--adapter", adapter, "--transport", transport, "--out", run_dir, "--quiet"]
     row["command"] = "mbconform client --adapter '%s' --transport %s" % (
         lib["master"]["adapter"].replace("{build}", "build").replace("{source}/", "").replace(
@@ -407,7 +407,7 @@ def deviations_html(matrix):
             else "no quirks file (nothing in the library's documentation declares these deviations)" if any(
                 r["library"] == lib["name"] and r["side"] == "server" and r["status"] == "run" for r in matrix["rows"])
             else "no server",
-            ", ".join("<code>conformance/client/deviations/%s.yaml</code> (%s)" % (html.escape(d), html.escape(t))
+            ", ".join("<code>conformance/peers/deviations/%s.yaml</code> (%s)" % (html.escape(d), html.escape(t))
                       for t, d in sorted(lib.get("master_deviations", {}).items())) or "no adapter"))
         for r in matrix["rows"]:
             if r["library"] == lib["name"] and totals(r)["error"]:
@@ -443,13 +443,13 @@ MB-SL v1.02, the TCP Implementation Guide). As a server: <code>mbconform run --m
 against the library's server (200 coils, discrete inputs, input and holding registers); as a master:
 <code>mbconform client</code> with the library's adapter. Cells: passed &#10003;, failed &#10007;, observed (what the
 standard leaves to the implementation); &ldquo;unsup&rdquo;: a function code the library lacks. RTU on a pty runs at
-%d baud. Regenerate with <code>tools/matrix.py</code>.</p>
+%d baud. Regenerate with <code>conformance/peers/matrix.py</code>.</p>
 <table><tr><th>library</th><th>version</th><th>language</th><th>from</th><th>server transports</th><th>master transports</th></tr>%s</table>
 <h2>As a server</h2>%s
 <h2>As a master</h2>%s
 <h2>Known deviations</h2>
 <p>Every failing case of every run, with its clause. &ldquo;Declared as a quirk&rdquo;: the library's quirks file
-(<code>conformance/peers/quirks/</code> for servers, <code>conformance/client/deviations/</code> for masters) lists
+(<code>conformance/peers/quirks/</code> for servers, <code>conformance/peers/deviations/</code> for masters) lists
 it, so that library's CI stays green on it. &ldquo;Field practice&rdquo;: a deviation a library author could
 reasonably defend (conformance/peers/matrix.yaml says why); the rest are bugs.</p>
 %s
@@ -510,7 +510,7 @@ def main():
     for p in problems:
         print("STALE " + p)
     if problems:
-        print("matrix: %s is stale: regenerate it with tools/matrix.py (%d differences)" % (args.check, len(problems)))
+        print("matrix: %s is stale: regenerate it with conformance/peers/matrix.py (%d differences)" % (args.check, len(problems)))
         return 1
     print("matrix: %s is fresh" % args.check)
     return 0
