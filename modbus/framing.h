@@ -36,6 +36,12 @@ struct Framing {
 
   size_t max_pdu() const { return max_adu - header_length - checksum_length; }
   size_t adu_size(size_t pdu_size) const { return header_length + pdu_size + checksum_length; }
+  // The bytes where an ADU carries its PDU, whatever its checksum or length
+  // field says (a trace of a deliberately broken frame); empty when too short.
+  std::span<const uint8_t> pdu_bytes(std::span<const uint8_t> adu) const {
+    if (adu.size() <= header_length + checksum_length) return {};
+    return adu.subspan(header_length, adu.size() - header_length - checksum_length);
+  }
 };
 
 extern const Framing kRtu;  // rtu.h

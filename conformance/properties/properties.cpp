@@ -98,7 +98,7 @@ std::vector<FrameRecord> records_of(const std::vector<Step>& steps) {
       check::Step sc = s.script();
       f.request = check::wire_bytes(sc, sc.kind == check::Step::Kind::raw ? &mbc::kRtu : s.framing);
       f.actual = s.reply;
-      if (s.frame.size() >= 4) f.request_decoded = describe_pdu(std::span(s.frame).subspan(1, s.frame.size() - 3), true);
+      if (auto pdu = mbc::kRtu.pdu_bytes(s.frame); !pdu.empty()) f.request_decoded = describe_pdu(pdu, true);
       if (s.reply_pdu) f.actual_decoded = describe_pdu(*s.reply_pdu, false);
     }
     out.push_back(std::move(f));

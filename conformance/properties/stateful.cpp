@@ -262,7 +262,7 @@ std::string reply_text(const Reply& r) {
 
 // Checks one reply against the prediction; "" when it agrees.
 std::string judge(const Model& m, const Prediction& p, std::span<const uint8_t> adu, const Reply& rep) {
-  std::span<const uint8_t> pdu = adu.size() >= 4 ? adu.subspan(1, adu.size() - 3) : adu;
+  std::span<const uint8_t> pdu = adu.size() >= 4 ? mbc::kRtu.pdu_bytes(adu) : adu;
   if (!rep.silent() && !rep.pdu) return fmt::format("bad reply frame {}: {}", to_hex(rep.frame), rep.framing_error);
   switch (p.kind) {
     case Prediction::Kind::silence:
@@ -414,7 +414,7 @@ std::optional<Model> initial_model(Session& s, std::string& error) {
 // unit (StepCmd makes no corrupted frames for them).
 Reply send_step(Session& s, bool raw, const Step& st) {
   if (raw || st.frame.size() < 4) return s.send_raw(st.frame, st.note);
-  return s.send_to(st.frame[0], std::span(st.frame).subspan(1, st.frame.size() - 3), st.note);
+  return s.send_to(st.frame[0], mbc::kRtu.pdu_bytes(st.frame), st.note);
 }
 
 // ---- the RapidCheck commands -------------------------------------------------

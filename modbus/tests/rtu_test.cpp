@@ -117,5 +117,17 @@ TEST(Framing, DescriptorsStateTheStandardsSizes) {
   EXPECT_EQ(kTcp.name, "tcp");
 }
 
+// A trace shows the PDU a broken frame carries, whatever its CRC says.
+TEST(Framing, PduBytesIgnoreTheChecksum) {
+  Bytes bad_crc = hex("01 03 00 23 00 01 00 00");  // 57HS-R §6.2.1's request, CRC zeroed
+  auto pdu = kRtu.pdu_bytes(bad_crc);
+  EXPECT_EQ(Bytes(pdu.begin(), pdu.end()), hex("03 00 23 00 01"));
+  EXPECT_FALSE(kRtu.unframe(bad_crc).ok());
+  EXPECT_TRUE(kRtu.pdu_bytes(hex("01 83 00")).empty());  // address and CRC only: no PDU
+  Bytes mbap = hex("00 07 00 00 00 06 01 03 00 23 00 01");
+  auto p2 = kTcp.pdu_bytes(mbap);
+  EXPECT_EQ(Bytes(p2.begin(), p2.end()), hex("03 00 23 00 01"));
+}
+
 }  // namespace
 }  // namespace mbc
