@@ -356,7 +356,7 @@ std::optional<Bytes> FaultyBus::handle_rtu(std::span<const uint8_t> adu) {
     frame.resize(frame.size() - 2);
     frame = with_crc(std::move(frame));
   }
-  std::span<const uint8_t> pdu(frame.data() + 1, frame.size() - 3);
+  std::span<const uint8_t> pdu = kRtu.pdu_bytes(frame);
 
   if (address == 0) {
     if (faults_.has(Fault::ignore_broadcast)) return std::nullopt;
