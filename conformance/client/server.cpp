@@ -4,7 +4,6 @@
 #include <fcntl.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
-#include <pty.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <termios.h>
@@ -21,6 +20,7 @@
 #include "modbus/rtu.h"
 #include "modbus/function_codes.h"
 #include "modbus/pdu.h"
+#include "serve/endpoint.h"
 
 namespace mbc::client {
 namespace {
@@ -28,9 +28,7 @@ namespace {
 using std::chrono::microseconds;
 using std::chrono::milliseconds;
 
-[[noreturn]] void fail(const std::string& what) { throw std::runtime_error(what + ": " + std::strerror(errno)); }
-
-void set_nonblocking(int fd) { fcntl(fd, F_SETFL, fcntl(fd, F_GETFL) | O_NONBLOCK); }
+using serve::set_nonblocking;  // and close-on-exec
 
 // The bytes a faulty reply carries in place of the right ones.
 constexpr uint8_t kNoise[] = {0xFF, 0x00, 0xF0};
@@ -47,33 +45,14 @@ constexpr milliseconds kStreamQuiet{50};
 ScenarioServer::ScenarioServer(Transport t, std::string pty_path, int baud)
     : transport_(t), pty_path_(std::move(pty_path)), baud_(baud) {
   if (t == Transport::pty) {
-    if (openpty(&pty_master_, &pty_slave_, nullptr, nullptr, nullptr) != 0) fail("openpty");
-    char name[256];
-    if (ttyname_r(pty_slave_, name, sizeof name) != 0) fail("ttyname");
-    termios tio{};
-    tcgetattr(pty_slave_, &tio);
-    cfmakeraw(&tio);
-    tcsetattr(pty_slave_, TCSANOW, &tio);
-    set_nonblocking(pty_master_);
-    fcntl(pty_master_, F_SETFD, FD_CLOEXEC);
-    fcntl(pty_slave_, F_SETFD, FD_CLOEXEC);
-    ::unlink(pty_path_.c_str());
-    if (symlink(name, pty_path_.c_str()) != 0) fail("symlink " + pty_path_);
+    serve::RawPty p = serve::open_raw_pty(pty_path_);
+    pty_master_ = p.master;
+    pty_slave_ = p.slave;
     return;
   }
-  listen_fd_ = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
-  if (listen_fd_ < 0) fail("socket");
-  int one = 1;
-  setsockopt(listen_fd_, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  if (bind(listen_fd_, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) fail("bind");
-  if (listen(listen_fd_, 4) != 0) fail("listen");
-  socklen_t len = sizeof a;
-  getsockname(listen_fd_, reinterpret_cast<sockaddr*>(&a), &len);
-  port_ = ntohs(a.sin_port);
-  set_nonblocking(listen_fd_);
+  serve::Listener l = serve::listen_tcp(to_string(t), "127.0.0.1", 0, 4);
+  listen_fd_ = l.fd;
+  port_ = l.port;
 }
 
 ScenarioServer::~ScenarioServer() {

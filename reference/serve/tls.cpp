@@ -1,5 +1,7 @@
 #include "serve/tls.h"
 
+#include "serve/endpoint.h"
+
 #include <arpa/inet.h>
 #include <dirent.h>
 #include <fcntl.h>
@@ -346,48 +348,13 @@ Ctx client_context(const Files& f) {
 
 namespace {
 
-void set_nonblocking(int fd) {
-  int flags = fcntl(fd, F_GETFL);
-  fcntl(fd, F_SETFL, flags | O_NONBLOCK);
-  fcntl(fd, F_SETFD, FD_CLOEXEC);
-}
-
-std::string sockaddr_text(const sockaddr_storage& ss) {
-  char host[INET6_ADDRSTRLEN] = "?";
-  if (ss.ss_family == AF_INET) {
-    auto* a = reinterpret_cast<const sockaddr_in*>(&ss);
-    inet_ntop(AF_INET, &a->sin_addr, host, sizeof host);
-    return fmt::format("{}:{}", host, ntohs(a->sin_port));
-  }
-  auto* a = reinterpret_cast<const sockaddr_in6*>(&ss);
-  inet_ntop(AF_INET6, &a->sin6_addr, host, sizeof host);
-  return fmt::format("[{}]:{}", host, ntohs(a->sin6_port));
-}
+using serve::set_nonblocking;
+using serve::sockaddr_text;
 
 int listen_on(const std::string& host, uint16_t port, std::string& bound) {
-  addrinfo hints{}, *res = nullptr;
-  hints.ai_family = AF_UNSPEC;
-  hints.ai_socktype = SOCK_STREAM;
-  hints.ai_flags = AI_PASSIVE | AI_NUMERICSERV;
-  std::string p = std::to_string(port);
-  if (int rc = getaddrinfo(host.c_str(), p.c_str(), &hints, &res); rc != 0)
-    throw std::runtime_error(fmt::format("tls {}:{}: {}", host, port, gai_strerror(rc)));
-  int fd = ::socket(res->ai_family, res->ai_socktype | SOCK_CLOEXEC, 0);
-  int one = 1;
-  if (fd >= 0) setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
-  bool ok = fd >= 0 && ::bind(fd, res->ai_addr, res->ai_addrlen) == 0 && ::listen(fd, SOMAXCONN) == 0;
-  freeaddrinfo(res);
-  if (!ok) {
-    std::string why = strerr();
-    if (fd >= 0) ::close(fd);
-    throw std::runtime_error(fmt::format("tls {}:{}: {}", host, port, why));
-  }
-  set_nonblocking(fd);
-  sockaddr_storage ss{};
-  socklen_t len = sizeof ss;
-  getsockname(fd, reinterpret_cast<sockaddr*>(&ss), &len);
-  bound = sockaddr_text(ss);
-  return fd;
+  serve::Listener l = serve::listen_tcp("tls", host, port);
+  bound = l.bound;
+  return l.fd;
 }
 
 bool same_addr(const sockaddr_storage& a, const sockaddr_storage& b) {

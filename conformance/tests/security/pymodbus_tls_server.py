@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """pymodbus 3.0 (Debian python3-pymodbus) serving Modbus/TCP Security with
-StartAsyncTlsServer, the data store of ../peers/pymodbus_server.py (four
+StartAsyncTlsServer, the data store of ../../peers/servers/pymodbus_server.py (four
 blocks of 200 items, zero_mode). Prints "listening 127.0.0.1:PORT" when ready.
 
 usage: pymodbus_tls_server.py MODE CERT KEY CA [PORT]  (PORT 0 or none: any free port)

@@ -403,7 +403,7 @@ def test_pymodbus_client():
     documentation shows it, with the MBAP framer): the scenarios inside TLS
     end as they end over plain TCP, and the client-side checks see what its
     source does (/usr/lib/python3/dist-packages/pymodbus/client/tls.py)."""
-    adapter = "/usr/bin/python3 " + os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "client",
+    adapter = "/usr/bin/python3 " + os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "peers",
                                                   "adapters", "pymodbus", "pymodbus_adapter.py")
     reports = {}
     for transport in ("tcp", "tls"):
