@@ -40,8 +40,8 @@ Pdu unframe(Carrier c, std::span<const uint8_t> adu) {
     }
   } else if (adu.size() >= 1) {
     p.unit = adu[0];
-    size_t end = adu.size() >= 4 ? adu.size() - 2 : adu.size();
-    p.pdu.assign(adu.begin() + 1, adu.begin() + ptrdiff_t(end));
+    auto pdu = adu.size() >= 4 ? kRtu.pdu_bytes(adu) : adu.subspan(1);  // too short for a CRC: all of it
+    p.pdu.assign(pdu.begin(), pdu.end());
     p.crc_ok = adu.size() >= 4 && crc_ok(adu);
   }
   return p;

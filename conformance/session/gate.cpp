@@ -6,6 +6,7 @@
 #include <set>
 
 #include "modbus/crc16.h"
+#include "modbus/rtu.h"
 
 namespace mbc::conf {
 namespace {
@@ -53,7 +54,10 @@ std::vector<std::pair<uint8_t, Bytes>> frames_in(Framing framing, std::span<cons
     }
     // RTU: every prefix whose CRC holds is a frame to a receiver that frames by length.
     for (size_t n = 4; n <= b.size(); ++n)
-      if (crc_ok(b.first(n))) out.emplace_back(b[0], Bytes(b.begin() + 1, b.begin() + long(n) - 2));
+      if (crc_ok(b.first(n))) {
+        auto pdu = mbc::kRtu.pdu_bytes(b.first(n));
+        out.emplace_back(b[0], Bytes(pdu.begin(), pdu.end()));
+      }
   };
   scan(bytes);
   if (gap_after && *gap_after > 0 && *gap_after < bytes.size()) {
