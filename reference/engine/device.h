@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -80,6 +81,18 @@ class Device {
   std::optional<Bytes> handle_rtu(std::span<const uint8_t> adu);
   // One PDU addressed to this device (broadcast = sent to address 0).
   std::optional<Bytes> handle_pdu(std::span<const uint8_t> pdu, bool broadcast = false);
+
+  // The same two, with the reply written into the caller's storage and
+  // nothing allocated (a server loop, a fuzz harness): they return the
+  // reply's length, 0 for silence (no reply is empty). `reply` must not
+  // overlap the request and must hold max_reply_pdu() bytes (handle_pdu_into)
+  // or max_reply_pdu() + 3 (handle_rtu_into: address and CRC); a shorter one
+  // throws std::length_error before the request is acted on.
+  size_t handle_rtu_into(std::span<const uint8_t> adu, std::span<uint8_t> reply);
+  size_t handle_pdu_into(std::span<const uint8_t> pdu, std::span<uint8_t> reply, bool broadcast = false);
+  // The longest reply PDU this device gives: kMaxPdu (MBAP v1.1b3 §4.1),
+  // unless its spec's identification strings make an FC 17 / FC 43 reply longer.
+  size_t max_reply_pdu() const { return max_reply_pdu_; }
 
   // Raw register image (holding table; the other tables below).
   uint16_t word(uint16_t address) const;
@@ -155,6 +168,8 @@ class Device {
     int max_quantity = 0, max_read = 0, max_write = 0;
   };
   void resolve_spec();
+  // handle_pdu_into once `out` is known to hold max_reply_pdu_ bytes.
+  size_t reply_pdu(std::span<const uint8_t> pdu, uint8_t* out, bool broadcast);
   // The span of each table written since the last power cycle, so that a
   // power cycle clears that instead of 4 x 64 Ki words (a fuzz harness power
   // cycles its device before every input).
@@ -167,8 +182,13 @@ class Device {
     }
   };
   std::array<Touched, 4> touched_{};
-  std::optional<uint16_t> last_address_[4];  // per table, from the spec (hot path)
+  std::array<int32_t, 4> last_address_{};  // per table, from the spec; -1: nothing mapped
   std::vector<MappedRun> runs_[4];
+  // Per table and 256-address page, the index in runs_ of the first run that
+  // ends in or after that page: an address's run is found from there in a
+  // step or two instead of a search of the whole map.
+  std::array<std::array<uint32_t, 256>, 4> page_runs_{};
+  size_t max_reply_pdu_ = 0;
   std::array<FunctionLimits, 128> functions_{};
   std::array<int16_t, 16> answers_{};  // by Violation; -1: silence
   uint8_t slave_id_;
@@ -193,6 +213,12 @@ class Bus {
   // server is reached directly and 0, like 0xFF, addresses it (Modbus
   // Messaging on TCP/IP Implementation Guide V1.0b §4.4.1.2).
   std::optional<Bytes> handle_pdu(uint8_t unit, std::span<const uint8_t> pdu);
+  // The same two into the caller's storage, as Device::handle_rtu_into and
+  // handle_pdu_into: the reply's length, 0 for silence; `reply` holds
+  // max_reply_pdu() (+ 3 for RTU) bytes, the most any device on the bus needs.
+  size_t handle_rtu_into(std::span<const uint8_t> adu, std::span<uint8_t> reply);
+  size_t handle_pdu_into(uint8_t unit, std::span<const uint8_t> pdu, std::span<uint8_t> reply);
+  size_t max_reply_pdu() const;
   // The device a TCP unit id 0 or 0xFF reaches directly (one device served), or null.
   Device* direct(uint8_t unit);
   Device* find(uint8_t slave_id);
