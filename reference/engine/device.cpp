@@ -31,6 +31,30 @@ const spec::Spec& standard_spec() {
   return s;
 }
 
+int64_t default_raw(const Register& r) {
+  // No printed default: power up at 0, unless the register's range excludes 0;
+  // then at the range's minimum (a device never holds a value it would refuse
+  // as a write, so a master can always write back what it read).
+  std::optional<double> v = r.default_value;
+  if (!v && r.range && (r.range->min > 0 || r.range->max < 0)) v = r.range->min;
+  if (!v) return 0;
+  if (r.type == DataType::f32) return int64_t(std::bit_cast<uint32_t>(float(*v)));
+  return int64_t(*v);
+}
+
+bool is_bit_table(Table t) { return t == Table::coil || t == Table::discrete_input; }
+
+// How many cells of its table r takes: a bit is one, a value 1 or 2 words.
+int cells(const Register& r) { return is_bit_table(r.table) ? 1 : r.words; }
+
+// The cells `v` is stored as in r's table: a bit 0 or 1; a 2-word value in
+// r's word order.
+std::array<uint16_t, 2> raw_cells(const Register& r, int64_t v) {
+  if (is_bit_table(r.table)) return {uint16_t(v != 0), 0};
+  if (r.words == 1) return {uint16_t(v), 0};
+  return split_u32(uint32_t(v), r.low_word_first());
+}
+
 }  // namespace
 
 // The protocol engine: one PDU in, the reply PDU written into the caller's
@@ -448,12 +472,34 @@ void Device::resolve_spec() {
       else
         runs.push_back(run);
     }
+    // What a power cycle writes: every register's default, as stored.
+    auto& image = power_on_[int(t)];
+    auto& span = power_on_span_[int(t)];
+    image.clear();
+    span = Touched{};
+    for (const auto& r : spec_.registers) {
+      if (r.table != t) continue;
+      span.mark(r.address);
+      if (r.words == 2) span.mark(uint16_t(r.address + 1));
+      auto raw = raw_cells(r, default_raw(r));
+      for (int i = 0; i < cells(r); ++i) image.push_back({uint16_t(r.address + i), raw[size_t(i)]});
+    }
     auto& pages = page_runs_[int(t)];
     for (uint32_t page = 0, i = 0; page < pages.size(); ++page) {
       while (i < runs.size() && runs[i].last < page << 8) ++i;
       pages[page] = i;
     }
   }
+  persistent_words_.clear();
+  for (const auto& r : spec_.registers)
+    if (r.persistence.store != spec::Store::none && r.table == Table::holding)
+      for (int i = 0; i < r.words; ++i) persistent_words_.push_back(uint16_t(r.address + i));
+  // Behaviours name registers by key on every hook (reg_by_key, value_of):
+  // a hash lookup, not a scan of the register list. The first register with
+  // a key wins, as in Spec::find_by_key.
+  by_key_.clear();
+  for (const auto& r : spec_.registers)
+    if (!r.key.empty()) by_key_.emplace(r.key, &r);
   // A quantity limit of the device's profile, capped by the standard's
   // (which the PDU size fixes: MBAP v1.1b3 §6).
   auto limit = [&](int fc, std::optional<int> spec::FunctionCode::*which) {
@@ -573,7 +619,6 @@ std::optional<Bytes> Device::handle_pdu(std::span<const uint8_t> pdu, bool broad
   return reply_bytes<0>(max_reply_pdu_, [&](std::span<uint8_t> buf) { return reply_pdu(pdu, buf.data(), broadcast); });
 }
 
-uint16_t Device::word(uint16_t a) const { return holding_[a]; }
 void Device::set_word(uint16_t a, uint16_t v) {
   touched_[int(Table::holding)].mark(a);
   holding_[a] = v;
@@ -594,11 +639,14 @@ void Device::set_discrete_input(uint16_t a, bool on) {
   discrete_[a] = on;
 }
 
-namespace {
-std::vector<uint16_t>& words_of(const Register& r, std::vector<uint16_t>& holding, std::vector<uint16_t>& input) {
-  return r.table == Table::input ? input : holding;
+void Device::put_cell(Table t, uint16_t a, uint16_t v) {
+  switch (t) {
+    case Table::holding: holding_[a] = v; break;
+    case Table::input: input_[a] = v; break;
+    case Table::coil: coils_[a] = uint8_t(v); break;
+    case Table::discrete_input: discrete_[a] = uint8_t(v); break;
+  }
 }
-}  // namespace
 
 int64_t Device::value(const Register& r) const {
   if (r.table == Table::coil) return coils_[r.address];
@@ -616,22 +664,8 @@ void Device::set_value(const Register& r, int64_t v) {
   auto& touched = touched_[int(r.table)];
   touched.mark(r.address);
   if (r.words == 2) touched.mark(uint16_t(r.address + 1));
-  if (r.table == Table::coil) {
-    coils_[r.address] = v != 0;
-    return;
-  }
-  if (r.table == Table::discrete_input) {
-    discrete_[r.address] = v != 0;
-    return;
-  }
-  auto& w = words_of(r, holding_, input_);
-  if (r.words == 1) {
-    w[r.address] = uint16_t(v);
-    return;
-  }
-  auto split = split_u32(uint32_t(v), r.low_word_first());
-  w[r.address] = split[0];
-  w[uint16_t(r.address + 1)] = split[1];
+  auto raw = raw_cells(r, v);
+  for (int i = 0; i < cells(r); ++i) put_cell(r.table, uint16_t(r.address + i), raw[size_t(i)]);
 }
 
 double Device::float_value(const Register& r) const {
@@ -653,11 +687,14 @@ void Device::set_value_at(uint16_t address, int64_t v) {
   set_value(*r, v);
 }
 
-const Register* Device::find_by_key(const std::string& key) const { return spec_.find_by_key(key); }
+const Register* Device::find_by_key(std::string_view key) const {
+  auto it = by_key_.find(key);
+  return it == by_key_.end() ? nullptr : it->second;
+}
 
-const Register& Device::reg_by_key(const std::string& key) const {
-  const Register* r = spec_.find_by_key(key);
-  if (!r) throw std::out_of_range("spec " + spec_.device.id + " has no register with key '" + key + "'");
+const Register& Device::reg_by_key(std::string_view key) const {
+  const Register* r = find_by_key(key);
+  if (!r) throw std::out_of_range("spec " + spec_.device.id + " has no register with key '" + std::string(key) + "'");
   return *r;
 }
 
@@ -674,18 +711,13 @@ void Device::advance(uint64_t dt_us) {
   behaviour_->advance(*this, dt_us);
 }
 
-namespace {
-int64_t default_raw(const Register& r) {
-  // No printed default: power up at 0, unless the register's range excludes 0;
-  // then at the range's minimum (a device never holds a value it would refuse
-  // as a write, so a master can always write back what it read).
-  std::optional<double> v = r.default_value;
-  if (!v && r.range && (r.range->min > 0 || r.range->max < 0)) v = r.range->min;
-  if (!v) return 0;
-  if (r.type == DataType::f32) return int64_t(std::bit_cast<uint32_t>(float(*v)));
-  return int64_t(*v);
+void Device::write_power_on_image() {
+  for (size_t t = 0; t < power_on_.size(); ++t) {
+    const Touched& span = power_on_span_[t];
+    if (span.lo < span.hi) touched_[t].mark(span.lo, span.hi - span.lo);
+    for (const auto& [address, value] : power_on_[t]) put_cell(Table(t), address, value);
+  }
 }
-}  // namespace
 
 void Device::power_cycle() {
   auto clear = [&](auto& table, Table t) {
@@ -697,14 +729,12 @@ void Device::power_cycle() {
   clear(input_, Table::input);
   clear(coils_, Table::coil);
   clear(discrete_, Table::discrete_input);
-  for (const auto& r : spec_.registers) set_value(r, default_raw(r));
-  // Persistent registers come back from the stored image.
-  for (const auto& r : spec_.registers) {
-    if (r.persistence.store == spec::Store::none || r.table != Table::holding) continue;
-    for (int i = 0; i < r.words; ++i) {
-      auto it = stored_.find(uint16_t(r.address + i));
-      if (it != stored_.end()) set_word(uint16_t(r.address + i), it->second);
-    }
+  write_power_on_image();
+  // Persistent registers come back from the stored image (both sorted by address).
+  auto stored = stored_.begin();
+  for (uint16_t a : persistent_words_) {
+    while (stored != stored_.end() && stored->first < a) ++stored;
+    if (stored != stored_.end() && stored->first == a) set_word(a, stored->second);
   }
   listen_only_ = false;
   counters_ = DiagnosticCounters{};
@@ -715,23 +745,16 @@ void Device::power_cycle() {
 }
 
 void Device::factory_reset() {
-  for (const auto& r : spec_.registers) set_value(r, default_raw(r));
+  write_power_on_image();
   stored_.clear();
-  for (const auto& r : spec_.registers)
-    if (r.persistence.store != spec::Store::none && r.table == Table::holding)
-      for (int i = 0; i < r.words; ++i) {
-        stored_[uint16_t(r.address + i)] = holding_[uint16_t(r.address + i)];
-        ++eeprom_writes_;
-      }
+  save_persistent();
 }
 
 void Device::save_persistent() {
-  for (const auto& r : spec_.registers)
-    if (r.persistence.store != spec::Store::none && r.table == Table::holding)
-      for (int i = 0; i < r.words; ++i) {
-        stored_[uint16_t(r.address + i)] = holding_[uint16_t(r.address + i)];
-        ++eeprom_writes_;
-      }
+  for (uint16_t a : persistent_words_) {
+    stored_[a] = holding_[a];
+    ++eeprom_writes_;
+  }
 }
 
 void Device::load_stored_image(std::map<uint16_t, uint16_t> image) { stored_ = std::move(image); }

@@ -17,6 +17,8 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <string_view>
+#include <unordered_map>
 #include <vector>
 
 #include "engine/virtual_axis.h"
@@ -95,7 +97,7 @@ class Device {
   size_t max_reply_pdu() const { return max_reply_pdu_; }
 
   // Raw register image (holding table; the other tables below).
-  uint16_t word(uint16_t address) const;
+  uint16_t word(uint16_t address) const { return holding_[address]; }
   void set_word(uint16_t address, uint16_t value);  // no policy checks, no hooks
   uint16_t input_word(uint16_t address) const;
   void set_input_word(uint16_t address, uint16_t value);
@@ -139,10 +141,10 @@ class Device {
 
   // The register the spec gives `key` (a stable name behaviour code uses
   // instead of repeating addresses); throws std::out_of_range if absent.
-  const spec::Register& reg_by_key(const std::string& key) const;
-  const spec::Register* find_by_key(const std::string& key) const;
-  int64_t value_of(const std::string& key) const { return value(reg_by_key(key)); }
-  void set_value_of(const std::string& key, int64_t v) { set_value(reg_by_key(key), v); }
+  const spec::Register& reg_by_key(std::string_view key) const;
+  const spec::Register* find_by_key(std::string_view key) const;
+  int64_t value_of(std::string_view key) const { return value(reg_by_key(key)); }
+  void set_value_of(std::string_view key, int64_t v) { set_value(reg_by_key(key), v); }
 
   // The register covering `address`, if the spec maps it.
   const spec::Register* reg(uint16_t address, spec::Table table = spec::Table::holding) const;
@@ -182,6 +184,21 @@ class Device {
     }
   };
   std::array<Touched, 4> touched_{};
+  // What a power cycle writes, per table: each register's default as the
+  // cells it is stored in (address, word or bit), and the span they cover;
+  // converted once here, not per power cycle (a fuzz harness cycles per input).
+  struct Cell {
+    uint16_t address, value;
+  };
+  std::array<std::vector<Cell>, 4> power_on_;
+  std::array<Touched, 4> power_on_span_{};
+  void write_power_on_image();
+  void put_cell(spec::Table t, uint16_t address, uint16_t value);
+  // The holding addresses of persistent registers, ascending.
+  std::vector<uint16_t> persistent_words_;
+  // Register by key. The views point into spec_'s registers, which stay put:
+  // spec_ is never changed, and moving a Device moves the vector's storage.
+  std::unordered_map<std::string_view, const spec::Register*> by_key_;
   std::array<int32_t, 4> last_address_{};  // per table, from the spec; -1: nothing mapped
   std::vector<MappedRun> runs_[4];
   // Per table and 256-address page, the index in runs_ of the first run that
