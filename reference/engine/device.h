@@ -10,12 +10,15 @@
 
 #include <algorithm>
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <map>
 #include <memory>
 #include <optional>
 #include <span>
 #include <string>
+#include <string_view>
+#include <unordered_map>
 #include <vector>
 
 #include "engine/virtual_axis.h"
@@ -81,8 +84,20 @@ class Device {
   // One PDU addressed to this device (broadcast = sent to address 0).
   std::optional<Bytes> handle_pdu(std::span<const uint8_t> pdu, bool broadcast = false);
 
+  // The same two, with the reply written into the caller's storage and
+  // nothing allocated (a server loop, a fuzz harness): they return the
+  // reply's length, 0 for silence (no reply is empty). `reply` must not
+  // overlap the request and must hold max_reply_pdu() bytes (handle_pdu_into)
+  // or max_reply_pdu() + 3 (handle_rtu_into: address and CRC); a shorter one
+  // throws std::length_error before the request is acted on.
+  size_t handle_rtu_into(std::span<const uint8_t> adu, std::span<uint8_t> reply);
+  size_t handle_pdu_into(std::span<const uint8_t> pdu, std::span<uint8_t> reply, bool broadcast = false);
+  // The longest reply PDU this device gives: kMaxPdu (MBAP v1.1b3 §4.1),
+  // unless its spec's identification strings make an FC 17 / FC 43 reply longer.
+  size_t max_reply_pdu() const { return max_reply_pdu_; }
+
   // Raw register image (holding table; the other tables below).
-  uint16_t word(uint16_t address) const;
+  uint16_t word(uint16_t address) const { return holding_[address]; }
   void set_word(uint16_t address, uint16_t value);  // no policy checks, no hooks
   uint16_t input_word(uint16_t address) const;
   void set_input_word(uint16_t address, uint16_t value);
@@ -126,10 +141,10 @@ class Device {
 
   // The register the spec gives `key` (a stable name behaviour code uses
   // instead of repeating addresses); throws std::out_of_range if absent.
-  const spec::Register& reg_by_key(const std::string& key) const;
-  const spec::Register* find_by_key(const std::string& key) const;
-  int64_t value_of(const std::string& key) const { return value(reg_by_key(key)); }
-  void set_value_of(const std::string& key, int64_t v) { set_value(reg_by_key(key), v); }
+  const spec::Register& reg_by_key(std::string_view key) const;
+  const spec::Register* find_by_key(std::string_view key) const;
+  int64_t value_of(std::string_view key) const { return value(reg_by_key(key)); }
+  void set_value_of(std::string_view key, int64_t v) { set_value(reg_by_key(key), v); }
 
   // The register covering `address`, if the spec maps it.
   const spec::Register* reg(uint16_t address, spec::Table table = spec::Table::holding) const;
@@ -155,6 +170,8 @@ class Device {
     int max_quantity = 0, max_read = 0, max_write = 0;
   };
   void resolve_spec();
+  // handle_pdu_into once `out` is known to hold max_reply_pdu_ bytes.
+  size_t reply_pdu(std::span<const uint8_t> pdu, uint8_t* out, bool broadcast);
   // The span of each table written since the last power cycle, so that a
   // power cycle clears that instead of 4 x 64 Ki words (a fuzz harness power
   // cycles its device before every input).
@@ -167,8 +184,28 @@ class Device {
     }
   };
   std::array<Touched, 4> touched_{};
-  std::optional<uint16_t> last_address_[4];  // per table, from the spec (hot path)
+  // What a power cycle writes, per table: each register's default as the
+  // cells it is stored in (address, word or bit), and the span they cover;
+  // converted once here, not per power cycle (a fuzz harness cycles per input).
+  struct Cell {
+    uint16_t address, value;
+  };
+  std::array<std::vector<Cell>, 4> power_on_;
+  std::array<Touched, 4> power_on_span_{};
+  void write_power_on_image();
+  void put_cell(spec::Table t, uint16_t address, uint16_t value);
+  // The holding addresses of persistent registers, ascending.
+  std::vector<uint16_t> persistent_words_;
+  // Register by key. The views point into spec_'s registers, which stay put:
+  // spec_ is never changed, and moving a Device moves the vector's storage.
+  std::unordered_map<std::string_view, const spec::Register*> by_key_;
+  std::array<int32_t, 4> last_address_{};  // per table, from the spec; -1: nothing mapped
   std::vector<MappedRun> runs_[4];
+  // Per table and 256-address page, the index in runs_ of the first run that
+  // ends in or after that page: an address's run is found from there in a
+  // step or two instead of a search of the whole map.
+  std::array<std::array<uint32_t, 256>, 4> page_runs_{};
+  size_t max_reply_pdu_ = 0;
   std::array<FunctionLimits, 128> functions_{};
   std::array<int16_t, 16> answers_{};  // by Violation; -1: silence
   uint8_t slave_id_;
@@ -193,6 +230,12 @@ class Bus {
   // server is reached directly and 0, like 0xFF, addresses it (Modbus
   // Messaging on TCP/IP Implementation Guide V1.0b §4.4.1.2).
   std::optional<Bytes> handle_pdu(uint8_t unit, std::span<const uint8_t> pdu);
+  // The same two into the caller's storage, as Device::handle_rtu_into and
+  // handle_pdu_into: the reply's length, 0 for silence; `reply` holds
+  // max_reply_pdu() (+ 3 for RTU) bytes, the most any device on the bus needs.
+  size_t handle_rtu_into(std::span<const uint8_t> adu, std::span<uint8_t> reply);
+  size_t handle_pdu_into(uint8_t unit, std::span<const uint8_t> pdu, std::span<uint8_t> reply);
+  size_t max_reply_pdu() const;
   // The device a TCP unit id 0 or 0xFF reaches directly (one device served), or null.
   Device* direct(uint8_t unit);
   Device* find(uint8_t slave_id);
