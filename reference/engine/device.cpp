@@ -9,6 +9,7 @@
 #include "modbus/bytes.h"
 #include "modbus/crc16.h"
 #include "modbus/limits.h"
+#include "modbus/rtu.h"
 #include "modbus/words.h"
 #include "loader.h"
 
@@ -556,7 +557,7 @@ size_t Device::handle_rtu_into(std::span<const uint8_t> adu, std::span<uint8_t> 
   } else {
     if (!broadcast && address != slave_id_) return 0;
     ++counters_.bus_messages;
-    n = reply_pdu(adu.subspan(1, adu.size() - 3), pdu_out, broadcast);
+    n = reply_pdu(kRtu.pdu_bytes(adu), pdu_out, broadcast);
     if (broadcast) return 0;
   }
   if (n == 0) return 0;

@@ -13,6 +13,7 @@
 #include "modbus/bytes.h"
 #include "modbus/crc16.h"
 #include "modbus/function_codes.h"
+#include "modbus/rtu.h"
 
 namespace mbc::serve {
 namespace {
@@ -69,7 +70,7 @@ std::string describe_pdu(std::span<const uint8_t> pdu, Direction dir) {
 
 std::string describe_rtu(std::span<const uint8_t> adu, Direction dir) {
   if (adu.size() < 4) return fmt::format("{} bytes: too short for an RTU frame", adu.size());
-  return fmt::format("slave {} {} CRC {}", adu[0], describe_pdu(adu.subspan(1, adu.size() - 3), dir),
+  return fmt::format("slave {} {} CRC {}", adu[0], describe_pdu(kRtu.pdu_bytes(adu), dir),
                      crc_ok(adu) ? "ok" : "BAD");
 }
 
