@@ -23,7 +23,7 @@
 #include <stdexcept>
 #include <thread>
 
-#include "modbus/crc16.h"
+#include "modbus/function_codes.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "targets/kinds.h"
@@ -89,21 +89,31 @@ int connect_tcp(const std::string& host, uint16_t port, milliseconds timeout, co
   return fd;
 }
 
-// The longest reply an RTU request can get, in bytes (slave, PDU, CRC): a
-// read's reply for the quantity asked (MBAP v1.1b3 §6.1-6.4, §6.17), an echo
-// as long as the request (FC 05/06/08/22), an exception (5 bytes), whichever
-// is longest. A window for an expected silence waits this long for a reply a
-// non-conforming device might still send: a line delivers a frame's first
-// byte early, but a pty or a gateway may hand it over whole.
+// The longest reply an RTU request can get, in bytes (slave, PDU, CRC): an
+// exception (5 bytes, MBAP v1.1b3 §7), or the reply the standard gives its
+// function code, whichever is longer: a read's for the quantity asked
+// (§6.1-6.4, §6.17), the fixed length of a write's, a counter's or a mask
+// write's echo (§6.5-6.7, §6.9, §6.11, §6.12, §6.16), both whatever the
+// request's own length (a truncated, padded or over-long frame). Where the
+// standard fixes no length (diagnostics' echo of its data, §6.8; file
+// records, FIFO, device identification; unknown codes; a read whose
+// quantity is cut off) an echo as long as the request. A window for an
+// expected silence waits this long for a reply a non-conforming device might
+// still send: a line delivers a frame's first byte early, but a pty or a
+// gateway may hand it over whole.
 size_t longest_reply(std::span<const uint8_t> adu) {
-  size_t n = std::max<size_t>(adu.size(), 5);
-  if (adu.size() >= 8) {
-    uint8_t fc = adu[1];
-    size_t q = size_t(adu[4]) << 8 | adu[5];
-    if (fc == 1 || fc == 2) n = std::max(n, 5 + (q + 7) / 8);
-    if (fc == 3 || fc == 4 || fc == 23) n = std::max(n, 5 + 2 * q);
+  constexpr size_t exception_reply = kRtuAddress + 2 + kRtuCrc;
+  std::optional<size_t> by_code;
+  if (adu.size() >= 2 && !(adu[1] & kExceptionBit)) {
+    uint8_t code = adu[1];
+    size_t q = adu.size() >= 8 ? size_t(adu[4]) << 8 | adu[5] : 0;
+    bool bits = code == fc::read_coils || code == fc::read_discrete_inputs;
+    bool words = code == fc::read_holding_registers || code == fc::read_input_registers ||
+                 code == fc::read_write_multiple_registers;
+    if ((bits || words) && adu.size() >= 8) by_code = kRtuAddress + 2 + (bits ? (q + 7) / 8 : 2 * q) + kRtuCrc;
+    else if (code != fc::diagnostics) by_code = rtu_adu_length(adu.first(2), Direction::reply);
   }
-  return std::min(n, kMaxRtuAdu);
+  return std::min(std::max(exception_reply, by_code.value_or(adu.size())), kMaxRtuAdu);
 }
 
 class RtuTarget final : public Target {
@@ -268,10 +278,8 @@ class RtuTarget final : public Target {
     auto first_by = t0 + (for_reply ? window_.timeout() : window_.window(last_line_));
     auto wire = info_.baud ? wire_time(kMaxRtuAdu, *info_.baud) : microseconds(0);
     auto hard = first_by + window_.timeout() + 2 * wire;
-    ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, [](std::span<const uint8_t> b) {
-      auto n = rtu_adu_length(b, Direction::reply);
-      return n && b.size() == *n && crc_ok(b);
-    });
+    ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard,
+                               [](std::span<const uint8_t> b) { return rtu_adu_complete(b, Direction::reply); });
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (r.frame.empty()) silent_at_ = t0;
     if (rr.closed) {
