@@ -23,7 +23,9 @@
 #include <stdexcept>
 #include <thread>
 
+#include "modbus/crc16.h"
 #include "modbus/function_codes.h"
+#include "modbus/judge.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "targets/kinds.h"
@@ -278,10 +280,26 @@ class RtuTarget final : public Target {
     auto first_by = t0 + (for_reply ? window_.timeout() : window_.window(last_line_));
     auto wire = info_.baud ? wire_time(kMaxRtuAdu, *info_.baud) : microseconds(0);
     auto hard = first_by + window_.timeout() + 2 * wire;
-    ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard,
-                               [](std::span<const uint8_t> b) { return rtu_adu_complete(b, Direction::reply); });
+    auto complete = [](std::span<const uint8_t> b) { return rtu_adu_complete(b, Direction::reply); };
+    ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);
+    // The previous request's reply came after its window closed and after
+    // this request went out: counted as late (as if drained before it), and
+    // this request still waits for its own reply, now behind it on the line.
+    while (!rr.closed) {
+      size_t late = late_reply_at_front(r.frame, adu);
+      if (late == 0) break;
+      window_.late_reply(std::chrono::duration_cast<microseconds>(Clock::now() - *silent_at_));
+      r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(late));
+      unanswered_.reset();
+      first_by = std::max(first_by, Clock::now() + (for_reply ? window_.timeout() : window_.window(last_line_)));
+      hard = first_by + window_.timeout() + 2 * wire;
+      rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);
+    }
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (r.frame.empty()) silent_at_ = t0;
+    // Only a well-formed request to this unit: a late answer to a broadcast,
+    // another slave id or a corrupted frame is the device's fault, not its pace.
+    unanswered_ = r.frame.empty() && addressed ? std::optional<Bytes>(adu) : std::nullopt;
     if (rr.closed) {
       if (serial_) throw std::runtime_error(fmt::format("target '{}': the serial line closed", info_.uri));
       r.closed = r.frame.empty();
@@ -291,6 +309,24 @@ class RtuTarget final : public Target {
     decode_rtu_reply(r, slave);
     if (r.pdu && timed) window_.record(r.latency, !r.pdu->empty() && ((*r.pdu)[0] & 0x80), line_time(adu.size(), r.frame.size()));
     return r;
+  }
+
+  // The length of the frame at the front of `frame` when it is the late
+  // reply to the request just before `request`, which went unanswered: a
+  // whole ADU from the same slave that answers that request as the standard
+  // says (judge_reply) and does not answer `request` (else it is taken as
+  // request's own, as before). Else 0.
+  size_t late_reply_at_front(const Bytes& frame, const Bytes& request) const {
+    if (!unanswered_ || !silent_at_) return 0;
+    auto n = rtu_adu_length(frame, Direction::reply);
+    if (!n || *n > frame.size()) return 0;
+    auto reply = std::span(frame).first(*n);
+    auto pdu = [](std::span<const uint8_t> adu) { return adu.subspan(kRtuAddress, adu.size() - kRtuAddress - kRtuCrc); };
+    const Bytes& before = *unanswered_;
+    if (!crc_ok(reply) || reply[0] != before[0] || !judge_reply(pdu(before), pdu(reply)).ok()) return 0;
+    bool answers_this = request.size() >= kRtuAddress + 1 + kRtuCrc && request[0] == reply[0] &&
+                        judge_reply(pdu(request), pdu(reply)).ok();
+    return answers_this ? 0 : *n;
   }
 
   // The line time of an exchange at the line's baud: each frame's characters
@@ -313,6 +349,7 @@ class RtuTarget final : public Target {
   bool gap_fixed_ = false;  // the user set `gap=`: kept as given
   microseconds last_line_{0};  // the line time the last window was computed for
   std::optional<Clock::time_point> silent_at_;  // when the request of the last silent exchange went out
+  std::optional<Bytes> unanswered_;  // the last exchange's request, when it was to this unit and went unanswered
   Wait wait_ = Wait::automatic;
 };
 

@@ -2,8 +2,9 @@
 // the bytes are one whole ADU by its function code or byte count and its CRC
 // (modbus/rtu.h rtu_adu_complete), else when the line falls silent; and how
 // long it waits for a reply that may not come: the line time of the request
-// and of the longest reply the standard gives its function code. The slave is
-// played by this test on a real pty.
+// and of the longest reply the standard gives its function code; and a reply
+// to the previous request that comes in after the next one went out. The
+// slave is played by this test on a real pty.
 #include <gtest/gtest.h>
 #include <poll.h>
 #include <pty.h>
@@ -229,6 +230,54 @@ TEST(RtuReplyEnd, TheSilenceWindowCoversTheLongestReplyOfTheFunctionCode) {
   // Between them only the longest reply's characters differ: 8, 255 and 256 bytes.
   EXPECT_NEAR(double((read_125 - write_single).count()), double(wire_time(255 - 8, 115200).count()), 2.0);
   EXPECT_NEAR(double((unknown - write_single).count()), double(wire_time(256 - 8, 115200).count()), 2.0);
+}
+
+// A reply held up past its window (a busy device or host) comes in while the
+// next request waits: it answers the unanswered request, not this one, so it
+// is counted late and this request gets its own reply, not a verdict of
+// "wrong byte count" on the previous one's.
+TEST(RtuReplyEnd, ALateReplyToThePreviousRequestIsNotTakenForThisOnes) {
+  std::atomic<int64_t> hold_us{0};
+  ScriptedSlave slave([&](const Bytes& req) {
+    uint16_t quantity = uint16_t(req[4] << 8 | req[5]);
+    Bytes pdu{3, uint8_t(2 * quantity)};
+    for (uint16_t i = 0; i < quantity; ++i) pdu.insert(pdu.end(), {0x12, uint8_t(i)});
+    return std::vector<Part>{{rtu_frame(1, pdu), std::chrono::microseconds(hold_us.exchange(0))}};
+  });
+  auto target = open_target(slave.uri());
+  target->set_wait(Target::Wait::reply);
+  for (int i = 0; i < 20; ++i) ASSERT_TRUE(target->transact(1, read_request(3, 0, 1)).pdu) << i;
+
+  // One register asked, answered 100 ms after its window closed: judged silent.
+  hold_us = std::chrono::duration_cast<std::chrono::microseconds>(target->silence_window() + 100ms).count();
+  target->set_wait(Target::Wait::window);
+  ASSERT_TRUE(target->transact(1, read_request(3, 0, 1)).silent());
+  // Two registers asked: the one-register reply comes first.
+  target->set_wait(Target::Wait::reply);
+  Reply r = target->transact(1, read_request(3, 0, 2));
+  ASSERT_TRUE(r.pdu) << r.framing_error << " " << to_hex(r.frame);
+  EXPECT_EQ(*r.pdu, hex("03 04 12 00 12 01"));
+  EXPECT_EQ(target->late_replies(), 1u);
+}
+
+// The same request twice: a late reply to the first answers the second as
+// well, and is taken as its reply (the second's own is late in its turn).
+TEST(RtuReplyEnd, ALateReplyThatAnswersThisRequestTooIsItsReply) {
+  std::atomic<int64_t> hold_us{0};
+  ScriptedSlave slave([&](const Bytes&) {
+    return std::vector<Part>{{kRegisterReply, std::chrono::microseconds(hold_us.exchange(0))}};
+  });
+  auto target = open_target(slave.uri());
+  target->set_wait(Target::Wait::reply);
+  for (int i = 0; i < 20; ++i) ASSERT_TRUE(target->transact(1, read_request(3, 0, 1)).pdu) << i;
+  hold_us = std::chrono::duration_cast<std::chrono::microseconds>(target->silence_window() + 100ms).count();
+  target->set_wait(Target::Wait::window);
+  ASSERT_TRUE(target->transact(1, read_request(3, 0, 1)).silent());
+  target->set_wait(Target::Wait::reply);
+  Reply r = target->transact(1, read_request(3, 0, 1));
+  ASSERT_TRUE(r.pdu) << r.framing_error << " " << to_hex(r.frame);
+  EXPECT_EQ(*r.pdu, hex("03 02 12 34"));
+  EXPECT_EQ(target->late_replies(), 0u);
 }
 
 }  // namespace
