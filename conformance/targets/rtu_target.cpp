@@ -20,6 +20,7 @@
 
 #include <cerrno>
 #include <cstring>
+#include <deque>
 #include <stdexcept>
 #include <thread>
 
@@ -53,6 +54,9 @@ constexpr milliseconds kReplyEndSilenceFloor{20};
 constexpr milliseconds kSplitGapFloor{20};
 constexpr milliseconds kSplitGapGatewayFloor{50};
 constexpr milliseconds kDefaultTimeout{1000};
+// Unanswered requests whose late replies are still told from the current
+// request's own: a device (or host) held up for a few windows in a row.
+constexpr size_t kUnansweredKept = 8;
 
 // RTU over TCP: connects a raw socket (bounded by `timeout`).
 int connect_tcp(const std::string& host, uint16_t port, milliseconds timeout, const std::string& uri) {
@@ -282,24 +286,26 @@ class RtuTarget final : public Target {
     auto hard = first_by + window_.timeout() + 2 * wire;
     auto complete = [](std::span<const uint8_t> b) { return rtu_adu_complete(b, Direction::reply); };
     ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);
-    // The previous request's reply came after its window closed and after
+    // An earlier request's reply came after its window closed and after
     // this request went out: counted as late (as if drained before it), and
     // this request still waits for its own reply, now behind it on the line.
     while (!rr.closed) {
-      size_t late = late_reply_at_front(r.frame, adu);
+      Clock::time_point sent;
+      size_t late = late_reply_at_front(r.frame, adu, sent);
       if (late == 0) break;
-      window_.late_reply(std::chrono::duration_cast<microseconds>(Clock::now() - *silent_at_));
+      window_.late_reply(std::chrono::duration_cast<microseconds>(Clock::now() - sent));
       r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(late));
-      unanswered_.reset();
       first_by = std::max(first_by, Clock::now() + (for_reply ? window_.timeout() : window_.window(last_line_)));
       hard = first_by + window_.timeout() + 2 * wire;
       rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);
     }
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (r.frame.empty()) silent_at_ = t0;
-    // Only a well-formed request to this unit: a late answer to a broadcast,
+    // Only well-formed requests to this unit: a late answer to a broadcast,
     // another slave id or a corrupted frame is the device's fault, not its pace.
-    unanswered_ = r.frame.empty() && addressed ? std::optional<Bytes>(adu) : std::nullopt;
+    if (!r.frame.empty()) unanswered_.clear();  // replies come in order: theirs would have come first
+    else if (addressed) unanswered_.push_back({adu, t0});
+    if (unanswered_.size() > kUnansweredKept) unanswered_.pop_front();
     if (rr.closed) {
       if (serial_) throw std::runtime_error(fmt::format("target '{}': the serial line closed", info_.uri));
       r.closed = r.frame.empty();
@@ -312,21 +318,28 @@ class RtuTarget final : public Target {
   }
 
   // The length of the frame at the front of `frame` when it is the late
-  // reply to the request just before `request`, which went unanswered: a
-  // whole ADU from the same slave that answers that request as the standard
-  // says (judge_reply) and does not answer `request` (else it is taken as
-  // request's own, as before). Else 0.
-  size_t late_reply_at_front(const Bytes& frame, const Bytes& request) const {
-    if (!unanswered_ || !silent_at_) return 0;
+  // reply to one of the requests to this unit that went unanswered since the
+  // last reply: a whole ADU from the same slave that answers it as the
+  // standard says (judge_reply) and does not answer `request` (else it is
+  // taken as request's own, as before); `sent` is when that request went
+  // out, and it and those before it are forgotten. Else 0.
+  size_t late_reply_at_front(const Bytes& frame, const Bytes& request, Clock::time_point& sent) {
+    if (unanswered_.empty()) return 0;
     auto n = rtu_adu_length(frame, Direction::reply);
-    if (!n || *n > frame.size()) return 0;
+    if (!n || *n > frame.size() || !crc_ok(std::span(frame).first(*n))) return 0;
     auto reply = std::span(frame).first(*n);
-    auto pdu = [](std::span<const uint8_t> adu) { return adu.subspan(kRtuAddress, adu.size() - kRtuAddress - kRtuCrc); };
-    const Bytes& before = *unanswered_;
-    if (!crc_ok(reply) || reply[0] != before[0] || !judge_reply(pdu(before), pdu(reply)).ok()) return 0;
-    bool answers_this = request.size() >= kRtuAddress + 1 + kRtuCrc && request[0] == reply[0] &&
-                        judge_reply(pdu(request), pdu(reply)).ok();
-    return answers_this ? 0 : *n;
+    auto answers = [&](std::span<const uint8_t> req) {
+      auto pdu = [](std::span<const uint8_t> a) { return a.subspan(kRtuAddress, a.size() - kRtuAddress - kRtuCrc); };
+      return req.size() >= kRtuAddress + 1 + kRtuCrc && req[0] == reply[0] && judge_reply(pdu(req), pdu(reply)).ok();
+    };
+    if (answers(request)) return 0;
+    for (size_t i = 0; i < unanswered_.size(); ++i)
+      if (answers(unanswered_[i].request)) {
+        sent = unanswered_[i].sent;
+        unanswered_.erase(unanswered_.begin(), unanswered_.begin() + ptrdiff_t(i + 1));
+        return *n;
+      }
+    return 0;
   }
 
   // The line time of an exchange at the line's baud: each frame's characters
@@ -349,7 +362,12 @@ class RtuTarget final : public Target {
   bool gap_fixed_ = false;  // the user set `gap=`: kept as given
   microseconds last_line_{0};  // the line time the last window was computed for
   std::optional<Clock::time_point> silent_at_;  // when the request of the last silent exchange went out
-  std::optional<Bytes> unanswered_;  // the last exchange's request, when it was to this unit and went unanswered
+  // Requests to this unit that went unanswered since the last reply, and when each went out.
+  struct Unanswered {
+    Bytes request;
+    Clock::time_point sent;
+  };
+  std::deque<Unanswered> unanswered_;
   Wait wait_ = Wait::automatic;
 };
 

@@ -71,9 +71,9 @@ TEST(RtuReplyEnd, RequestsFollowTheirOwnLayout) {
 // ---- on a pty ----
 
 // A slave on the master side of a pty. A frame ends when the line is quiet
-// for 3 ms (t3.5 at 115200 baud is 1.75 ms); a frame for unit 1 with a good
-// CRC and at most 256 bytes is answered by `answer`, part by part, each part
-// after its pause.
+// for 3 ms (t3.5 at 115200 baud is 1.75 ms), or at its length when more came
+// behind it; a frame for unit 1 with a good CRC and at most 256 bytes is
+// answered by `answer`, part by part, each part after its pause.
 struct Part {
   Bytes bytes;
   std::chrono::microseconds pause{0};
@@ -116,17 +116,25 @@ class ScriptedSlave {
         if (n > 0) in.insert(in.end(), buf, buf + n);
         continue;
       }
-      if (in.empty()) continue;
-      Bytes frame;
-      frame.swap(in);
-      ++frames;
-      if (frame.size() < 4 || frame.size() > kMaxRtuAdu || frame[0] != 1 || !crc_ok(frame)) continue;
-      for (const Part& part : answer_(frame)) {
-        std::this_thread::sleep_for(part.pause);
-        if (write(master_, part.bytes.data(), part.bytes.size()) != ssize_t(part.bytes.size())) return;
+      while (!in.empty()) {
+        // Requests that came in while it was busy answering are told apart by length.
+        auto n = rtu_adu_length(in, Direction::request);
+        size_t take = n && *n < in.size() && crc_ok(std::span(in).first(*n)) ? *n : in.size();
+        Bytes frame(in.begin(), in.begin() + ptrdiff_t(take));
+        in.erase(in.begin(), in.begin() + ptrdiff_t(take));
+        if (!answer(frame)) return;
       }
-      ++answered;
     }
+  }
+  bool answer(const Bytes& frame) {
+    ++frames;
+    if (frame.size() < 4 || frame.size() > kMaxRtuAdu || frame[0] != 1 || !crc_ok(frame)) return true;
+    for (const Part& part : answer_(frame)) {
+      std::this_thread::sleep_for(part.pause);
+      if (write(master_, part.bytes.data(), part.bytes.size()) != ssize_t(part.bytes.size())) return false;
+    }
+    ++answered;
+    return true;
   }
   Answer answer_;
   int master_ = -1, slave_ = -1;
@@ -232,11 +240,11 @@ TEST(RtuReplyEnd, TheSilenceWindowCoversTheLongestReplyOfTheFunctionCode) {
   EXPECT_NEAR(double((unknown - write_single).count()), double(wire_time(256 - 8, 115200).count()), 2.0);
 }
 
-// A reply held up past its window (a busy device or host) comes in while the
-// next request waits: it answers the unanswered request, not this one, so it
-// is counted late and this request gets its own reply, not a verdict of
-// "wrong byte count" on the previous one's.
-TEST(RtuReplyEnd, ALateReplyToThePreviousRequestIsNotTakenForThisOnes) {
+// Replies held up past their windows (a busy device or host) come in while
+// a later request waits: they answer the unanswered requests, not this one,
+// so they are counted late and this request gets its own reply, not a
+// verdict of "wrong byte count" on an earlier one's.
+TEST(RtuReplyEnd, LateRepliesToEarlierRequestsAreNotTakenForThisOnes) {
   std::atomic<int64_t> hold_us{0};
   ScriptedSlave slave([&](const Bytes& req) {
     uint16_t quantity = uint16_t(req[4] << 8 | req[5]);
@@ -248,16 +256,18 @@ TEST(RtuReplyEnd, ALateReplyToThePreviousRequestIsNotTakenForThisOnes) {
   target->set_wait(Target::Wait::reply);
   for (int i = 0; i < 20; ++i) ASSERT_TRUE(target->transact(1, read_request(3, 0, 1)).pdu) << i;
 
-  // One register asked, answered 100 ms after its window closed: judged silent.
-  hold_us = std::chrono::duration_cast<std::chrono::microseconds>(target->silence_window() + 100ms).count();
+  // One register asked, answered 200 ms after its window closed: judged
+  // silent; two registers asked while the slave still holds that reply: silent too.
+  hold_us = std::chrono::duration_cast<std::chrono::microseconds>(target->silence_window() + 200ms).count();
   target->set_wait(Target::Wait::window);
   ASSERT_TRUE(target->transact(1, read_request(3, 0, 1)).silent());
-  // Two registers asked: the one-register reply comes first.
+  ASSERT_TRUE(target->transact(1, read_request(3, 0, 2)).silent());
+  // Three registers asked: the one- and two-register replies come first.
   target->set_wait(Target::Wait::reply);
-  Reply r = target->transact(1, read_request(3, 0, 2));
+  Reply r = target->transact(1, read_request(3, 0, 3));
   ASSERT_TRUE(r.pdu) << r.framing_error << " " << to_hex(r.frame);
-  EXPECT_EQ(*r.pdu, hex("03 04 12 00 12 01"));
-  EXPECT_EQ(target->late_replies(), 1u);
+  EXPECT_EQ(*r.pdu, hex("03 06 12 00 12 01 12 02"));
+  EXPECT_EQ(target->late_replies(), 2u);
 }
 
 // The same request twice: a late reply to the first answers the second as
