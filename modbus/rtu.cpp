@@ -96,6 +96,11 @@ std::optional<size_t> rtu_adu_length(std::span<const uint8_t> head, Direction di
   }
 }
 
+bool rtu_adu_complete(std::span<const uint8_t> bytes, Direction dir) {
+  auto n = rtu_adu_length(bytes, dir);
+  return n && bytes.size() == *n && crc_ok(bytes);
+}
+
 microseconds frame_gap(int baud) {
   if (baud > 19200) return microseconds(1750);  // MB-SL v1.02 §2.5.1.1
   return microseconds(int64_t(3.5 * kBitsPerChar * 1e6 / baud + 0.5));

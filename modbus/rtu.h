@@ -30,6 +30,12 @@ Unframed rtu_unframe(std::span<const uint8_t> adu);
 // when unknown yet (too few bytes) or unknowable (FC 43 replies, unknown FCs:
 // the line's silence ends those frames).
 std::optional<size_t> rtu_adu_length(std::span<const uint8_t> head, Direction dir);
+// Whether `bytes` are one whole ADU that needs no silence to end: the length
+// rtu_adu_length knows from them, and a CRC that checks. A receiver may end
+// the frame there; a prefix, trailing bytes, a bad CRC or a function code
+// whose length only the line's silence settles are left to t3.5 (MB-SL
+// v1.02 §2.5.1.1).
+bool rtu_adu_complete(std::span<const uint8_t> bytes, Direction dir);
 
 // t3.5: 3.5 character times at `baud`; above 19200 baud the fixed 1.75 ms
 // MB-SL §2.5.1.1 recommends (timers that short are impractical).

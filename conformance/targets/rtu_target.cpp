@@ -20,10 +20,13 @@
 
 #include <cerrno>
 #include <cstring>
+#include <deque>
 #include <stdexcept>
 #include <thread>
 
 #include "modbus/crc16.h"
+#include "modbus/function_codes.h"
+#include "modbus/judge.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "targets/kinds.h"
@@ -51,6 +54,9 @@ constexpr milliseconds kReplyEndSilenceFloor{20};
 constexpr milliseconds kSplitGapFloor{20};
 constexpr milliseconds kSplitGapGatewayFloor{50};
 constexpr milliseconds kDefaultTimeout{1000};
+// Unanswered requests whose late replies are still told from the current
+// request's own: a device (or host) held up for a few windows in a row.
+constexpr size_t kUnansweredKept = 8;
 
 // RTU over TCP: connects a raw socket (bounded by `timeout`).
 int connect_tcp(const std::string& host, uint16_t port, milliseconds timeout, const std::string& uri) {
@@ -89,21 +95,31 @@ int connect_tcp(const std::string& host, uint16_t port, milliseconds timeout, co
   return fd;
 }
 
-// The longest reply an RTU request can get, in bytes (slave, PDU, CRC): a
-// read's reply for the quantity asked (MBAP v1.1b3 §6.1-6.4, §6.17), an echo
-// as long as the request (FC 05/06/08/22), an exception (5 bytes), whichever
-// is longest. A window for an expected silence waits this long for a reply a
-// non-conforming device might still send: a line delivers a frame's first
-// byte early, but a pty or a gateway may hand it over whole.
+// The longest reply an RTU request can get, in bytes (slave, PDU, CRC): an
+// exception (5 bytes, MBAP v1.1b3 §7), or the reply the standard gives its
+// function code, whichever is longer: a read's for the quantity asked
+// (§6.1-6.4, §6.17), the fixed length of a write's, a counter's or a mask
+// write's echo (§6.5-6.7, §6.9, §6.11, §6.12, §6.16), both whatever the
+// request's own length (a truncated, padded or over-long frame). Where the
+// standard fixes no length (diagnostics' echo of its data, §6.8; file
+// records, FIFO, device identification; unknown codes; a read whose
+// quantity is cut off) an echo as long as the request. A window for an
+// expected silence waits this long for a reply a non-conforming device might
+// still send: a line delivers a frame's first byte early, but a pty or a
+// gateway may hand it over whole.
 size_t longest_reply(std::span<const uint8_t> adu) {
-  size_t n = std::max<size_t>(adu.size(), 5);
-  if (adu.size() >= 8) {
-    uint8_t fc = adu[1];
-    size_t q = size_t(adu[4]) << 8 | adu[5];
-    if (fc == 1 || fc == 2) n = std::max(n, 5 + (q + 7) / 8);
-    if (fc == 3 || fc == 4 || fc == 23) n = std::max(n, 5 + 2 * q);
+  constexpr size_t exception_reply = kRtuAddress + 2 + kRtuCrc;
+  std::optional<size_t> by_code;
+  if (adu.size() >= 2 && !(adu[1] & kExceptionBit)) {
+    uint8_t code = adu[1];
+    size_t q = adu.size() >= 8 ? size_t(adu[4]) << 8 | adu[5] : 0;
+    bool bits = code == fc::read_coils || code == fc::read_discrete_inputs;
+    bool words = code == fc::read_holding_registers || code == fc::read_input_registers ||
+                 code == fc::read_write_multiple_registers;
+    if ((bits || words) && adu.size() >= 8) by_code = kRtuAddress + 2 + (bits ? (q + 7) / 8 : 2 * q) + kRtuCrc;
+    else if (code != fc::diagnostics) by_code = rtu_adu_length(adu.first(2), Direction::reply);
   }
-  return std::min(n, kMaxRtuAdu);
+  return std::min(std::max(exception_reply, by_code.value_or(adu.size())), kMaxRtuAdu);
 }
 
 class RtuTarget final : public Target {
@@ -268,12 +284,28 @@ class RtuTarget final : public Target {
     auto first_by = t0 + (for_reply ? window_.timeout() : window_.window(last_line_));
     auto wire = info_.baud ? wire_time(kMaxRtuAdu, *info_.baud) : microseconds(0);
     auto hard = first_by + window_.timeout() + 2 * wire;
-    ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, [](std::span<const uint8_t> b) {
-      auto n = rtu_adu_length(b, Direction::reply);
-      return n && b.size() == *n && crc_ok(b);
-    });
+    auto complete = [](std::span<const uint8_t> b) { return rtu_adu_complete(b, Direction::reply); };
+    ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);
+    // An earlier request's reply came after its window closed and after
+    // this request went out: counted as late (as if drained before it), and
+    // this request still waits for its own reply, now behind it on the line.
+    while (!rr.closed) {
+      Clock::time_point sent;
+      size_t late = late_reply_at_front(r.frame, adu, sent);
+      if (late == 0) break;
+      window_.late_reply(std::chrono::duration_cast<microseconds>(Clock::now() - sent));
+      r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(late));
+      first_by = std::max(first_by, Clock::now() + (for_reply ? window_.timeout() : window_.window(last_line_)));
+      hard = first_by + window_.timeout() + 2 * wire;
+      rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);
+    }
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (r.frame.empty()) silent_at_ = t0;
+    // Only well-formed requests to this unit: a late answer to a broadcast,
+    // another slave id or a corrupted frame is the device's fault, not its pace.
+    if (!r.frame.empty()) unanswered_.clear();  // replies come in order: theirs would have come first
+    else if (addressed) unanswered_.push_back({adu, t0});
+    if (unanswered_.size() > kUnansweredKept) unanswered_.pop_front();
     if (rr.closed) {
       if (serial_) throw std::runtime_error(fmt::format("target '{}': the serial line closed", info_.uri));
       r.closed = r.frame.empty();
@@ -283,6 +315,31 @@ class RtuTarget final : public Target {
     decode_rtu_reply(r, slave);
     if (r.pdu && timed) window_.record(r.latency, !r.pdu->empty() && ((*r.pdu)[0] & 0x80), line_time(adu.size(), r.frame.size()));
     return r;
+  }
+
+  // The length of the frame at the front of `frame` when it is the late
+  // reply to one of the requests to this unit that went unanswered since the
+  // last reply: a whole ADU from the same slave that answers it as the
+  // standard says (judge_reply) and does not answer `request` (else it is
+  // taken as request's own, as before); `sent` is when that request went
+  // out, and it and those before it are forgotten. Else 0.
+  size_t late_reply_at_front(const Bytes& frame, const Bytes& request, Clock::time_point& sent) {
+    if (unanswered_.empty()) return 0;
+    auto n = rtu_adu_length(frame, Direction::reply);
+    if (!n || *n > frame.size() || !crc_ok(std::span(frame).first(*n))) return 0;
+    auto reply = std::span(frame).first(*n);
+    auto answers = [&](std::span<const uint8_t> req) {
+      auto pdu = [](std::span<const uint8_t> a) { return a.subspan(kRtuAddress, a.size() - kRtuAddress - kRtuCrc); };
+      return req.size() >= kRtuAddress + 1 + kRtuCrc && req[0] == reply[0] && judge_reply(pdu(req), pdu(reply)).ok();
+    };
+    if (answers(request)) return 0;
+    for (size_t i = 0; i < unanswered_.size(); ++i)
+      if (answers(unanswered_[i].request)) {
+        sent = unanswered_[i].sent;
+        unanswered_.erase(unanswered_.begin(), unanswered_.begin() + ptrdiff_t(i + 1));
+        return *n;
+      }
+    return 0;
   }
 
   // The line time of an exchange at the line's baud: each frame's characters
@@ -305,6 +362,12 @@ class RtuTarget final : public Target {
   bool gap_fixed_ = false;  // the user set `gap=`: kept as given
   microseconds last_line_{0};  // the line time the last window was computed for
   std::optional<Clock::time_point> silent_at_;  // when the request of the last silent exchange went out
+  // Requests to this unit that went unanswered since the last reply, and when each went out.
+  struct Unanswered {
+    Bytes request;
+    Clock::time_point sent;
+  };
+  std::deque<Unanswered> unanswered_;
   Wait wait_ = Wait::automatic;
 };
 
