@@ -15,8 +15,12 @@
 //      interleaved (5 rounds) and the median of each is kept.
 //      Targets: in process, the engine >= 3x modbus_reply; 16 clients,
 //      serve >= 0.95x the null responder and >= 1.2x libmodbus; 1 client,
-//      serve >= 1.0x libmodbus. A null responder that does not beat both
-//      servers means the machine was too busy to measure: the run is invalid.
+//      serve >= 1.0x libmodbus. A null responder that does not beat the
+//      libmodbus server (three selects and two recvs per request, strace
+//      says, where the null makes one poll and one read) means the machine
+//      was too busy to measure: the run is invalid. serve is not held to
+//      that: at the ceiling it lands either side of the null from one run
+//      to the next.
 //   3. --hostile: a polling client beside 1 RTU-over-TCP streamer, 1 TCP
 //      non-reader and 1000 idle connections, serve under RLIMIT_NOFILE 1024
 //      (hostile() below). Targets: >= 99% answered, p99 <= 10 ms, serve's
@@ -579,9 +583,9 @@ int main(int argc, char** argv) {
       }
       double ms = median(m), bs = median(b), ns = median(n);
       std::printf("%-28s %14.0f %14.0f %14.0f %9.2f %9.2f\n", c.name, ms, bs, ns, ms / bs, ms / ns);
-      if (ns <= ms || ns <= bs) {
+      if (ns <= bs) {
         valid = false;
-        std::printf("  INVALID: the null responder did not beat both servers (machine too busy to measure)\n");
+        std::printf("  INVALID: the null responder did not beat libmodbus (machine too busy to measure)\n");
       }
       double ratio = c.vs_null ? ms / ns : ms / bs;
       bool ok = ratio >= c.target;

@@ -12,6 +12,7 @@
 #include <sys/epoll.h>
 #include <sys/prctl.h>
 #include <sys/resource.h>
+#include <sys/signalfd.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <termios.h>
@@ -99,6 +100,9 @@ constexpr size_t kInputBound = 16 * 1024;
 // Reply bytes queued for one connection: past it, nothing more is read from
 // that client until it reads its replies (or goes idle and is dropped).
 constexpr size_t kOutputBound = 64 * 1024;
+// Output buffer capacity a connection keeps once its replies are all sent:
+// a batch of ordinary replies fits; a backlog's growth is given back.
+constexpr size_t kKeptOutput = 16 * 1024;
 // After accept fails for want of descriptors (EMFILE, ENFILE), listeners rest
 // this long instead of waking the loop for the same failure again.
 constexpr milliseconds kAcceptBackoff{100};
@@ -109,9 +113,6 @@ constexpr size_t kReadPerRound = 16 * 1024;
 // Descriptors kept free beside the connections: listeners, ptys, stdio, the
 // EEPROM files written while serving.
 constexpr size_t kSpareDescriptors = 16;
-
-volatile sig_atomic_t g_stop = 0;
-extern "C" void on_stop_signal(int) { g_stop = 1; }
 
 [[noreturn]] void fail(const std::string& what) {
   throw std::runtime_error(fmt::format("{}: {}", what, std::strerror(errno)));
@@ -135,8 +136,10 @@ std::string sockaddr_text(const sockaddr_storage& ss) {
   return fmt::format("[{}]:{}", host, ntohs(a->sin6_port));
 }
 
-struct Outgoing {
-  Bytes bytes;
+// A paced reply (--line-rate) held in a link's output until its line time
+// has passed; it and everything queued after it wait.
+struct Held {
+  size_t begin;  // where the reply starts in Link::out
   Clock::time_point not_before;
 };
 
@@ -154,9 +157,11 @@ struct Link {
   // v1.02 §2.5.1.1): such a stream is read once per frame gap, so a client
   // flooding bytes costs bounded time, not the loop's every round.
   Clock::time_point rest_until{};
-  std::deque<Outgoing> out;
-  size_t out_offset = 0;  // bytes of out.front() already sent
-  size_t out_bytes = 0;   // queued, not yet sent
+  // Replies in order, the first out_sent of them sent: every reply a batch
+  // of requests produced leaves in one send.
+  Bytes out;
+  size_t out_sent = 0;
+  std::deque<Held> held;  // paced replies not yet due, in `out` order
   bool closed = false;
   bool eof = false;       // the peer shut its side: answer what came, then close
   bool write_blocked = false;  // the last send said EAGAIN: wait for EPOLLOUT, never retry in a loop
@@ -166,12 +171,48 @@ struct Link {
 
   bool rtu() const { return transport != Transport::tcp; }
   bool socket() const { return transport != Transport::pty; }
+  size_t out_bytes() const { return out.size() - out_sent; }
   // Its replies pile up unread: consume and read nothing more for now.
-  bool backed_up() const { return out_bytes >= kOutputBound; }
+  bool backed_up() const { return out_bytes() >= kOutputBound; }
+  // The end of the bytes that may be sent now: up to the first held reply
+  // still short of its time (the ones past it are released).
+  size_t due_end(Clock::time_point now) {
+    while (!held.empty() && held.front().not_before <= now) held.pop_front();
+    return held.empty() ? out.size() : held.front().begin;
+  }
+  bool has_due(Clock::time_point now) { return out_sent < due_end(now); }
+  // Sent bytes are dropped when all are out, or once they are most of the
+  // buffer (a client that reads slowly but never catches up). A buffer a
+  // backlog grew is given back once drained: thousands of connections must
+  // not each keep the memory of their worst moment.
+  void drop_sent() {
+    if (out_sent == out.size()) {
+      out.clear();
+      out_sent = 0;
+      if (out.capacity() > kKeptOutput) out.shrink_to_fit();
+    } else if (out_sent >= 4096 && out_sent * 2 >= out.size()) {
+      out.erase(out.begin(), out.begin() + ptrdiff_t(out_sent));
+      for (auto& h : held) h.begin -= out_sent;
+      out_sent = 0;
+    }
+  }
   bool wants_input(Clock::time_point now) const {
     return !eof && !backed_up() && now >= rest_until && (rtu() || in.size() < kInputBound);
   }
 };
+
+// mbap_reply (modbus/mbap.h) written into the connection's output instead of
+// a vector of its own: no allocation per reply, and the replies to a batch
+// of requests lie side by side for one send.
+void append_mbap_reply(Bytes& out, const Mbap& request, std::span<const uint8_t> pdu) {
+  const uint16_t length = uint16_t(1 + pdu.size());
+  const uint8_t header[kMbapHeader] = {uint8_t(request.transaction >> 8), uint8_t(request.transaction),
+                                       uint8_t(request.protocol >> 8),    uint8_t(request.protocol),
+                                       uint8_t(length >> 8),              uint8_t(length),
+                                       request.unit};
+  out.insert(out.end(), header, header + kMbapHeader);
+  out.insert(out.end(), pdu.begin(), pdu.end());
+}
 
 struct Listener {
   int fd = -1;
@@ -196,7 +237,8 @@ struct Server::Impl {
   std::vector<std::string> listening;  // "listening ..." lines, in endpoint order
   std::vector<StoredImage> saved;      // per device: the image last written to disk
   Clock::time_point clock_at;          // the bus clock stands at this real time
-  sigset_t run_mask;                   // the mask the loop waits with (stop signals open)
+  int stop_fd = -1;                    // SIGINT and SIGTERM, read as a descriptor (signalfd)
+  bool stopping = false;
   Clock::time_point accept_resume;     // listeners rest until then after EMFILE
   size_t max_links = 0;                // opt.max_connections, lowered to what RLIMIT_NOFILE leaves room for
   std::unique_ptr<PcapTrace> pcap;     // --pcap
@@ -207,6 +249,7 @@ struct Server::Impl {
 
   ~Impl() {
     if (epfd >= 0) ::close(epfd);
+    if (stop_fd >= 0) ::close(stop_fd);
     for (auto& l : listeners) ::close(l.fd);
     for (auto& l : links)
       if (!l.closed) ::close(l.fd);
@@ -322,19 +365,18 @@ struct Server::Impl {
   }
 
   void open() {
-    // Stop signals are held until the wait opens them, so one that arrives
-    // between two polls is never lost; a peer that closed must not kill us.
+    // Stop signals stay blocked (in every thread started after this) and
+    // arrive as a descriptor the loop waits on beside the sockets: one that
+    // comes between two waits is never lost, and no wait swaps the signal
+    // mask (a mask handed to each wait cost every wake-up a pass through the
+    // kernel's signal code). A peer that closed must not kill us.
     sigset_t stop;
     sigemptyset(&stop);
     sigaddset(&stop, SIGINT);
     sigaddset(&stop, SIGTERM);
-    sigprocmask(SIG_BLOCK, &stop, &run_mask);
-    sigdelset(&run_mask, SIGINT);
-    sigdelset(&run_mask, SIGTERM);
-    struct sigaction sa{};
-    sa.sa_handler = on_stop_signal;
-    sigaction(SIGINT, &sa, nullptr);
-    sigaction(SIGTERM, &sa, nullptr);
+    sigprocmask(SIG_BLOCK, &stop, nullptr);
+    stop_fd = signalfd(-1, &stop, SFD_NONBLOCK | SFD_CLOEXEC);
+    if (stop_fd < 0) fail("signalfd");
     std::signal(SIGPIPE, SIG_IGN);
     // Room for the connection cap: the soft descriptor limit (often 1024)
     // raised toward the hard one. A lower hard limit stays as it is; EMFILE
@@ -393,13 +435,12 @@ struct Server::Impl {
   // request's end (its last bytes plus the gap that ends it, found by
   // silence), not from when this loop woke to see it: a late wake-up is not
   // line time, and must not be paid twice.
-  void send_reply(Link& l, size_t request_bytes, Bytes bytes, Clock::time_point now) {
-    Clock::time_point at = now;
-    if (l.rtu() && opt.line_rate)
-      at = std::min(now, l.last_rx + rtu_gap(l)) + wire_time(request_bytes + bytes.size(), *opt.line_rate) +
-           frame_gap(*opt.line_rate);
-    l.out_bytes += bytes.size();
-    l.out.push_back({std::move(bytes), at});
+  // The reply is l.out from `begin` on.
+  void pace_reply(Link& l, size_t request_bytes, size_t begin, Clock::time_point now) {
+    if (!l.rtu() || !opt.line_rate) return;
+    Clock::time_point at = std::min(now, l.last_rx + rtu_gap(l)) +
+                           wire_time(request_bytes + (l.out.size() - begin), *opt.line_rate) + frame_gap(*opt.line_rate);
+    if (at > now) l.held.push_back({begin, at});
   }
 
   // A reference device that fails internally (a bug, or a state only an
@@ -423,7 +464,9 @@ struct Server::Impl {
       auto reply = guarded(l, [&] { return bus.handle_rtu(l.in); });
       if (reply) {
         trace(l, "tx", *reply, [&] { return describe_rtu(*reply, Direction::reply); });
-        send_reply(l, l.in.size(), std::move(*reply), now);
+        size_t begin = l.out.size();
+        l.out.insert(l.out.end(), reply->begin(), reply->end());
+        pace_reply(l, l.in.size(), begin, now);
       } else {
         trace(l, "--", {}, "no reply");
       }
@@ -454,16 +497,18 @@ struct Server::Impl {
         trace(l, "rx", adu, [&] { return fmt::format("{}protocol {}: not Modbus, ignored", head(), h->protocol); });
       } else {
         trace(l, "rx", adu, [&] { return head() + describe_pdu(pdu, Direction::request); });
-        std::string refused = l.role && tls_door ? tls_door->refusal(*l.role, pdu) : "";
+        std::string refused;
+        if (l.role && tls_door) refused = tls_door->refusal(*l.role, pdu);
         if (!refused.empty()) trace(l, "!!", {}, [&] { return refused; });
         // MB-TCP-Security v2.1 §8.3: a request the role may not make is
         // refused with exception 01 (Illegal Function).
         auto reply = !refused.empty() ? std::optional<Bytes>(Bytes{uint8_t(pdu[0] | 0x80), 0x01})
                                       : guarded(l, [&] { return bus.handle_pdu(h->unit, pdu); });
         if (reply) {
-          Bytes out = mbap_reply(*h, *reply);
-          trace(l, "tx", out, [&] { return head() + describe_pdu(*reply, Direction::reply); });
-          send_reply(l, adu.size(), std::move(out), now);
+          size_t begin = l.out.size();
+          append_mbap_reply(l.out, *h, *reply);
+          trace(l, "tx", std::span<const uint8_t>(l.out).subspan(begin),
+                [&] { return head() + describe_pdu(*reply, Direction::reply); });
         } else {
           trace(l, "--", {}, "no reply");
         }
@@ -488,20 +533,24 @@ struct Server::Impl {
     return n && *n == l.in.size() && crc_ok(l.in);
   }
 
+  // Answers the link's complete frames; false when there were none.
+  bool answer(Link& l, Clock::time_point now) {
+    if (l.rtu()) {
+      if (!rtu_frame_complete(l, now)) return false;
+      handle_rtu_frame(l, now);
+      return true;
+    }
+    if (l.in.empty()) return false;
+    handle_mbap_frames(l, now);
+    return true;
+  }
+
+  // Frames the wake-ups did not answer: RTU frames ended by silence, MBAP
+  // frames left while a client's replies piled up.
   void process_input(Clock::time_point now) {
     bool handled = false;
-    for (auto& l : links) {
-      if (l.closed) continue;
-      if (l.rtu()) {
-        if (rtu_frame_complete(l, now)) {
-          handle_rtu_frame(l, now);
-          handled = true;
-        }
-      } else if (!l.in.empty()) {
-        handle_mbap_frames(l, now);
-        handled = true;
-      }
-    }
+    for (auto& l : links)
+      if (!l.closed) handled |= answer(l, now);
     if (handled) save_changed_images();
   }
 
@@ -529,12 +578,12 @@ struct Server::Impl {
         }
         l.last_rx = now;
         budget -= size_t(n);
-        for (ssize_t i = 0; i < n; ++i) {
-          if (l.rtu() && l.in.size() >= kMaxRtuAdu)
-            ++l.overflow;
-          else
-            l.in.push_back(buf[i]);
+        size_t keep = size_t(n);
+        if (l.rtu()) {
+          keep = std::min(keep, kMaxRtuAdu - std::min(kMaxRtuAdu, l.in.size()));
+          l.overflow += size_t(n) - keep;
         }
+        l.in.insert(l.in.end(), buf, buf + keep);
         if (l.overflow) {
           l.rest_until = now + rtu_gap(l);
           return;
@@ -557,31 +606,28 @@ struct Server::Impl {
     }
   }
 
+  // Everything due in one send (a partial one is followed by the send that
+  // says EAGAIN).
   void write_link(Link& l, Clock::time_point now) {
-    if (l.write_blocked) return;  // until the loop sees EPOLLOUT
-    while (!l.out.empty() && l.out.front().not_before <= now) {
-      const Bytes& b = l.out.front().bytes;
-      ssize_t n = l.socket() ? ::send(l.fd, b.data() + l.out_offset, b.size() - l.out_offset, MSG_NOSIGNAL)
-                             : ::write(l.fd, b.data() + l.out_offset, b.size() - l.out_offset);
+    if (l.write_blocked || l.out_sent == l.out.size()) return;  // blocked: until the loop sees EPOLLOUT
+    for (size_t end = l.due_end(now); l.out_sent < end;) {
+      const uint8_t* p = l.out.data() + l.out_sent;
+      ssize_t n = l.socket() ? ::send(l.fd, p, end - l.out_sent, MSG_NOSIGNAL) : ::write(l.fd, p, end - l.out_sent);
       if (n < 0) {
         if (errno == EINTR) continue;
         if (errno == EAGAIN || errno == EWOULDBLOCK) {
           l.write_blocked = true;
-          return;
+          break;
         }
         if (l.socket()) l.closed = true;
         l.out.clear();  // pty without a reader: the reply is lost, as on a bus nobody listens to
-        l.out_offset = 0;
-        l.out_bytes = 0;
+        l.out_sent = 0;
+        l.held.clear();
         return;
       }
-      l.out_offset += size_t(n);
-      if (l.out_offset == b.size()) {
-        l.out_bytes -= b.size();
-        l.out.pop_front();
-        l.out_offset = 0;
-      }
+      l.out_sent += size_t(n);
     }
+    l.drop_sent();
   }
 
   size_t socket_links() const {
@@ -637,7 +683,7 @@ struct Server::Impl {
   void retire_links(Clock::time_point now) {
     for (auto& l : links) {
       if (l.closed || !l.socket()) continue;
-      if (l.eof && l.out.empty() && (!l.rtu() || l.in.empty())) l.closed = true;
+      if (l.eof && l.out_bytes() == 0 && (!l.rtu() || l.in.empty())) l.closed = true;
       if (opt.idle_timeout_s > 0 && now - l.last_rx >= std::chrono::seconds(opt.idle_timeout_s)) {
         if (opt.trace) std::fputs((trace_time() + l.name + " closed: idle\n").c_str(), stderr);
         l.closed = true;
@@ -667,7 +713,7 @@ struct Server::Impl {
       if (l.rest_until > now) wake = std::min(wake, l.rest_until);
       // A reply already due waits for EPOLLOUT, not for a timer: a client that
       // does not read must not turn the loop into a busy one.
-      if (!l.out.empty() && l.out.front().not_before > now) wake = std::min(wake, l.out.front().not_before);
+      if (!l.held.empty() && l.held.front().not_before > now) wake = std::min(wake, l.held.front().not_before);
     }
     auto us = std::max<int64_t>(0, duration_cast<microseconds>(wake - now).count());
     return timespec{time_t(us / 1000000), long(us % 1000000) * 1000L};
@@ -683,9 +729,11 @@ struct Server::Impl {
   // ---- readiness ----
   // epoll, level-triggered: a round costs the connections that are ready,
   // not every connection (1000 idle ones made each poll() round scan them
-  // all). A listener's key is kListenerKey | its index; a link's, its fd,
-  // mapped to its index by `slot` (rebuilt as interest is updated).
+  // all). A listener's key is kListenerKey | its index; the stop signals',
+  // kStopKey; a link's, its fd, mapped to its index by `slot` (rebuilt as
+  // interest is updated).
   static constexpr uint64_t kListenerKey = uint64_t(1) << 32;
+  static constexpr uint64_t kStopKey = uint64_t(1) << 33;
   int epfd = -1;
   std::vector<epoll_event> ready = std::vector<epoll_event>(256);
   std::vector<size_t> slot;  // fd -> index in links
@@ -705,6 +753,7 @@ struct Server::Impl {
       epfd = epoll_create1(EPOLL_CLOEXEC);
       if (epfd < 0) fail("epoll_create1");
       for (size_t i = 0; i < listeners.size(); ++i) watch(listeners[i].fd, kListenerKey | i, 0, true);
+      watch(stop_fd, kStopKey, EPOLLIN, true);
     }
     bool accepting = now >= accept_resume;
     if (accepting != listeners_armed) {
@@ -713,7 +762,7 @@ struct Server::Impl {
     }
     for (size_t k = 0; k < links.size(); ++k) {
       Link& l = links[k];
-      bool due = !l.out.empty() && l.out.front().not_before <= now;
+      bool due = l.has_due(now);
       uint32_t want = (l.wants_input(now) ? uint32_t(EPOLLIN) : 0u) | (due ? uint32_t(EPOLLOUT) : 0u);
       if (!l.registered || want != l.armed) {
         watch(l.fd, uint64_t(l.fd), want, !l.registered);
@@ -728,10 +777,10 @@ struct Server::Impl {
   // Waits until something is ready, a timer is due or a stop signal came.
   int wait_ready(Clock::time_point now) {
     timespec ts = poll_timeout(now);
-    int rc = epoll_pwait2(epfd, ready.data(), int(ready.size()), &ts, &run_mask);
+    int rc = epoll_pwait2(epfd, ready.data(), int(ready.size()), &ts, nullptr);
     if (rc < 0 && errno == ENOSYS) {  // a kernel before 5.11: whole milliseconds, rounded up
       long ms = long(ts.tv_sec) * 1000 + (ts.tv_nsec + 999999) / 1000000;
-      rc = epoll_pwait(epfd, ready.data(), int(ready.size()), int(ms), &run_mask);
+      rc = epoll_wait(epfd, ready.data(), int(ready.size()), int(ms));
     }
     return rc;
   }
@@ -740,14 +789,8 @@ struct Server::Impl {
     // Paced replies and RTU gaps are timers of a few hundred microseconds; the
     // default 50 us of timer slack would be added to each.
     if (opt.line_rate) prctl(PR_SET_TIMERSLACK, 1000UL);
-    clock_at = Clock::now();
-    while (!g_stop) {
-      Clock::time_point now = Clock::now();
-      // Paced replies that fell due go out before the clock's and the
-      // frames' work, which is no line time.
-      for (auto& l : links)
-        if (!l.closed && !l.out.empty()) write_link(l, now);
-      advance_clock(now);
+    Clock::time_point now = clock_at = Clock::now();
+    while (!stopping) {
       process_input(now);
       for (auto& l : links)
         if (!l.closed) write_link(l, now);
@@ -756,18 +799,28 @@ struct Server::Impl {
 
       update_interest(now);
       int rc = wait_ready(now);
-      if (rc < 0) {
-        if (errno == EINTR) continue;
-        fail("epoll_wait");
-      }
+      if (rc < 0 && errno != EINTR) fail("epoll_wait");
+      // One reading of the clock per round, after the wait: what the round
+      // does next takes microseconds.
       now = Clock::now();
+      // Paced replies that fell due go out before the clock's and the
+      // frames' work, which is no line time.
+      for (auto& l : links)
+        if (!l.closed && !l.held.empty()) write_link(l, now);
+      // A request read below meets the devices at this time, not at the last round's.
+      advance_clock(now);
+      bool answered = false;
       // accept_all appends links (registered next round) and may close one
       // for a newcomer, whose descriptor a newcomer may reuse at once: a
       // ready link is the one `slot` named when interest was updated.
       const size_t polled = links.size();
-      for (int e = 0; e < rc; ++e) {
+      for (int e = 0; e < std::max(rc, 0); ++e) {
         const uint64_t key = ready[size_t(e)].data.u64;
         const uint32_t ev = ready[size_t(e)].events;
+        if (key == kStopKey) {
+          stopping = true;
+          continue;
+        }
         if (key & kListenerKey) {
           if (ev & EPOLLIN) accept_all(listeners[size_t(key & 0xFFFFFFFF)], now);
           continue;
@@ -776,12 +829,22 @@ struct Server::Impl {
         if (k >= polled) continue;
         Link& l = links[k];
         if (l.closed || l.fd != int(key)) continue;  // closed for a newcomer by accept_all above
-        if (ev & (EPOLLIN | EPOLLHUP | EPOLLERR)) read_link(l, now);
+        // What came is answered at once, and the replies leave in one send:
+        // this client works on its next request while the loop serves the
+        // others (answering after all the reads kept every client waiting
+        // for the last one's).
+        bool fresh = false;
+        if (ev & (EPOLLIN | EPOLLHUP | EPOLLERR)) {
+          read_link(l, now);
+          if (!l.closed) fresh = answer(l, now);
+          answered |= fresh;
+        }
         if ((ev & EPOLLERR) && l.socket()) l.closed = true;
         // A hang-up or error: the next send says what happened (EPIPE closes it).
         if (ev & (EPOLLOUT | EPOLLHUP | EPOLLERR)) l.write_blocked = false;
-        if (!l.closed && (ev & EPOLLOUT)) write_link(l, now);
+        if (!l.closed && (fresh || (ev & EPOLLOUT))) write_link(l, now);
       }
+      if (answered) save_changed_images();
     }
     save_eeprom_images(true);
     return 0;

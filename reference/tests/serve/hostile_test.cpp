@@ -342,6 +342,61 @@ TEST_F(Hostile, AStreamerAndANonReaderDoNotStarveAPoller) {
   non_reader.join();
 }
 
+// A client that pipelines more replies than the socket buffers and serve's
+// 64 KiB output bound hold, then reads them a little at a time: serve stops
+// reading it, sends what the client takes in pieces, resumes, and every
+// reply arrives whole and in request order (MB TCP v1.0b §3.1.3: the
+// transaction id of each request comes back in its reply).
+TEST_F(Hostile, ASlowReaderGetsEveryReplyInOrder) {
+  auto p = std::make_unique<ServeProcess>(std::vector<std::string>{"--device", "modbus-standard@1", "--tcp", "127.0.0.1:0"});
+  ASSERT_TRUE(p->wait_listening(1)) << p->log();
+  Fd fd(::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0));
+  int small = 4096;  // before connect, so the window the server sees is small too
+  setsockopt(fd.get(), SOL_SOCKET, SO_RCVBUF, &small, sizeof small);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_port = htons(uint16_t(p->endpoint("tcp")->port()));
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ASSERT_EQ(::connect(fd.get(), reinterpret_cast<sockaddr*>(&a), sizeof a), 0);
+  // FC 03, 125 registers from 0 (modbus-standard's holding block): 259-byte
+  // replies, 10 MB of them, more than a loopback socket's send buffer grows
+  // to (tcp_wmem's default maximum is 4 MB), so serve's sends come up short.
+  constexpr int kRequests = 40000;
+  constexpr size_t kReply = 7 + 2 + 2 * 125;
+  Bytes requests;
+  for (int i = 0; i < kRequests; ++i) {
+    Bytes r = mbap(uint16_t(i), {3, 0, 0, 0, 125});
+    requests.insert(requests.end(), r.begin(), r.end());
+  }
+  fcntl(fd.get(), F_SETFL, O_NONBLOCK);
+  Bytes got;
+  size_t sent = 0;
+  const auto deadline = std::chrono::steady_clock::now() + 60s;  // a hang fails; nothing is timed
+  while (got.size() < kRequests * kReply && std::chrono::steady_clock::now() < deadline) {
+    pollfd q{fd.get(), short(POLLIN | (sent < requests.size() ? POLLOUT : 0)), 0};
+    if (::poll(&q, 1, 1000) < 0) break;
+    if (sent < requests.size() && (q.revents & POLLOUT)) {
+      ssize_t n = ::send(fd.get(), requests.data() + sent, requests.size() - sent, MSG_NOSIGNAL);
+      if (n > 0) sent += size_t(n);
+    }
+    if (q.revents & (POLLIN | POLLHUP | POLLERR)) {
+      uint8_t buf[997];  // small, odd-sized reads: replies arrive split anywhere
+      ssize_t n = ::recv(fd.get(), buf, sizeof buf, 0);
+      if (n <= 0) break;
+      got.insert(got.end(), buf, buf + n);
+    }
+  }
+  ASSERT_EQ(got.size(), kRequests * kReply) << p->log();
+  int in_order = 0;
+  for (int i = 0; i < kRequests; ++i) {
+    const uint8_t* r = got.data() + size_t(i) * kReply;
+    in_order += r[0] == uint8_t(i >> 8) && r[1] == uint8_t(i) && r[4] == 0 && r[5] == 3 + 2 * 125 && r[7] == 3 &&
+                r[8] == 2 * 125;
+  }
+  EXPECT_EQ(in_order, kRequests);
+  EXPECT_EQ(p->stop(SIGTERM).value_or(-1), 0) << p->log();
+}
+
 // At the connection cap the connection unused the longest is closed for the
 // newcomer (Implementation Guide V1.0b §4.2.1.2); an idle one is closed after
 // the idle timeout.
