@@ -9,14 +9,20 @@ std::optional<Mbap> parse_mbap(std::span<const uint8_t> b) {
   return Mbap{be16(b, 0), be16(b, 2), be16(b, 4), b[6]};
 }
 
+void append_mbap_reply(Bytes& out, const Mbap& req, std::span<const uint8_t> pdu) {
+  const uint16_t length = uint16_t(1 + pdu.size());
+  const uint8_t header[kMbapHeader] = {uint8_t(req.transaction >> 8), uint8_t(req.transaction),
+                                       uint8_t(req.protocol >> 8),    uint8_t(req.protocol),
+                                       uint8_t(length >> 8),          uint8_t(length),
+                                       req.unit};
+  out.insert(out.end(), header, header + kMbapHeader);
+  out.insert(out.end(), pdu.begin(), pdu.end());
+}
+
 Bytes mbap_reply(const Mbap& req, std::span<const uint8_t> pdu) {
   Bytes out;
   out.reserve(kMbapHeader + pdu.size());
-  put_be16(out, req.transaction);
-  put_be16(out, req.protocol);
-  put_be16(out, uint16_t(1 + pdu.size()));
-  out.push_back(req.unit);
-  out.insert(out.end(), pdu.begin(), pdu.end());
+  append_mbap_reply(out, req, pdu);
   return out;
 }
 

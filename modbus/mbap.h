@@ -31,6 +31,9 @@ std::optional<Mbap> parse_mbap(std::span<const uint8_t> bytes);
 Bytes mbap_frame(uint16_t transaction, uint8_t unit, std::span<const uint8_t> pdu);
 // The reply ADU: the request's transaction, protocol and unit around `pdu`.
 Bytes mbap_reply(const Mbap& request, std::span<const uint8_t> pdu);
+// The same reply ADU appended to `out` (a server's output, where the replies
+// to a batch of requests lie side by side for one send).
+void append_mbap_reply(Bytes& out, const Mbap& request, std::span<const uint8_t> pdu);
 // The unit and PDU of a whole ADU; `error` when the header is short, the
 // protocol is not 0, or the length field disagrees with the bytes.
 Unframed mbap_unframe(std::span<const uint8_t> adu);

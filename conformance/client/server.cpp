@@ -50,7 +50,7 @@ ScenarioServer::ScenarioServer(Transport t, std::string pty_path, int baud)
     pty_slave_ = p.slave;
     return;
   }
-  serve::Listener l = serve::listen_tcp(to_string(t), "127.0.0.1", 0, 4);
+  serve::TcpListener l = serve::listen_tcp(to_string(t), "127.0.0.1", 0, 4);
   listen_fd_ = l.fd;
   port_ = l.port;
 }

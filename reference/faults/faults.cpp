@@ -414,4 +414,25 @@ std::optional<Bytes> FaultyBus::handle_pdu(uint8_t unit, std::span<const uint8_t
   return device_pdu(*d, pdu, false);
 }
 
+namespace {
+
+size_t copy_reply(const std::optional<Bytes>& r, std::span<uint8_t> out) {
+  if (!r) return 0;
+  if (r->size() > out.size()) throw std::length_error("FaultyBus: the reply buffer is shorter than the reply");
+  std::copy(r->begin(), r->end(), out.begin());
+  return r->size();
+}
+
+}  // namespace
+
+size_t FaultyBus::handle_rtu_into(std::span<const uint8_t> adu, std::span<uint8_t> reply) {
+  if (faults_.empty()) return bus_.handle_rtu_into(adu, reply);
+  return copy_reply(handle_rtu(adu), reply);
+}
+
+size_t FaultyBus::handle_pdu_into(uint8_t unit, std::span<const uint8_t> pdu, std::span<uint8_t> reply) {
+  if (faults_.empty()) return bus_.handle_pdu_into(unit, pdu, reply);
+  return copy_reply(handle_pdu(unit, pdu), reply);
+}
+
 }  // namespace mbc::faults

@@ -87,6 +87,13 @@ class FaultyBus {
 
   std::optional<Bytes> handle_rtu(std::span<const uint8_t> adu);
   std::optional<Bytes> handle_pdu(uint8_t unit, std::span<const uint8_t> pdu);
+  // The same into the caller's storage (ref::Bus::handle_*_into): the reply's
+  // length, 0 for none; `reply` holds max_reply_pdu() (+ 3 for RTU) bytes.
+  // Without faults nothing is allocated; with faults the reply is made as
+  // above and copied.
+  size_t handle_rtu_into(std::span<const uint8_t> adu, std::span<uint8_t> reply);
+  size_t handle_pdu_into(uint8_t unit, std::span<const uint8_t> pdu, std::span<uint8_t> reply);
+  size_t max_reply_pdu() const { return bus_.max_reply_pdu(); }
   ref::Device* find(uint8_t slave_id) { return bus_.find(slave_id); }
   std::vector<std::unique_ptr<ref::Device>>& devices() { return bus_.devices(); }
   void advance(uint64_t dt_us) { bus_.advance(dt_us); }

@@ -41,7 +41,7 @@ std::string sockaddr_text(const sockaddr_storage& ss) {
   return fmt::format("[{}]:{}", host, ntohs(a->sin6_port));
 }
 
-Listener listen_tcp(const std::string& what, const std::string& host, uint16_t port, int backlog) {
+TcpListener listen_tcp(const std::string& what, const std::string& host, uint16_t port, int backlog) {
   addrinfo hints{}, *res = nullptr;
   hints.ai_family = AF_UNSPEC;
   hints.ai_socktype = SOCK_STREAM;
@@ -61,7 +61,7 @@ Listener listen_tcp(const std::string& what, const std::string& host, uint16_t p
     fail(fmt::format("{} {}:{}", what, host, port));
   }
   set_nonblocking(fd);
-  Listener l;
+  TcpListener l;
   l.fd = fd;
   sockaddr_storage ss{};
   socklen_t len = sizeof ss;

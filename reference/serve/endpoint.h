@@ -17,7 +17,7 @@ void set_nonblocking(int fd);
 // "127.0.0.1:502", "[::1]:502".
 std::string sockaddr_text(const sockaddr_storage& ss);
 
-struct Listener {
+struct TcpListener {
   int fd = -1;         // listening, non-blocking, close-on-exec; the caller closes it
   std::string bound;   // the address it is bound to (sockaddr_text)
   uint16_t port = 0;   // the port bound (the one the system chose for port 0)
@@ -25,7 +25,7 @@ struct Listener {
 // A TCP socket listening on host:port (port 0: any free port; SO_REUSEADDR).
 // Throws std::runtime_error "WHAT host:port: why" (WHAT: the caller's name
 // for it, e.g. "tcp", "tls").
-Listener listen_tcp(const std::string& what, const std::string& host, uint16_t port, int backlog = SOMAXCONN);
+TcpListener listen_tcp(const std::string& what, const std::string& host, uint16_t port, int backlog = SOMAXCONN);
 
 struct RawPty {
   int master = -1;   // non-blocking, close-on-exec: the server's end

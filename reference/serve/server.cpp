@@ -33,6 +33,7 @@
 #include "modbus/mbap.h"
 #include "modbus/rtu.h"
 #include "serve/eeprom_store.h"
+#include "serve/endpoint.h"
 #include "serve/trace.h"
 
 namespace mbc::serve {
@@ -118,24 +119,6 @@ constexpr size_t kSpareDescriptors = 16;
   throw std::runtime_error(fmt::format("{}: {}", what, std::strerror(errno)));
 }
 
-void set_nonblocking(int fd) {
-  int flags = fcntl(fd, F_GETFL);
-  if (flags < 0 || fcntl(fd, F_SETFL, flags | O_NONBLOCK) < 0) fail("fcntl");
-  fcntl(fd, F_SETFD, FD_CLOEXEC);
-}
-
-std::string sockaddr_text(const sockaddr_storage& ss) {
-  char host[INET6_ADDRSTRLEN] = "?";
-  if (ss.ss_family == AF_INET) {
-    auto* a = reinterpret_cast<const sockaddr_in*>(&ss);
-    inet_ntop(AF_INET, &a->sin_addr, host, sizeof host);
-    return fmt::format("{}:{}", host, ntohs(a->sin_port));
-  }
-  auto* a = reinterpret_cast<const sockaddr_in6*>(&ss);
-  inet_ntop(AF_INET6, &a->sin6_addr, host, sizeof host);
-  return fmt::format("[{}]:{}", host, ntohs(a->sin6_port));
-}
-
 // A paced reply (--line-rate) held in a link's output until its line time
 // has passed; it and everything queued after it wait.
 struct Held {
@@ -201,19 +184,6 @@ struct Link {
   }
 };
 
-// mbap_reply (modbus/mbap.h) written into the connection's output instead of
-// a vector of its own: no allocation per reply, and the replies to a batch
-// of requests lie side by side for one send.
-void append_mbap_reply(Bytes& out, const Mbap& request, std::span<const uint8_t> pdu) {
-  const uint16_t length = uint16_t(1 + pdu.size());
-  const uint8_t header[kMbapHeader] = {uint8_t(request.transaction >> 8), uint8_t(request.transaction),
-                                       uint8_t(request.protocol >> 8),    uint8_t(request.protocol),
-                                       uint8_t(length >> 8),              uint8_t(length),
-                                       request.unit};
-  out.insert(out.end(), header, header + kMbapHeader);
-  out.insert(out.end(), pdu.begin(), pdu.end());
-}
-
 struct Listener {
   int fd = -1;
   Transport transport = Transport::tcp;
@@ -229,6 +199,7 @@ struct PtyEndpoint {
 
 struct Server::Impl {
   faults::FaultyBus bus;  // the correct devices when opt.faults is empty
+  Bytes reply_buf;         // every reply is made here first (answer_into)
   Options opt;
   std::vector<Listener> listeners;
   std::unique_ptr<TlsDoor> tls_door;  // --tls: its wake_fd() is polled as a listener
@@ -300,48 +271,15 @@ struct Server::Impl {
   }
 
   void open_socket(const Endpoint& e) {
-    addrinfo hints{}, *res = nullptr;
-    hints.ai_family = AF_UNSPEC;
-    hints.ai_socktype = SOCK_STREAM;
-    hints.ai_flags = AI_PASSIVE | AI_NUMERICSERV;
-    std::string port = std::to_string(e.port);
-    if (int rc = getaddrinfo(e.host.c_str(), port.c_str(), &hints, &res); rc != 0)
-      throw std::runtime_error(fmt::format("{} {}:{}: {}", to_string(e.transport), e.host, e.port, gai_strerror(rc)));
-    int fd = ::socket(res->ai_family, res->ai_socktype | SOCK_CLOEXEC, 0);
-    int one = 1;
-    if (fd >= 0) setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
-    bool ok = fd >= 0 && ::bind(fd, res->ai_addr, res->ai_addrlen) == 0 && ::listen(fd, SOMAXCONN) == 0;
-    freeaddrinfo(res);
-    if (!ok) fail(fmt::format("{} {}:{}", to_string(e.transport), e.host, e.port));
-    set_nonblocking(fd);
-    listeners.push_back({fd, e.transport});
-    sockaddr_storage ss{};
-    socklen_t len = sizeof ss;
-    getsockname(fd, reinterpret_cast<sockaddr*>(&ss), &len);
-    listening.push_back(fmt::format("listening {} {}", to_string(e.transport), sockaddr_text(ss)));
+    TcpListener l = listen_tcp(to_string(e.transport), e.host, e.port);
+    listeners.push_back({l.fd, e.transport});
+    listening.push_back(fmt::format("listening {} {}", to_string(e.transport), l.bound));
   }
 
   void open_pty(const Endpoint& e) {
-    int master = -1, slave = -1;
-    if (openpty(&master, &slave, nullptr, nullptr, nullptr) != 0) fail("openpty");
-    char name[256];
-    if (ttyname_r(slave, name, sizeof name) != 0) fail("ttyname");
-    // Raw, like a serial port a Modbus master opens: no echo, no line editing,
-    // no CR/LF translation, 8 data bits.
-    termios t{};
-    tcgetattr(slave, &t);
-    cfmakeraw(&t);
-    tcsetattr(slave, TCSANOW, &t);
-    set_nonblocking(master);
-    fcntl(slave, F_SETFD, FD_CLOEXEC);
-    ptys.push_back({slave, e.path, name});  // before the symlink, so ~Impl cleans up
-    struct stat st{};
-    if (lstat(e.path.c_str(), &st) == 0) {
-      if (!S_ISLNK(st.st_mode)) throw std::runtime_error(fmt::format("pty {}: exists and is not a symlink", e.path));
-      ::unlink(e.path.c_str());
-    }
-    if (symlink(name, e.path.c_str()) != 0) fail("pty symlink " + e.path);
-    links.emplace_back(master, Transport::pty, "pty " + e.path);
+    RawPty p = open_raw_pty(e.path);
+    ptys.push_back({p.slave, e.path, p.name});  // ~Impl closes the slave and removes the link
+    links.emplace_back(p.master, Transport::pty, "pty " + e.path);
     listening.push_back(fmt::format("listening pty {}", e.path));
   }
 
@@ -446,10 +384,16 @@ struct Server::Impl {
   // A reference device that fails internally (a bug, or a state only an
   // injected fault reaches) drops that one frame, says why on stderr, and
   // the server goes on serving every other client.
+  // The reply `handle` writes into the server's one reply buffer (the
+  // engine's *_into calls: nothing allocated per reply), or none. A device
+  // that throws costs its frame, not the server.
   template <class F>
-  std::optional<Bytes> guarded(Link& l, F&& handle) {
+  std::optional<std::span<const uint8_t>> answer_into(Link& l, F&& handle) {
+    if (reply_buf.empty()) reply_buf.resize(std::max<size_t>(bus.max_reply_pdu() + kRtuAddress + kRtuCrc, 1024));
     try {
-      return handle();
+      size_t n = handle(std::span<uint8_t>(reply_buf));
+      if (n == 0) return std::nullopt;
+      return std::span<const uint8_t>(reply_buf.data(), n);
     } catch (const std::exception& e) {
       std::fputs(fmt::format("{} !! device error, frame dropped: {}\n", l.name, e.what()).c_str(), stderr);
       return std::nullopt;
@@ -461,7 +405,7 @@ struct Server::Impl {
       trace(l, "rx", l.in, [&] { return fmt::format("dropped: {} bytes, over the {}-byte RTU limit", l.in.size() + l.overflow, kMaxRtuAdu); });
     } else {
       trace(l, "rx", l.in, [&] { return describe_rtu(l.in, Direction::request); });
-      auto reply = guarded(l, [&] { return bus.handle_rtu(l.in); });
+      auto reply = answer_into(l, [&](std::span<uint8_t> out) { return bus.handle_rtu_into(l.in, out); });
       if (reply) {
         trace(l, "tx", *reply, [&] { return describe_rtu(*reply, Direction::reply); });
         size_t begin = l.out.size();
@@ -502,8 +446,12 @@ struct Server::Impl {
         if (!refused.empty()) trace(l, "!!", {}, [&] { return refused; });
         // MB-TCP-Security v2.1 §8.3: a request the role may not make is
         // refused with exception 01 (Illegal Function).
-        auto reply = !refused.empty() ? std::optional<Bytes>(Bytes{uint8_t(pdu[0] | 0x80), 0x01})
-                                      : guarded(l, [&] { return bus.handle_pdu(h->unit, pdu); });
+        auto reply = answer_into(l, [&](std::span<uint8_t> out) -> size_t {
+          if (refused.empty()) return bus.handle_pdu_into(h->unit, pdu, out);
+          out[0] = uint8_t(pdu[0] | 0x80);
+          out[1] = 0x01;
+          return 2;
+        });
         if (reply) {
           size_t begin = l.out.size();
           append_mbap_reply(l.out, *h, *reply);
@@ -529,8 +477,7 @@ struct Server::Impl {
     if (l.in.empty() && !l.overflow) return false;
     if (now - l.last_rx >= rtu_gap(l)) return true;
     if (l.transport != Transport::rtu_tcp || l.overflow) return false;
-    auto n = rtu_adu_length(l.in, Direction::request);
-    return n && *n == l.in.size() && crc_ok(l.in);
+    return rtu_adu_complete(l.in, Direction::request);
   }
 
   // Answers the link's complete frames; false when there were none.

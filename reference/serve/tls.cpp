@@ -352,7 +352,7 @@ using serve::set_nonblocking;
 using serve::sockaddr_text;
 
 int listen_on(const std::string& host, uint16_t port, std::string& bound) {
-  serve::Listener l = serve::listen_tcp("tls", host, port);
+  serve::TcpListener l = serve::listen_tcp("tls", host, port);
   bound = l.bound;
   return l.fd;
 }
