@@ -25,6 +25,14 @@ TEST(Mbap, ReplyKeepsTheRequestHeader) {
   EXPECT_FALSE((Mbap{0, 0, 255, 0}.length_ok()));  // PDU over 253 bytes
 }
 
+// A server's replies to a batch of requests, side by side in one output.
+TEST(Mbap, RepliesAppendSideBySide) {
+  Bytes out = hex("AA");
+  append_mbap_reply(out, Mbap{0x1234, 0, 6, 0x11}, hex("03 02 00 07"));
+  append_mbap_reply(out, Mbap{0x1235, 0, 6, 0x11}, hex("83 02"));
+  EXPECT_EQ(out, hex("AA 12 34 00 00 00 05 11 03 02 00 07 12 35 00 00 00 03 11 83 02"));
+}
+
 TEST(Mbap, FrameAndUnframe) {
   Bytes adu = mbap_frame(0x0001, 0xFF, hex("03 00 6B 00 03"));
   EXPECT_EQ(adu, hex("00 01 00 00 00 06 FF 03 00 6B 00 03"));
