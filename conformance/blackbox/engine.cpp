@@ -389,11 +389,15 @@ std::optional<Finding> run_fresh(const Open& open, const Plan& p, const std::vec
   } catch (const std::exception& e) {
     return Finding{"cannot-reopen", e.what()};
   }
-  for (const auto& st : steps)
+  for (const auto& st : steps) {
+    // As round() waits: a live target's reconnect() keeps what it learnt of
+    // its latency, so a dropped frame costs a window here too, not the timeout.
+    t->set_wait(is_probe(st) ? Target::Wait::reply : Target::Wait::window);
     if (auto f = execute(*t, p, st)) {
       if (!wanted || wanted(*f, st)) return f;
       if (target_may_be_gone(*f)) return std::nullopt;
     }
+  }
   return std::nullopt;
 }
 
@@ -517,12 +521,19 @@ std::vector<Step> last_batch(const std::vector<Step>& h) {
 }
 
 Reported reduce(const Open& open, const Plan& p, const Options& o, const Finding& f, const std::vector<Step>& history) {
-  Reported rep{f, history.empty() ? f.kind : signature(f, p, history.back()), {}, true, 0, history.size()};
+  Reported rep{f, history.empty() ? f.kind : signature(f, p, history.back()), {}, true, false, 0, history.size()};
   // The same finding, past others (already reported) on the way.
   Wanted same = [&](const Finding& g, const Step& st) { return g.kind == f.kind && signature(g, p, st) == rep.signature; };
+  auto stopped = [&] { return o.stopped && o.stopped(); };
+  // A run that sending stopped before or during (the reopen or a step threw
+  // Stopped) says nothing: the reduction is cut off, and ddmin's remaining
+  // calls return at once.
   std::function<bool(const std::vector<Step>&)> fails = [&](const std::vector<Step>& steps) {
+    if (rep.cut_off || (rep.cut_off = stopped())) return false;
     auto g = o.isolate ? isolated([&] { return run_fresh(open, p, steps, same); }) : run_fresh(open, p, steps, same);
-    return g && g->kind == f.kind;
+    if (g && g->kind == f.kind) return true;
+    rep.cut_off = stopped();
+    return false;
   };
   std::vector<Step> batch = last_batch(history);
   ++rep.runs;
@@ -530,13 +541,15 @@ Reported reduce(const Open& open, const Plan& p, const Options& o, const Finding
     rep.steps = ddmin<Step>(batch, fails, o.reduce_budget, rep.runs);
     return rep;
   }
-  ++rep.runs;
-  if (batch.size() < history.size() && fails(history)) {
-    rep.steps = ddmin<Step>(history, fails, o.reduce_budget, rep.runs);
-    return rep;
+  if (!rep.cut_off) {
+    ++rep.runs;
+    if (batch.size() < history.size() && fails(history)) {
+      rep.steps = ddmin<Step>(history, fails, o.reduce_budget, rep.runs);
+      return rep;
+    }
   }
-  // Timing, state outside the frames, or a target that is gone: the last
-  // batch as it was sent, unreduced.
+  // Timing, state outside the frames, a target that is gone, or no time
+  // left to try: the last batch as it was sent, unreduced.
   rep.steps = batch;
   rep.reproduced = false;
   return rep;
@@ -564,6 +577,7 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
   Clock::duration reducing{};
   std::unique_ptr<Target> target = std::move(first);
   for (uint64_t r = 0; r == 0 || Clock::now() < deadline; ++r) {
+    if (r > 0 && o.stopped && o.stopped()) break;
     ++out.rounds;
     // Round 0 runs the given seed's sequence; later rounds other ones.
     const uint64_t seed = o.seed + r * 0x9E3779B97F4A7C15ull;
@@ -603,6 +617,8 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
     }
     target.reset();
     if (!f) break;
+    // The session refused to send once stopped: the stop, not the target's fault.
+    if (f->kind == "target-error" && o.stopped && o.stopped()) break;
     if (f->kind == "cannot-reopen") {
       out.target_lost = true;
       break;
@@ -632,7 +648,13 @@ check::Script reproducer(const Plan& p, const Reported& r, const std::string& re
   s.comment = fmt::format("mbconform fuzz reproducer: {}\n", r.signature);
   std::istringstream msg(r.finding.message);
   for (std::string l; std::getline(msg, l);) s.comment += "  " + l + "\n";
-  if (!r.reproduced)
+  if (r.cut_off && r.reproduced)
+    s.comment += "Its reduction was cut off (a stop signal, or the time allowed ran out): these steps reproduce it\n"
+                 "on a fresh target, but fewer may.\n";
+  else if (r.cut_off)
+    s.comment += "Its reduction was cut off (a stop signal, or the time allowed ran out) before it was tried on a fresh\n"
+                 "target: these are the last steps sent before it, unreduced.\n";
+  else if (!r.reproduced)
     s.comment += "It did not reproduce on a fresh target (timing, state outside the frames, or the target is gone):\n"
                  "these are the last steps sent before it, unreduced.\n";
   s.comment += "replay: " + replay_command;

@@ -134,7 +134,9 @@ using Open = std::function<std::unique_ptr<Target>()>;
 using Wanted = std::function<bool(const Finding&, const Step&)>;
 // Runs `steps` on a fresh target; the first finding (the first `wanted` one,
 // going on past others while the target answers), if any. A target that
-// cannot be opened again (a server that died) gives "cannot-reopen".
+// cannot be opened again (a server that died) gives "cannot-reopen". Each
+// step waits as it did while fuzzing (round() in engine.cpp): the probe for
+// its reply, a generated frame only the target's silence window.
 std::optional<Finding> run_fresh(const Open& open, const Plan& p, const std::vector<Step>& steps, const Wanted& wanted = {});
 
 struct Options {
@@ -151,6 +153,10 @@ struct Options {
   // Findings declared known (`fuzz --quirks`, by kind or signature, e.g.
   // "malformed-reply fc2B"): left aside, counted in Outcome::declared.
   std::function<bool(const std::string& signature)> declared;
+  // Whether sending stopped (a stop signal, the command's deadline): a
+  // reduction under way is cut off (Reported::cut_off) and its finding kept,
+  // and a target error it causes is no finding.
+  std::function<bool()> stopped;
 };
 
 struct Reported {
@@ -158,6 +164,10 @@ struct Reported {
   std::string signature;     // what makes it distinct: kind and the function code it came on
   std::vector<Step> steps;   // the reduced reproducer
   bool reproduced = true;    // false: it did not reproduce on a fresh target; steps are the last batch, unreduced
+  // Sending stopped before the reduction ended (Options::stopped): steps are
+  // as far as it got (reproduced: they reproduce it, maybe not minimal;
+  // else the last batch, unreduced, not tried on a fresh target).
+  bool cut_off = false;
   int runs = 0;              // fresh-target runs the reduction took
   size_t history = 0;        // steps sent since the target was opened, when it was found
 };

@@ -192,9 +192,19 @@ class RtuTarget final : public Target {
   microseconds silence_window() const override { return window_.window(last_line_); }
   void set_wait(Wait w) override { wait_ = w; }
   uint64_t late_replies() const override { return window_.late_count(); }
-  // RTU over TCP: a new socket to the gateway. A serial line has nothing to reopen.
+  // RTU over TCP: a new socket to the gateway. A serial line: the device
+  // opened again (an adapter that was replugged, a pty whose other side is
+  // still there), what waits on it dropped; false when it cannot be opened.
+  // The fuzzer's fresh targets on a live line are this (Session::open_another).
   bool reconnect() override {
-    if (serial_) return false;
+    if (serial_) {
+      modbus_close(ctx_);
+      fd_ = -1;
+      if (modbus_connect(ctx_) == -1) return false;
+      fd_ = modbus_get_socket(ctx_);
+      drain(fd_);
+      return true;
+    }
     if (fd_ >= 0) close(fd_);
     fd_ = -1;
     try {
@@ -257,6 +267,7 @@ class RtuTarget final : public Target {
  private:
   // The socket of an RTU-over-TCP gateway that closed it is reopened.
   int fd() {
+    if (fd_ < 0 && serial_) throw std::runtime_error(fmt::format("target '{}': the serial line could not be opened again", info_.uri));
     if (fd_ < 0) fd_ = connect_tcp(host_, port_, timeout_, info_.uri);
     return fd_;
   }

@@ -8,7 +8,9 @@
 // Fuzzing goes on until --duration runs out. Each distinct finding (its kind
 // and the function code it came on) is reduced by delta debugging on fresh
 // targets to a minimal sequence of frames and saved once, as a frame script
-// (conformance/check/README.md) in DIR, with the command that replays it.
+// (conformance/check/README.md) in DIR, with the command that replays it;
+// one whose reduction a stop or the time allowed cut off is saved as far as
+// the reduction got, and says so: a finding is never dropped.
 // Findings whose kind (or signature, "KIND fcNN") a quirks file declares
 // (--quirks, conformance/README.md) are left aside and counted.
 // Exit 0: nothing found; 1: a finding; 2: could not run.
@@ -118,17 +120,22 @@ int run_fuzz(FuzzArgs& a) {
   o.isolate = info.kind == "plugin";
   o.journal = (fs::path(a.t.out) / ".journal").string();
   if (!quirks.empty()) o.declared = [&](const std::string& sig) { return quirks.for_kind(sig) != nullptr; };
+  o.stopped = [&] { return session.stopped().has_value(); };
   fmt::print("fuzzing {} as {} for {}, seed {}, batches of {} frames ({} readable, {} writable registers)\n", info.uri,
              s.device.id, a.duration, o.seed, a.batch, plan.readable.size(), plan.writable.size());
   std::fflush(stdout);
 
   size_t saved = 0;
   auto out = conf::blackbox::fuzz(std::move(target), open, plan, o, [&](const conf::blackbox::Reported& r) {
-    if (session.stopped()) return;  // cut off by a stop or the deadline: not a finding of the target
+    // A finding whose reduction a stop or the deadline cut off is saved as
+    // far as it got: it was seen on the target, and is never dropped.
     ++saved;
     progress.clear();
     fmt::print("FINDING {} after {} steps: {}\n", r.finding.kind, r.history, r.finding.message);
-    if (!r.reproduced)
+    if (r.cut_off)
+      fmt::print("its reduction was cut off ({}); saving {} step(s), {}\n", session.stopped().value_or("stopped"),
+                 r.steps.size(), r.reproduced ? "which reproduce it on a fresh target" : "the last ones sent, unreduced");
+    else if (!r.reproduced)
       fmt::print("the finding does not reproduce on a fresh target (timing, state outside the frames, or the target is gone); "
                  "saving the last {} steps unreduced\n", r.steps.size());
     fs::path file = save(a.t.out, plan, r, uri);

@@ -243,3 +243,68 @@ TEST(Reducer, RealTargetReducesToTheFrameThatFails) {
 
 }  // namespace
 }  // namespace mbc::conf::blackbox
+
+namespace mbc::conf::blackbox {
+namespace {
+
+// Sending stops (a stop signal, fuzz's deadline) while a finding is being
+// reduced: the finding is kept, as far as its reduction got, and says so.
+// The session's fresh targets then cannot be opened (Session::open_another
+// throws Stopped): here the first reopen stops, as the deadline would.
+TEST(Reducer, AFindingWhoseReductionIsCutOffIsKeptUnreduced) {
+  const std::string uri = "ref:hsc60?fault=answer-broadcast";
+  spec::Spec s = spec::load_spec_by_id("hsc60");
+  auto first = open_target(uri);
+  Plan p = make_plan(s, first->info(), WritePolicy{});
+  bool stopped = false;
+  Open open = [&]() -> std::unique_ptr<Target> {
+    stopped = true;
+    throw std::runtime_error("sending stopped: the deadline ran out");
+  };
+  Options o;
+  o.duration = std::chrono::milliseconds(10'000);
+  o.seed = 7;
+  o.stopped = [&] { return stopped; };
+  std::vector<Reported> heard;
+  Outcome out = fuzz(std::move(first), open, p, o, [&](const Reported& r) { heard.push_back(r); });
+  ASSERT_EQ(out.findings.size(), 1u);
+  ASSERT_EQ(heard.size(), 1u);
+  const Reported& r = out.findings[0];
+  EXPECT_EQ(r.finding.kind, "answered-broadcast");
+  EXPECT_TRUE(r.cut_off);
+  EXPECT_FALSE(r.reproduced);
+  // The last batch as sent, ending with the frame that was answered.
+  ASSERT_FALSE(r.steps.empty());
+  ASSERT_EQ(r.steps.back().kind, Step::Kind::raw);
+  EXPECT_EQ(r.steps.back().bytes.at(0), 0) << check::line(r.steps.back());
+  EXPECT_NE(reproducer(p, r, "replay").comment.find("reduction was cut off"), std::string::npos);
+}
+
+// Cut off after the finding reproduced on a fresh target, before ddmin
+// could remove anything: those steps are kept, said to reproduce it.
+TEST(Reducer, ACutOffAfterTheFindingReproducedKeepsWhatReproduces) {
+  const std::string uri = "ref:hsc60?fault=answer-broadcast";
+  spec::Spec s = spec::load_spec_by_id("hsc60");
+  auto first = open_target(uri);
+  Plan p = make_plan(s, first->info(), WritePolicy{});
+  int opened = 0;
+  Open open = [&] {
+    ++opened;
+    return open_target(uri);
+  };
+  Options o;
+  o.duration = std::chrono::milliseconds(10'000);
+  o.seed = 7;
+  o.stopped = [&] { return opened > 0; };  // stops as the first fresh target opens
+  Outcome out = fuzz(std::move(first), open, p, o, {});
+  ASSERT_EQ(out.findings.size(), 1u);
+  const Reported& r = out.findings[0];
+  EXPECT_TRUE(r.cut_off);
+  EXPECT_TRUE(r.reproduced);
+  EXPECT_EQ(opened, 1) << "runs after the stop";
+  ASSERT_FALSE(r.steps.empty());
+  EXPECT_EQ(r.steps.back().bytes.at(0), 0) << check::line(r.steps.back());
+}
+
+}  // namespace
+}  // namespace mbc::conf::blackbox
