@@ -473,7 +473,6 @@ std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch,
   while (Clock::now() < deadline) {
     steps.clear();
     for (int i = 0; i < batch; ++i) steps.push_back(gen.next());
-    out.frames += batch;
     bool all_frames = std::all_of(steps.begin(), steps.end(), [](const Step& s) { return s.kind == Step::Kind::frame; });
     if (pipelined && all_frames) {
       // Modbus TCP: the batch goes out pipelined, every reply is judged in order.
@@ -488,12 +487,19 @@ std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch,
       } catch (const std::exception& e) {
         return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(steps.back()))};
       }
+      out.frames += long(steps.size());
       for (size_t i = 0; i < steps.size(); ++i) account(out, p, steps[i], replies[i]);
       for (size_t i = 0; i < steps.size(); ++i)
         if (auto f = keep(judge(p, steps[i], replies[i]), steps[i])) return f;
     } else {
-      for (const auto& st : steps)
+      // The deadline is looked at before each exchange: a batch on a slow
+      // line (50 frames at 9600 baud take over a second) does not run past
+      // --duration. A batch cut short still ends with the probe.
+      for (const auto& st : steps) {
+        if (Clock::now() >= deadline) break;
+        ++out.frames;
         if (auto f = send(st)) return f;
+      }
     }
     ++out.batches;
     if (auto f = send_probe()) return f;

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <random>
 #include <set>
+#include <thread>
 
 #include "blackbox/engine.h"
 #include "modbus/crc16.h"
@@ -304,6 +305,51 @@ TEST(Reducer, ACutOffAfterTheFindingReproducedKeepsWhatReproduces) {
   EXPECT_EQ(opened, 1) << "runs after the stop";
   ASSERT_FALSE(r.steps.empty());
   EXPECT_EQ(r.steps.back().bytes.at(0), 0) << check::line(r.steps.back());
+}
+
+}  // namespace
+}  // namespace mbc::conf::blackbox
+
+namespace mbc::conf::blackbox {
+namespace {
+
+// A target that takes `pace` per exchange, as a slow serial line does.
+class Paced final : public Target {
+ public:
+  Paced(std::unique_ptr<Target> inner, std::chrono::microseconds pace) : inner_(std::move(inner)), pace_(pace) {}
+  const TargetInfo& info() const override { return inner_->info(); }
+  Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override {
+    std::this_thread::sleep_for(pace_);
+    return inner_->transact(unit, pdu);
+  }
+  Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
+    std::this_thread::sleep_for(pace_);
+    return inner_->send_raw(bytes, gap_after);
+  }
+  void advance(std::chrono::microseconds dt) override { inner_->advance(dt); }
+  void power_cycle() override { inner_->power_cycle(); }
+
+ private:
+  std::unique_ptr<Target> inner_;
+  std::chrono::microseconds pace_;
+};
+
+// The deadline is looked at before each exchange, not only between batches:
+// a batch of 1000 frames that take 2 ms each (2 s) stops once 20 ms ran out.
+// Each exchange sleeps, so however slow the host, all 1000 cannot fit.
+TEST(Fuzz, TheDeadlineIsLookedAtBeforeEachExchange) {
+  spec::Spec s = spec::load_spec_by_id("hsc60");
+  auto first = std::make_unique<Paced>(open_target("ref:hsc60"), std::chrono::milliseconds(2));
+  Plan p = make_plan(s, first->info(), WritePolicy{});
+  Options o;
+  o.duration = std::chrono::milliseconds(20);
+  o.batch = 1000;
+  Open open = [] { return std::make_unique<Paced>(open_target("ref:hsc60"), std::chrono::milliseconds(2)); };
+  Outcome out = fuzz(std::move(first), open, p, o, {});
+  EXPECT_TRUE(out.findings.empty());
+  EXPECT_GT(out.frames, 0);
+  EXPECT_LT(out.frames, o.batch) << "the whole batch went out past the deadline";
+  EXPECT_EQ(out.batches, 1);
 }
 
 }  // namespace
