@@ -148,9 +148,40 @@ check::Expect expect_for(const Plan& p, const Step& s) {
   return expecting(K::silence);
 }
 
+namespace {
+// A late reply (Reply::late) to a frame that had to stay silent: it came
+// after that frame was judged silent, and is still a reply MB-SL v1.02 §2.1
+// (broadcast, another slave id) or §2.4.2 (a corrupted frame) forbids. A
+// late reply to a well-formed request to the unit is the device's pace, not
+// a fault; one the target could not pair with a request says nothing.
+std::optional<Finding> late_finding(const Plan& p, const Reply& r) {
+  for (const auto& l : r.late) {
+    const Bytes& req = l.request;
+    if (req.size() < kRtuAddress + 1 + kRtuCrc) continue;
+    std::string kind, why;
+    if (req[0] == 0) {
+      kind = "answered-broadcast";
+      why = "broadcast (MB-SL v1.02 §2.1: no response)";
+    } else if (req[0] != p.info.unit) {
+      kind = "answered-other-slave";
+      why = "another slave id (MB-SL v1.02 §2.1: no response)";
+    } else if ((!crc_ok(req) || rtu_adu_length(req, Direction::request) != req.size()) &&
+               p.spec->profile.policy(spec::Violation::crc_error).kind != spec::PolicyEntry::Kind::exception) {
+      kind = "answered-corrupted-frame";
+      why = "a frame with a bad CRC or length (MB-SL v1.02 §2.4.2: no response)";
+    } else {
+      continue;
+    }
+    return Finding{kind, fmt::format("a late reply, {:.1f} ms after the request, to a frame for {}\n  sent:  {}\n  reply: {}",
+                                     double(l.after.count()) / 1000, why, to_hex(req), to_hex(l.frame))};
+  }
+  return std::nullopt;
+}
+}  // namespace
+
 std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r) {
   auto m = check::judge(s, r, check::JudgeContext{p.info.unit, p.info.framing, p.spec, {}});
-  if (!m) return std::nullopt;
+  if (!m) return late_finding(p, r);
   std::string why = m->why;
   std::string kind;
   using M = check::Mismatch::Kind;

@@ -112,7 +112,7 @@ ReadResult read_frame(int fd, std::vector<uint8_t>& buf, Clock::time_point first
   return r;
 }
 
-size_t drain(int fd) {
+size_t drain(int fd, std::vector<uint8_t>* kept) {
   size_t total = 0;
   for (;;) {
     pollfd p{fd, POLLIN, 0};
@@ -121,6 +121,7 @@ size_t drain(int fd) {
     ssize_t n = read(fd, chunk, sizeof chunk);
     if (n <= 0) return total;
     total += size_t(n);
+    if (kept) kept->insert(kept->end(), chunk, chunk + n);
   }
 }
 

@@ -66,6 +66,10 @@ class SilenceWindow {
   void record(microseconds latency, bool exception = false, microseconds line = microseconds(0));
   // A late reply; `seen` is how long after its request it was found, when known.
   void late_reply(std::optional<microseconds> seen = std::nullopt);
+  // A late reply to a frame that had to stay silent (broadcast, another
+  // slave id, a corrupted frame): counted, but it says nothing of the
+  // device's pace, so the window is left as it is.
+  void late_fault() { ++late_; }
   // `line`: the line time of the request about to wait, with its longest reply.
   microseconds window(microseconds line = microseconds(0)) const;
   microseconds timeout() const { return timeout_; }
@@ -101,8 +105,9 @@ struct ReadResult {
 ReadResult read_frame(int fd, std::vector<uint8_t>& buf, Clock::time_point first_byte_by, microseconds end_silence,
                       Clock::time_point hard_deadline, const std::function<bool(std::span<const uint8_t>)>& complete);
 
-// Reads and discards whatever is waiting on `fd` (a late reply); the count.
-size_t drain(int fd);
+// Reads whatever is waiting on `fd` (a late reply); the count. The bytes
+// are appended to `kept` when given, else discarded.
+size_t drain(int fd, std::vector<uint8_t>* kept = nullptr);
 
 // Writes all of `bytes`; throws std::runtime_error naming `what` on failure.
 void write_all(int fd, std::span<const uint8_t> bytes, const std::string& what);

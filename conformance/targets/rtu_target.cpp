@@ -55,8 +55,9 @@ constexpr milliseconds kSplitGapFloor{20};
 constexpr milliseconds kSplitGapGatewayFloor{50};
 constexpr milliseconds kDefaultTimeout{1000};
 // Unanswered requests whose late replies are still told from the current
-// request's own: a device (or host) held up for a few windows in a row.
-constexpr size_t kUnansweredKept = 8;
+// request's own: a device (or host) held up for a few windows in a row, and
+// the frames between that had to stay silent.
+constexpr size_t kUnansweredKept = 16;
 
 // RTU over TCP: connects a raw socket (bounded by `timeout`).
 int connect_tcp(const std::string& host, uint16_t port, milliseconds timeout, const std::string& uri) {
@@ -278,17 +279,14 @@ class RtuTarget final : public Target {
   // `addressed`: a well-formed request to the target's unit (Wait::automatic waits for its reply).
   template <class Send>
   Reply exchange(const Bytes& adu, uint8_t slave, bool timed, bool addressed, Send send) {
-    // A reply came after its window closed: it belongs to the last exchange
-    // judged silent at the latest, so it took at most this long.
-    if (drain(fd()) > 0)
-      window_.late_reply(silent_at_ ? std::optional(std::chrono::duration_cast<microseconds>(Clock::now() - *silent_at_))
-                                    : std::nullopt);
+    Reply r;
+    Bytes waiting;
+    if (drain(fd(), &waiting) > 0) take_late(waiting, r);
     auto t0 = send();
     if (serial_) {
       tcdrain(fd_);
       t0 = Clock::now();
     }
-    Reply r;
     r.request = adu;
     bool for_reply = wait_ == Wait::reply || (wait_ == Wait::automatic && addressed);
     last_line_ = line_time(adu.size(), longest_reply(adu));
@@ -301,10 +299,10 @@ class RtuTarget final : public Target {
     // this request went out: counted as late (as if drained before it), and
     // this request still waits for its own reply, now behind it on the line.
     while (!rr.closed) {
-      Clock::time_point sent;
-      size_t late = late_reply_at_front(r.frame, adu, sent);
+      Unanswered which;
+      size_t late = late_reply_at_front(r.frame, adu, which);
       if (late == 0) break;
-      window_.late_reply(std::chrono::duration_cast<microseconds>(Clock::now() - sent));
+      count_late(which, Bytes(r.frame.begin(), r.frame.begin() + ptrdiff_t(late)), r);
       r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(late));
       first_by = std::max(first_by, Clock::now() + (for_reply ? window_.timeout() : window_.window(last_line_)));
       hard = first_by + window_.timeout() + 2 * wire;
@@ -312,10 +310,8 @@ class RtuTarget final : public Target {
     }
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (r.frame.empty()) silent_at_ = t0;
-    // Only well-formed requests to this unit: a late answer to a broadcast,
-    // another slave id or a corrupted frame is the device's fault, not its pace.
     if (!r.frame.empty()) unanswered_.clear();  // replies come in order: theirs would have come first
-    else if (addressed) unanswered_.push_back({adu, t0});
+    else unanswered_.push_back({adu, t0, addressed});
     if (unanswered_.size() > kUnansweredKept) unanswered_.pop_front();
     if (rr.closed) {
       if (serial_) throw std::runtime_error(fmt::format("target '{}': the serial line closed", info_.uri));
@@ -328,29 +324,83 @@ class RtuTarget final : public Target {
     return r;
   }
 
-  // The length of the frame at the front of `frame` when it is the late
-  // reply to one of the requests to this unit that went unanswered since the
-  // last reply: a whole ADU from the same slave that answers it as the
-  // standard says (judge_reply) and does not answer `request` (else it is
-  // taken as request's own, as before); `sent` is when that request went
-  // out, and it and those before it are forgotten. Else 0.
-  size_t late_reply_at_front(const Bytes& frame, const Bytes& request, Clock::time_point& sent) {
-    if (unanswered_.empty()) return 0;
-    auto n = rtu_adu_length(frame, Direction::reply);
-    if (!n || *n > frame.size() || !crc_ok(std::span(frame).first(*n))) return 0;
-    auto reply = std::span(frame).first(*n);
-    auto answers = [&](std::span<const uint8_t> req) {
-      auto pdu = [](std::span<const uint8_t> a) { return a.subspan(kRtuAddress, a.size() - kRtuAddress - kRtuCrc); };
-      return req.size() >= kRtuAddress + 1 + kRtuCrc && req[0] == reply[0] && judge_reply(pdu(req), pdu(reply)).ok();
-    };
-    if (answers(request)) return 0;
+  struct Unanswered;
+
+  // Whether `reply` (a whole ADU) answers the request `req` (as framed) as
+  // the standard says (judge_reply): from the same slave id, or from any for
+  // a broadcast (a device that wrongly answers one may give 0 or its own).
+  static bool answers(std::span<const uint8_t> req, std::span<const uint8_t> reply) {
+    auto pdu = [](std::span<const uint8_t> a) { return a.subspan(kRtuAddress, a.size() - kRtuAddress - kRtuCrc); };
+    return req.size() >= kRtuAddress + 1 + kRtuCrc && reply.size() >= kRtuAddress + 1 + kRtuCrc &&
+           (req[0] == reply[0] || req[0] == 0) && judge_reply(pdu(req), pdu(reply)).ok();
+  }
+
+  // The request among those that went unanswered since the last reply that
+  // `reply` (a whole ADU, CRC right) answers; it and those before it are
+  // forgotten (replies come in order).
+  std::optional<Unanswered> answered_by(std::span<const uint8_t> reply) {
     for (size_t i = 0; i < unanswered_.size(); ++i)
-      if (answers(unanswered_[i].request)) {
-        sent = unanswered_[i].sent;
+      if (answers(unanswered_[i].request, reply)) {
+        Unanswered u = unanswered_[i];
         unanswered_.erase(unanswered_.begin(), unanswered_.begin() + ptrdiff_t(i + 1));
-        return *n;
+        return u;
       }
-    return 0;
+    return std::nullopt;
+  }
+
+  // The length of the whole ADU, CRC right, at the front of `bytes`, if any.
+  static std::optional<size_t> whole_frame(std::span<const uint8_t> bytes) {
+    auto n = rtu_adu_length(bytes, Direction::reply);
+    if (!n || *n > bytes.size() || !crc_ok(bytes.first(*n))) return std::nullopt;
+    return n;
+  }
+
+  // The length of the frame at the front of `frame` when it is the late
+  // reply to one of the requests that went unanswered since the last reply
+  // (answered_by, `which`) and does not answer `request` (else it is taken
+  // as request's own, as before). Else 0.
+  size_t late_reply_at_front(const Bytes& frame, const Bytes& request, Unanswered& which) {
+    if (unanswered_.empty()) return 0;
+    auto n = whole_frame(frame);
+    if (!n) return 0;
+    auto reply = std::span(frame).first(*n);
+    if (answers(request, reply)) return 0;
+    auto u = answered_by(reply);
+    if (!u) return 0;
+    which = *u;
+    return *n;
+  }
+
+  // A late reply to `which`: a well-formed request to this unit widens the
+  // window past the time it took; one to a frame that had to stay silent
+  // (broadcast, another slave id, a corrupted frame) is the device's fault,
+  // not its pace (MB-SL v1.02 §2.1, §2.4.2), and is handed to the caller.
+  void count_late(const Unanswered& which, Bytes frame, Reply& r) {
+    auto seen = std::chrono::duration_cast<microseconds>(Clock::now() - which.sent);
+    if (which.addressed) window_.late_reply(seen);
+    else window_.late_fault();
+    r.late.push_back({std::move(frame), which.request, seen});
+  }
+
+  // Bytes that came after their window closed, found before the next
+  // request goes out: each whole frame that answers one of the requests
+  // left unanswered is that one's late reply; what is left belongs to the
+  // last exchange judged silent at the latest, so took at most this long.
+  void take_late(const Bytes& waiting, Reply& r) {
+    std::span<const uint8_t> rest(waiting);
+    while (!rest.empty()) {
+      auto n = whole_frame(rest);
+      std::optional<Unanswered> which;
+      if (n) which = answered_by(rest.first(*n));
+      if (!which) break;
+      count_late(*which, Bytes(rest.begin(), rest.begin() + ptrdiff_t(*n)), r);
+      rest = rest.subspan(*n);
+    }
+    if (rest.empty()) return;
+    std::optional<microseconds> seen;
+    if (silent_at_) seen = std::chrono::duration_cast<microseconds>(Clock::now() - *silent_at_);
+    window_.late_reply(seen);
+    r.late.push_back({Bytes(rest.begin(), rest.end()), {}, microseconds(0)});
   }
 
   // The line time of an exchange at the line's baud: each frame's characters
@@ -377,6 +427,7 @@ class RtuTarget final : public Target {
   struct Unanswered {
     Bytes request;
     Clock::time_point sent;
+    bool addressed = false;  // a well-formed request to this unit: its late reply is the device's pace
   };
   std::deque<Unanswered> unanswered_;
   Wait wait_ = Wait::automatic;

@@ -175,6 +175,28 @@ TEST_F(JudgeTest, NoReplyToBroadcastOtherSlaveOrCorruptedFrame) {
   EXPECT_EQ(kind(bad, reply(1, write)), "answered-corrupted-frame");
 }
 
+// A reply that came after its frame was judged silent (Reply::late, the
+// RTU target pairs it with the frame it answers) is judged as that frame's
+// reply would have been: forbidden for broadcast, another slave id or a
+// corrupted frame (MB-SL v1.02 §2.1, §2.4.2); a well-formed request's late
+// reply is the device's pace, and one paired with nothing says nothing.
+TEST_F(JudgeTest, ALateReplyToAFrameThatHadToStaySilentIsAFinding) {
+  Bytes write{0x06, 0x00, 0x00, 0x00, 0x01};
+  Step read = generated(check::frame(&mbc::kRtu, 1, {0x03, 0x00, 0x00, 0x00, 0x01}));
+  auto with_late = [&](const Bytes& request, uint8_t from) {
+    Reply r = reply(1, {0x03, 0x02, 0x12, 0x34});
+    r.late.push_back({rtu_frame(from, write), request, std::chrono::milliseconds(40)});
+    return r;
+  };
+  Bytes corrupted = rtu_frame(1, write);
+  corrupted.back() ^= 0x01;
+  EXPECT_EQ(kind(read, with_late(rtu_frame(0, write), 0)), "answered-broadcast");
+  EXPECT_EQ(kind(read, with_late(rtu_frame(9, write), 9)), "answered-other-slave");
+  EXPECT_EQ(kind(read, with_late(corrupted, 1)), "answered-corrupted-frame");
+  EXPECT_EQ(kind(read, with_late(rtu_frame(1, write), 1)), "");
+  EXPECT_EQ(kind(read, with_late({}, 0)), "");
+}
+
 TEST_F(JudgeTest, ProbeMustBeAnsweredNormally) {
   Step probe = probe_step(p);
   EXPECT_EQ(probe.expect.kind, K::normal);
