@@ -44,13 +44,18 @@ constexpr char kDefaultParity = 'E';
 // is silent this long: t3.5 is far shorter than the gaps a USB adapter's
 // latency timer or a TCP gateway put inside one frame.
 constexpr milliseconds kReplyEndSilenceFloor{20};
-// A frame split by `gap_after` pauses at least 3 x t3.5 and this long, so
-// any receiver (a serial device, a USB adapter's latency timer, a pty) sees
-// two frames (MB-SL v1.02 §2.5.1.1); toward a gateway, whose own gap (serve's
-// RTU over TCP: 10 ms) the network adds to, longer. A receiver that a busy
-// host held up past the pause reads both parts at once and answers: the
-// runner then runs the case again with a pause of kSplitGapRecheck
-// (runner/runner.cpp), so that race gives no verdict.
+// A frame split by `gap_after` pauses so that the receiver sees two frames:
+// more than t3.5 of silence ends a frame (MB-SL v1.02 §2.5.1.1). On a serial
+// line the pause is t3.5 plus the margin the silence window learnt over the
+// line time (live::SilenceWindow::margin: the p99 of this host's and the
+// device's latency and its spread), for a receiver that sees the pause
+// shortened by its own wake-up jitter; never longer than 3 x t3.5 and
+// kSplitGapFloor, the pause before anything was learnt (any receiver, a USB
+// adapter's latency timer or a pty, sees two frames). Toward a gateway, whose
+// own gap (serve's RTU over TCP: 10 ms) the network adds to, longer. A
+// receiver that a busy host held up past the pause reads both parts at once
+// and answers: the runner and the fuzzer then send it again with a pause of
+// 250 ms (runner/runner.cpp, blackbox/engine.cpp), so that race gives no verdict.
 constexpr milliseconds kSplitGapFloor{20};
 constexpr milliseconds kSplitGapGatewayFloor{50};
 constexpr milliseconds kDefaultTimeout{1000};
@@ -123,6 +128,18 @@ size_t longest_reply(std::span<const uint8_t> adu) {
   return std::min(std::max(exception_reply, by_code.value_or(adu.size())), kMaxRtuAdu);
 }
 
+// Whether no device may answer `adu` sent with `split` (MB-SL v1.02 §2.1:
+// broadcast, another slave id; §2.4.2: a bad CRC or length, a pause inside
+// the frame). Its window waits for the shortest reply, an exception, not the
+// longest: a device that answers it anyway, later, is found by its late
+// reply (Reply::late, late_replies(), which also widens the window) at the
+// next exchange, where a long wait for what should never come cost every
+// such frame the wire time of a reply of up to 256 bytes.
+bool forbidden_to_answer(std::span<const uint8_t> adu, uint8_t unit, bool split) {
+  return split || adu.empty() || adu[0] != unit || !crc_ok(adu) || rtu_adu_length(adu, Direction::request) != adu.size();
+}
+constexpr size_t kShortestReply = kRtuAddress + 2 + kRtuCrc;  // an exception (MBAP v1.1b3 §7)
+
 class RtuTarget final : public Target {
  public:
   explicit RtuTarget(const Uri& u) : window_(kDefaultTimeout, false, std::nullopt) {
@@ -150,7 +167,7 @@ class RtuTarget final : public Target {
     split_gap_ = std::max<microseconds>(3 * frame_gap_, serial_ ? kSplitGapFloor : kSplitGapGatewayFloor);
     gap_fixed_ = u.param("gap").has_value();
     if (gap_fixed_) split_gap_ = milliseconds(int_param(u, uri_text_, "gap", 0, 1, 10000));
-    window_ = SilenceWindow(timeout, baud.has_value(), fixed);
+    window_ = SilenceWindow(timeout, baud.has_value(), fixed, frame_gap_);
     timeout_ = timeout;
 
     if (serial_) {
@@ -222,7 +239,7 @@ class RtuTarget final : public Target {
     bool timed = unit != 0;
     bool addressed = unit == info_.unit;
     if (ctx_ && !pdu.empty() && pdu.size() <= kMaxPdu) {
-      return exchange(adu, unit, timed, addressed, [&] {
+      return exchange(adu, unit, timed, addressed, !addressed, [&] {
         Bytes raw{unit};
         raw.insert(raw.end(), pdu.begin(), pdu.end());
         auto t = Clock::now();
@@ -231,7 +248,7 @@ class RtuTarget final : public Target {
         return t;
       });
     }
-    return exchange(adu, unit, timed, addressed, [&] {
+    return exchange(adu, unit, timed, addressed, !addressed, [&] {
       auto t = Clock::now();
       write_all(fd(), adu, info_.uri);
       return t;
@@ -241,13 +258,14 @@ class RtuTarget final : public Target {
   Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
     Bytes adu(bytes.begin(), bytes.end());
     uint8_t slave = adu.empty() ? info_.unit : adu[0];
-    return exchange(adu, slave, false, false, [&] {
+    bool split_frame = gap_after && *gap_after < adu.size();
+    return exchange(adu, slave, false, false, forbidden_to_answer(adu, info_.unit, split_frame), [&] {
       size_t split = gap_after ? std::min(*gap_after, adu.size()) : adu.size();
       auto t = Clock::now();
       write_all(fd(), std::span(adu).first(split), info_.uri);
       if (split < adu.size()) {
         if (serial_) tcdrain(fd_);  // the first part is on the wire before the pause starts
-        std::this_thread::sleep_for(split_gap_);
+        std::this_thread::sleep_for(pause());
         t = Clock::now();
         write_all(fd(), std::span(adu).subspan(split), info_.uri);
       }
@@ -255,9 +273,11 @@ class RtuTarget final : public Target {
     });
   }
 
-  std::optional<microseconds> split_gap() const override { return gap_fixed_ ? std::nullopt : std::optional(split_gap_); }
+  std::optional<microseconds> split_gap() const override { return gap_fixed_ ? std::nullopt : std::optional(pause()); }
+  // Kept until set again (the runner's re-run of a case whose split frame
+  // was answered sets a longer pause, then the one it had).
   void set_split_gap(microseconds gap) override {
-    if (!gap_fixed_) split_gap_ = gap;
+    if (!gap_fixed_) split_set_ = gap;
   }
 
   void advance(std::chrono::microseconds) override {
@@ -266,6 +286,17 @@ class RtuTarget final : public Target {
   void power_cycle() override { throw std::logic_error(info_.uri + ": a live device cannot be power-cycled from here"); }
 
  private:
+  // The pause inside a split frame (kSplitGapFloor): as the user fixed it
+  // (gap=) or the caller set it, else on a serial line derived from the
+  // line's t3.5 and the margin learnt once there is one.
+  microseconds pause() const {
+    if (gap_fixed_) return split_gap_;
+    if (split_set_) return *split_set_;
+    auto m = window_.margin();
+    if (!serial_ || !m) return split_gap_;
+    return std::min(split_gap_, frame_gap_ + std::max(*m, frame_gap_));
+  }
+
   // The socket of an RTU-over-TCP gateway that closed it is reopened.
   int fd() {
     if (fd_ < 0 && serial_) throw std::runtime_error(fmt::format("target '{}': the serial line could not be opened again", info_.uri));
@@ -277,8 +308,9 @@ class RtuTarget final : public Target {
   // Latency runs from there (on a serial line: from when the request left
   // the UART) to the reply's last byte.
   // `addressed`: a well-formed request to the target's unit (Wait::automatic waits for its reply).
+  // `forbidden`: a frame no device may answer (forbidden_to_answer).
   template <class Send>
-  Reply exchange(const Bytes& adu, uint8_t slave, bool timed, bool addressed, Send send) {
+  Reply exchange(const Bytes& adu, uint8_t slave, bool timed, bool addressed, bool forbidden, Send send) {
     Reply r;
     Bytes waiting;
     if (drain(fd(), &waiting) > 0) take_late(waiting, r);
@@ -289,7 +321,7 @@ class RtuTarget final : public Target {
     }
     r.request = adu;
     bool for_reply = wait_ == Wait::reply || (wait_ == Wait::automatic && addressed);
-    last_line_ = line_time(adu.size(), longest_reply(adu));
+    last_line_ = line_time(adu.size(), forbidden ? kShortestReply : longest_reply(adu));
     auto first_by = t0 + (for_reply ? window_.timeout() : window_.window(last_line_));
     auto wire = info_.baud ? wire_time(kMaxRtuAdu, *info_.baud) : microseconds(0);
     auto hard = first_by + window_.timeout() + 2 * wire;
@@ -311,7 +343,7 @@ class RtuTarget final : public Target {
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (r.frame.empty()) silent_at_ = t0;
     if (!r.frame.empty()) unanswered_.clear();  // replies come in order: theirs would have come first
-    else unanswered_.push_back({adu, t0, addressed});
+    else unanswered_.push_back({adu, t0});
     if (unanswered_.size() > kUnansweredKept) unanswered_.pop_front();
     if (rr.closed) {
       if (serial_) throw std::runtime_error(fmt::format("target '{}': the serial line closed", info_.uri));
@@ -371,14 +403,14 @@ class RtuTarget final : public Target {
     return *n;
   }
 
-  // A late reply to `which`: a well-formed request to this unit widens the
-  // window past the time it took; one to a frame that had to stay silent
-  // (broadcast, another slave id, a corrupted frame) is the device's fault,
-  // not its pace (MB-SL v1.02 §2.1, §2.4.2), and is handed to the caller.
+  // A late reply to `which`: it widens the window past the time it took,
+  // so that the runner's re-run of the cases judged since sees it in time,
+  // and is handed to the caller with its request: one to a frame that had
+  // to stay silent (broadcast, another slave id, a corrupted frame) is the
+  // device's fault (MB-SL v1.02 §2.1, §2.4.2), not only its pace.
   void count_late(const Unanswered& which, Bytes frame, Reply& r) {
     auto seen = std::chrono::duration_cast<microseconds>(Clock::now() - which.sent);
-    if (which.addressed) window_.late_reply(seen);
-    else window_.late_fault();
+    window_.late_reply(seen);
     r.late.push_back({std::move(frame), which.request, seen});
   }
 
@@ -421,13 +453,13 @@ class RtuTarget final : public Target {
   milliseconds timeout_{kDefaultTimeout};
   microseconds frame_gap_{0}, end_silence_{0}, split_gap_{0};
   bool gap_fixed_ = false;  // the user set `gap=`: kept as given
+  std::optional<microseconds> split_set_;  // set_split_gap's
   microseconds last_line_{0};  // the line time the last window was computed for
   std::optional<Clock::time_point> silent_at_;  // when the request of the last silent exchange went out
   // Requests to this unit that went unanswered since the last reply, and when each went out.
   struct Unanswered {
     Bytes request;
     Clock::time_point sent;
-    bool addressed = false;  // a well-formed request to this unit: its late reply is the device's pace
   };
   std::deque<Unanswered> unanswered_;
   Wait wait_ = Wait::automatic;

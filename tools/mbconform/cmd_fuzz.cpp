@@ -155,10 +155,16 @@ int run_fuzz(FuzzArgs& a) {
   if (out.declared) fmt::print("{} finding(s) of a kind {} declares left aside\n", out.declared, a.quirks_file);
   if (out.target_lost && !ran_out) fmt::print("the target could not be opened again: fuzzing stopped before --duration ran out\n");
   if (ran_out) fmt::print("the time allowed (--duration + {} s) ran out; what was left of a reduction was cut off\n", kAfterDuration.count());
-  if (out.wire_time_bound_seconds > 0)
+  if (out.wire_time_bound_seconds > 0) {
     fmt::print("{} exchanges ({} silent) in {:.2f} s against a wire-time bound of {:.2f} s at {} baud: {:.2f}x\n",
                out.exchanges, out.silences, out.seconds, out.wire_time_bound_seconds, *info.baud,
                out.seconds / out.wire_time_bound_seconds);
+    // A silence takes at least the time a reply may take to be told apart:
+    // the same bound with the p99 reply latency of this run per silent exchange.
+    fmt::print("with each silence counted at the p99 reply latency ({:.2f} ms): a bound of {:.2f} s: {:.2f}x\n",
+               out.reply_latency_p99_seconds * 1e3, out.bound_with_silences_seconds(),
+               out.seconds / out.bound_with_silences_seconds());
+  }
   if (saved == 0) {
     fmt::print("no finding: {} frames in {} batches, every probe answered ({:.0f} frames/s)\n", out.frames, out.batches,
                out.frames_per_second());

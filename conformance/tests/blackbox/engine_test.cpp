@@ -376,3 +376,73 @@ TEST(Fuzz, TheDeadlineIsLookedAtBeforeEachExchange) {
 
 }  // namespace
 }  // namespace mbc::conf::blackbox
+
+namespace mbc::conf::blackbox {
+namespace {
+
+// A live line whose receiver reads a split frame as one (a host that held
+// it up past the pause) unless the pause is long: it answers the split
+// frame at the target's own pause, and stays silent at the long one.
+class HeldUpReceiver final : public Target {
+ public:
+  explicit HeldUpReceiver(bool always) : always_(always) {
+    info_ = live_rtu(1);
+    info_.baud = 115200;
+  }
+  const TargetInfo& info() const override { return info_; }
+  Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override {
+    Reply r;
+    r.request = rtu_frame(unit, pdu);
+    r.frame = rtu_frame(unit, Bytes{3, 2, 0, 0});
+    r.pdu = Bytes{3, 2, 0, 0};
+    return r;
+  }
+  Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
+    Reply r;
+    r.request.assign(bytes.begin(), bytes.end());
+    pauses.push_back(gap_);
+    if (gap_after && (always_ || gap_ < std::chrono::milliseconds(100))) {
+      r.frame = rtu_frame(1, Bytes{6, 0, 0, 0, 1});
+      r.pdu = Bytes{6, 0, 0, 0, 1};
+    }
+    return r;
+  }
+  std::optional<std::chrono::microseconds> split_gap() const override { return gap_; }
+  void set_split_gap(std::chrono::microseconds g) override { gap_ = g; }
+  void advance(std::chrono::microseconds) override {}
+  void power_cycle() override {}
+  std::vector<std::chrono::microseconds> pauses;
+
+ private:
+  TargetInfo info_;
+  bool always_;
+  std::chrono::microseconds gap_{3500};
+};
+
+// A split frame answered at the target's own pause is sent again with a
+// pause of 250 ms (as the runner does); only an answer then is a finding
+// (MB-SL v1.02 §2.5.1.1: a pause inside a frame breaks it).
+TEST(Fuzz, ASplitFrameAnsweredIsSentAgainWithALongPauseBeforeItIsAFinding) {
+  spec::Spec s = spec::load_spec_by_id("hsc60");
+  Step split = check::raw_rtu(rtu_frame(1, write_single_register(0x0000, 1)));
+  split.gap = 3;
+  for (bool always : {false, true}) {
+    HeldUpReceiver t(always);
+    Plan p = make_plan(s, t.info(), WritePolicy{});
+    split.expect = expect_for(p, split);
+    auto f = execute(t, p, split);
+    ASSERT_EQ(t.pauses.size(), 2u);
+    EXPECT_EQ(t.pauses[0], std::chrono::microseconds(3500));
+    EXPECT_EQ(t.pauses[1], std::chrono::milliseconds(250));
+    EXPECT_EQ(t.split_gap(), std::chrono::microseconds(3500)) << "the pause is put back";
+    if (always) {
+      ASSERT_TRUE(f);
+      EXPECT_EQ(f->kind, "answered-corrupted-frame");
+    } else {
+      EXPECT_FALSE(f) << f->message;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace mbc::conf::blackbox
