@@ -359,20 +359,23 @@ class RtuTarget final : public Target {
   struct Unanswered;
 
   // Whether `reply` (a whole ADU) answers the request `req` (as framed) as
-  // the standard says (judge_reply): from the same slave id, or from any for
-  // a broadcast (a device that wrongly answers one may give 0 or its own).
-  static bool answers(std::span<const uint8_t> req, std::span<const uint8_t> reply) {
+  // the standard says (judge_reply): from the same slave id, or for a
+  // broadcast from 0 or, with `any_slave`, from any (a device that wrongly
+  // answers one may give its own id).
+  static bool answers(std::span<const uint8_t> req, std::span<const uint8_t> reply, bool any_slave = false) {
     auto pdu = [](std::span<const uint8_t> a) { return a.subspan(kRtuAddress, a.size() - kRtuAddress - kRtuCrc); };
     return req.size() >= kRtuAddress + 1 + kRtuCrc && reply.size() >= kRtuAddress + 1 + kRtuCrc &&
-           (req[0] == reply[0] || req[0] == 0) && judge_reply(pdu(req), pdu(reply)).ok();
+           (req[0] == reply[0] || (req[0] == 0 && any_slave)) && judge_reply(pdu(req), pdu(reply)).ok();
   }
 
   // The request among those that went unanswered since the last reply that
   // `reply` (a whole ADU, CRC right) answers; it and those before it are
-  // forgotten (replies come in order).
-  std::optional<Unanswered> answered_by(std::span<const uint8_t> reply) {
+  // forgotten (replies come in order). `any_slave`: as answers(); only
+  // before the next request went out, where a reply from the unit cannot be
+  // that request's own, malformed.
+  std::optional<Unanswered> answered_by(std::span<const uint8_t> reply, bool any_slave) {
     for (size_t i = 0; i < unanswered_.size(); ++i)
-      if (answers(unanswered_[i].request, reply)) {
+      if (answers(unanswered_[i].request, reply, any_slave)) {
         Unanswered u = unanswered_[i];
         unanswered_.erase(unanswered_.begin(), unanswered_.begin() + ptrdiff_t(i + 1));
         return u;
@@ -397,7 +400,7 @@ class RtuTarget final : public Target {
     if (!n) return 0;
     auto reply = std::span(frame).first(*n);
     if (answers(request, reply)) return 0;
-    auto u = answered_by(reply);
+    auto u = answered_by(reply, false);
     if (!u) return 0;
     which = *u;
     return *n;
@@ -423,7 +426,7 @@ class RtuTarget final : public Target {
     while (!rest.empty()) {
       auto n = whole_frame(rest);
       std::optional<Unanswered> which;
-      if (n) which = answered_by(rest.first(*n));
+      if (n) which = answered_by(rest.first(*n), true);
       if (!which) break;
       count_late(*which, Bytes(rest.begin(), rest.begin() + ptrdiff_t(*n)), r);
       rest = rest.subspan(*n);
