@@ -9,8 +9,10 @@
 // byte count, value, length); with raw access (TargetInfo::raw) also
 // malformed RTU framing (bad CRC, truncated, over-long, another slave id,
 // broadcast, an inter-character gap). Each step carries the expectation the
-// standard gives it (a reply, or silence); after each batch a liveness probe
-// (a read of a register the spec maps) must be answered normally.
+// standard gives it (a reply, or silence); a reply to a frame that must stay
+// silent is a finding even when it comes late, after its window (the target
+// hands it over with a later exchange: Reply::late); after each batch a
+// liveness probe (a read of a register the spec maps) must be answered normally.
 //
 // Safety with live drives (conformance/safety/safety.h): writes only to
 // registers may_write() allows, never to the serial settings or the "do not

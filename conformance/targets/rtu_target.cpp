@@ -47,11 +47,12 @@ constexpr milliseconds kReplyEndSilenceFloor{20};
 // A frame split by `gap_after` pauses so that the receiver sees two frames:
 // more than t3.5 of silence ends a frame (MB-SL v1.02 §2.5.1.1). On a serial
 // line the pause is t3.5 plus the margin the silence window learnt over the
-// line time (live::SilenceWindow::margin: the p99 of this host's and the
-// device's latency and its spread), for a receiver that sees the pause
-// shortened by its own wake-up jitter; never longer than 3 x t3.5 and
-// kSplitGapFloor, the pause before anything was learnt (any receiver, a USB
-// adapter's latency timer or a pty, sees two frames). Toward a gateway, whose
+// line time (live::SilenceWindow::margin: twice the p99 of this host's and
+// the device's latency over the line time, at least another t3.5), for a
+// receiver that sees the pause shortened by its own wake-up jitter; never
+// longer than 3 x t3.5 and kSplitGapFloor, the pause before anything was
+// learnt (any receiver, a USB adapter's latency timer or a pty, sees two
+// frames). Toward a gateway, whose
 // own gap (serve's RTU over TCP: 10 ms) the network adds to, longer. A
 // receiver that a busy host held up past the pause reads both parts at once
 // and answers: the runner and the fuzzer then send it again with a pause of
