@@ -715,8 +715,8 @@ check::Script reproducer(const Plan& p, const Reported& r, const std::string& re
     s.comment += "Its reduction was cut off (a stop signal, or the time allowed ran out): these steps reproduce it\n"
                  "on a fresh target, but fewer may.\n";
   else if (r.cut_off)
-    s.comment += "Its reduction was cut off (a stop signal, or the time allowed ran out) before it was tried on a fresh\n"
-                 "target: these are the last steps sent before it, unreduced.\n";
+    s.comment += "Its reduction was cut off (a stop signal, or the time allowed ran out) before a fresh target\n"
+                 "reproduced it: these are the last steps sent before it, unreduced.\n";
   else if (!r.reproduced)
     s.comment += "It did not reproduce on a fresh target (timing, state outside the frames, or the target is gone):\n"
                  "these are the last steps sent before it, unreduced.\n";

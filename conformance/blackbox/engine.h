@@ -168,7 +168,7 @@ struct Reported {
   bool reproduced = true;    // false: it did not reproduce on a fresh target; steps are the last batch, unreduced
   // Sending stopped before the reduction ended (Options::stopped): steps are
   // as far as it got (reproduced: they reproduce it, maybe not minimal;
-  // else the last batch, unreduced, not tried on a fresh target).
+  // else the last batch, unreduced, not yet reproduced on a fresh target).
   bool cut_off = false;
   int runs = 0;              // fresh-target runs the reduction took
   size_t history = 0;        // steps sent since the target was opened, when it was found
