@@ -231,8 +231,8 @@ namespace {
 void account(Outcome& out, const Plan& p, const Step& s, const Reply& r) {
   ++out.exchanges;
   out.silences += r.silent();
-  if (!r.silent()) out.reply_latencies.push_back(r.latency);
   if (!p.info.baud) return;
+  if (!r.silent()) out.reply_latencies.push_back(r.latency);
   const int baud = *p.info.baud;
   auto b = wire_time(r.request.size(), baud) + frame_gap(baud);
   if (s.gap) b += frame_gap(baud);

@@ -181,9 +181,10 @@ struct Outcome {
   // Serial line at a known baud: the least the exchanges could take on the
   // wire (characters + t3.5 per frame, MB-SL v1.02 §2.5.1.1); 0 otherwise.
   double wire_time_bound_seconds = 0;
-  // Each answered exchange's latency (request sent -> the reply's last
-  // byte), and their p99 once fuzzing ended: a silence costs a master at
-  // least that long to call, which no wire-time bound counts.
+  // Serial line at a known baud: each answered exchange's latency (request
+  // sent -> the reply's last byte), and their p99 once fuzzing ended: a
+  // silence costs a master at least that long to call, which no wire-time
+  // bound counts.
   std::vector<std::chrono::microseconds> reply_latencies;
   double reply_latency_p99_seconds = 0;
   // The wire-time bound plus the p99 reply latency for each exchange that
