@@ -27,6 +27,9 @@ constexpr const char* kProbeNote = "liveness probe: a read of a register the spe
 // Probes a round starts with on a live target: as many replies as a silence
 // window needs timed before it is learnt (live::SilenceWindow::kMinSamples).
 constexpr int kWarmupProbes = 5;
+// The pause inside a split frame that was answered, for its second try: the
+// runner's (runner/runner.cpp), at least ten times the first.
+constexpr std::chrono::milliseconds kSplitGapRecheck{250};
 
 // After these the target may be gone: nothing more is learnt from it.
 bool target_may_be_gone(const Finding& f) { return f.kind == "no-answer" || f.kind == "target-error" || f.kind == "crash"; }
@@ -148,9 +151,40 @@ check::Expect expect_for(const Plan& p, const Step& s) {
   return expecting(K::silence);
 }
 
+namespace {
+// A late reply (Reply::late) to a frame that had to stay silent: it came
+// after that frame was judged silent, and is still a reply MB-SL v1.02 §2.1
+// (broadcast, another slave id) or §2.4.2 (a corrupted frame) forbids. A
+// late reply to a well-formed request to the unit is the device's pace, not
+// a fault; one the target could not pair with a request says nothing.
+std::optional<Finding> late_finding(const Plan& p, const Reply& r) {
+  for (const auto& l : r.late) {
+    const Bytes& req = l.request;
+    if (req.size() < kRtuAddress + 1 + kRtuCrc) continue;
+    std::string kind, why;
+    if (req[0] == 0) {
+      kind = "answered-broadcast";
+      why = "broadcast (MB-SL v1.02 §2.1: no response)";
+    } else if (req[0] != p.info.unit) {
+      kind = "answered-other-slave";
+      why = "another slave id (MB-SL v1.02 §2.1: no response)";
+    } else if ((!crc_ok(req) || rtu_adu_length(req, Direction::request) != req.size()) &&
+               p.spec->profile.policy(spec::Violation::crc_error).kind != spec::PolicyEntry::Kind::exception) {
+      kind = "answered-corrupted-frame";
+      why = "a frame with a bad CRC or length (MB-SL v1.02 §2.4.2: no response)";
+    } else {
+      continue;
+    }
+    return Finding{kind, fmt::format("a late reply, {:.1f} ms after the request, to a frame for {}\n  sent:  {}\n  reply: {}",
+                                     double(l.after.count()) / 1000, why, to_hex(req), to_hex(l.frame))};
+  }
+  return std::nullopt;
+}
+}  // namespace
+
 std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r) {
   auto m = check::judge(s, r, check::JudgeContext{p.info.unit, p.info.framing, p.spec, {}});
-  if (!m) return std::nullopt;
+  if (!m) return late_finding(p, r);
   std::string why = m->why;
   std::string kind;
   using M = check::Mismatch::Kind;
@@ -198,6 +232,7 @@ void account(Outcome& out, const Plan& p, const Step& s, const Reply& r) {
   ++out.exchanges;
   out.silences += r.silent();
   if (!p.info.baud) return;
+  if (!r.silent()) out.reply_latencies.push_back(r.latency);
   const int baud = *p.info.baud;
   auto b = wire_time(r.request.size(), baud) + frame_gap(baud);
   if (s.gap) b += frame_gap(baud);
@@ -217,6 +252,22 @@ std::optional<Finding> execute(Target& t, const Plan& p, const Step& s, Outcome*
       case Step::Kind::frame: r = t.transact(s.unit, s.pdu); break;
     }
     if (out) account(*out, p, s, r);
+    // A split frame answered where the target chose the pause (a live line):
+    // a receiver a busy host held up past the pause read both parts as one
+    // frame, which says nothing of the device. It is sent again with a pause
+    // of kSplitGapRecheck, and that verdict stands (as the runner does).
+    if (s.kind == Step::Kind::raw && s.gap && !r.silent())
+      if (auto gap = t.split_gap()) {
+        t.set_split_gap(std::max<std::chrono::microseconds>(10 * *gap, kSplitGapRecheck));
+        try {
+          r = t.send_raw(s.bytes, s.gap);
+        } catch (...) {
+          t.set_split_gap(*gap);
+          throw;
+        }
+        t.set_split_gap(*gap);
+        if (out) account(*out, p, s, r);
+      }
     return judge(p, s, r);
   } catch (const std::exception& e) {
     return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(s))};
@@ -389,11 +440,15 @@ std::optional<Finding> run_fresh(const Open& open, const Plan& p, const std::vec
   } catch (const std::exception& e) {
     return Finding{"cannot-reopen", e.what()};
   }
-  for (const auto& st : steps)
+  for (const auto& st : steps) {
+    // As round() waits: a live target's reconnect() keeps what it learnt of
+    // its latency, so a dropped frame costs a window here too, not the timeout.
+    t->set_wait(is_probe(st) ? Target::Wait::reply : Target::Wait::window);
     if (auto f = execute(*t, p, st)) {
       if (!wanted || wanted(*f, st)) return f;
       if (target_may_be_gone(*f)) return std::nullopt;
     }
+  }
   return std::nullopt;
 }
 
@@ -469,7 +524,6 @@ std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch,
   while (Clock::now() < deadline) {
     steps.clear();
     for (int i = 0; i < batch; ++i) steps.push_back(gen.next());
-    out.frames += batch;
     bool all_frames = std::all_of(steps.begin(), steps.end(), [](const Step& s) { return s.kind == Step::Kind::frame; });
     if (pipelined && all_frames) {
       // Modbus TCP: the batch goes out pipelined, every reply is judged in order.
@@ -484,12 +538,19 @@ std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch,
       } catch (const std::exception& e) {
         return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(steps.back()))};
       }
+      out.frames += long(steps.size());
       for (size_t i = 0; i < steps.size(); ++i) account(out, p, steps[i], replies[i]);
       for (size_t i = 0; i < steps.size(); ++i)
         if (auto f = keep(judge(p, steps[i], replies[i]), steps[i])) return f;
     } else {
-      for (const auto& st : steps)
+      // The deadline is looked at before each exchange: a batch on a slow
+      // line (50 frames at 9600 baud take over a second) does not run past
+      // --duration. A batch cut short still ends with the probe.
+      for (const auto& st : steps) {
+        if (Clock::now() >= deadline) break;
+        ++out.frames;
         if (auto f = send(st)) return f;
+      }
     }
     ++out.batches;
     if (auto f = send_probe()) return f;
@@ -517,12 +578,19 @@ std::vector<Step> last_batch(const std::vector<Step>& h) {
 }
 
 Reported reduce(const Open& open, const Plan& p, const Options& o, const Finding& f, const std::vector<Step>& history) {
-  Reported rep{f, history.empty() ? f.kind : signature(f, p, history.back()), {}, true, 0, history.size()};
+  Reported rep{f, history.empty() ? f.kind : signature(f, p, history.back()), {}, true, false, 0, history.size()};
   // The same finding, past others (already reported) on the way.
   Wanted same = [&](const Finding& g, const Step& st) { return g.kind == f.kind && signature(g, p, st) == rep.signature; };
+  auto stopped = [&] { return o.stopped && o.stopped(); };
+  // A run that sending stopped before or during (the reopen or a step threw
+  // Stopped) says nothing: the reduction is cut off, and ddmin's remaining
+  // calls return at once.
   std::function<bool(const std::vector<Step>&)> fails = [&](const std::vector<Step>& steps) {
+    if (rep.cut_off || (rep.cut_off = stopped())) return false;
     auto g = o.isolate ? isolated([&] { return run_fresh(open, p, steps, same); }) : run_fresh(open, p, steps, same);
-    return g && g->kind == f.kind;
+    if (g && g->kind == f.kind) return true;
+    rep.cut_off = stopped();
+    return false;
   };
   std::vector<Step> batch = last_batch(history);
   ++rep.runs;
@@ -530,13 +598,15 @@ Reported reduce(const Open& open, const Plan& p, const Options& o, const Finding
     rep.steps = ddmin<Step>(batch, fails, o.reduce_budget, rep.runs);
     return rep;
   }
-  ++rep.runs;
-  if (batch.size() < history.size() && fails(history)) {
-    rep.steps = ddmin<Step>(history, fails, o.reduce_budget, rep.runs);
-    return rep;
+  if (!rep.cut_off) {
+    ++rep.runs;
+    if (batch.size() < history.size() && fails(history)) {
+      rep.steps = ddmin<Step>(history, fails, o.reduce_budget, rep.runs);
+      return rep;
+    }
   }
-  // Timing, state outside the frames, or a target that is gone: the last
-  // batch as it was sent, unreduced.
+  // Timing, state outside the frames, a target that is gone, or no time
+  // left to try: the last batch as it was sent, unreduced.
   rep.steps = batch;
   rep.reproduced = false;
   return rep;
@@ -564,6 +634,7 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
   Clock::duration reducing{};
   std::unique_ptr<Target> target = std::move(first);
   for (uint64_t r = 0; r == 0 || Clock::now() < deadline; ++r) {
+    if (r > 0 && o.stopped && o.stopped()) break;
     ++out.rounds;
     // Round 0 runs the given seed's sequence; later rounds other ones.
     const uint64_t seed = o.seed + r * 0x9E3779B97F4A7C15ull;
@@ -603,6 +674,8 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
     }
     target.reset();
     if (!f) break;
+    // The session refused to send once stopped: the stop, not the target's fault.
+    if (f->kind == "target-error" && o.stopped && o.stopped()) break;
     if (f->kind == "cannot-reopen") {
       out.target_lost = true;
       break;
@@ -623,6 +696,12 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
     if (on_finding) on_finding(out.findings.back());
   }
   out.seconds = std::chrono::duration<double>(Clock::now() - started - reducing).count();
+  if (!out.reply_latencies.empty()) {
+    auto& v = out.reply_latencies;
+    size_t at = std::min(v.size() - 1, size_t(double(v.size()) * 0.99));
+    std::nth_element(v.begin(), v.begin() + ptrdiff_t(at), v.end());
+    out.reply_latency_p99_seconds = std::chrono::duration<double>(v[at]).count();
+  }
   return out;
 }
 
@@ -632,7 +711,13 @@ check::Script reproducer(const Plan& p, const Reported& r, const std::string& re
   s.comment = fmt::format("mbconform fuzz reproducer: {}\n", r.signature);
   std::istringstream msg(r.finding.message);
   for (std::string l; std::getline(msg, l);) s.comment += "  " + l + "\n";
-  if (!r.reproduced)
+  if (r.cut_off && r.reproduced)
+    s.comment += "Its reduction was cut off (a stop signal, or the time allowed ran out): these steps reproduce it\n"
+                 "on a fresh target, but fewer may.\n";
+  else if (r.cut_off)
+    s.comment += "Its reduction was cut off (a stop signal, or the time allowed ran out) before a fresh target\n"
+                 "reproduced it: these are the last steps sent before it, unreduced.\n";
+  else if (!r.reproduced)
     s.comment += "It did not reproduce on a fresh target (timing, state outside the frames, or the target is gone):\n"
                  "these are the last steps sent before it, unreduced.\n";
   s.comment += "replay: " + replay_command;

@@ -9,8 +9,10 @@
 // byte count, value, length); with raw access (TargetInfo::raw) also
 // malformed RTU framing (bad CRC, truncated, over-long, another slave id,
 // broadcast, an inter-character gap). Each step carries the expectation the
-// standard gives it (a reply, or silence); after each batch a liveness probe
-// (a read of a register the spec maps) must be answered normally.
+// standard gives it (a reply, or silence); a reply to a frame that must stay
+// silent is a finding even when it comes late, after its window (the target
+// hands it over with a later exchange: Reply::late); after each batch a
+// liveness probe (a read of a register the spec maps) must be answered normally.
 //
 // Safety with live drives (conformance/safety/safety.h): writes only to
 // registers may_write() allows, never to the serial settings or the "do not
@@ -134,7 +136,9 @@ using Open = std::function<std::unique_ptr<Target>()>;
 using Wanted = std::function<bool(const Finding&, const Step&)>;
 // Runs `steps` on a fresh target; the first finding (the first `wanted` one,
 // going on past others while the target answers), if any. A target that
-// cannot be opened again (a server that died) gives "cannot-reopen".
+// cannot be opened again (a server that died) gives "cannot-reopen". Each
+// step waits as it did while fuzzing (round() in engine.cpp): the probe for
+// its reply, a generated frame only the target's silence window.
 std::optional<Finding> run_fresh(const Open& open, const Plan& p, const std::vector<Step>& steps, const Wanted& wanted = {});
 
 struct Options {
@@ -151,6 +155,10 @@ struct Options {
   // Findings declared known (`fuzz --quirks`, by kind or signature, e.g.
   // "malformed-reply fc2B"): left aside, counted in Outcome::declared.
   std::function<bool(const std::string& signature)> declared;
+  // Whether sending stopped (a stop signal, the command's deadline): a
+  // reduction under way is cut off (Reported::cut_off) and its finding kept,
+  // and a target error it causes is no finding.
+  std::function<bool()> stopped;
 };
 
 struct Reported {
@@ -158,6 +166,10 @@ struct Reported {
   std::string signature;     // what makes it distinct: kind and the function code it came on
   std::vector<Step> steps;   // the reduced reproducer
   bool reproduced = true;    // false: it did not reproduce on a fresh target; steps are the last batch, unreduced
+  // Sending stopped before the reduction ended (Options::stopped): steps are
+  // as far as it got (reproduced: they reproduce it, maybe not minimal;
+  // else the last batch, unreduced, not yet reproduced on a fresh target).
+  bool cut_off = false;
   int runs = 0;              // fresh-target runs the reduction took
   size_t history = 0;        // steps sent since the target was opened, when it was found
 };
@@ -169,6 +181,17 @@ struct Outcome {
   // Serial line at a known baud: the least the exchanges could take on the
   // wire (characters + t3.5 per frame, MB-SL v1.02 §2.5.1.1); 0 otherwise.
   double wire_time_bound_seconds = 0;
+  // Serial line at a known baud: each answered exchange's latency (request
+  // sent -> the reply's last byte), and their p99 once fuzzing ended: a
+  // silence costs a master at least that long to call, which no wire-time
+  // bound counts.
+  std::vector<std::chrono::microseconds> reply_latencies;
+  double reply_latency_p99_seconds = 0;
+  // The wire-time bound plus the p99 reply latency for each exchange that
+  // got no reply (bench/bench_run.cpp's second bound for the runner).
+  double bound_with_silences_seconds() const {
+    return wire_time_bound_seconds + double(silences) * reply_latency_p99_seconds;
+  }
   double frames_per_second() const { return seconds > 0 ? double(frames) / seconds : 0; }
   std::vector<Reported> findings;  // each distinct finding once, in the order found
   long repeats = 0;                // findings of a signature already reported

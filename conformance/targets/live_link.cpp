@@ -36,8 +36,8 @@ void check_params(const Uri& u, const std::string& uri, std::initializer_list<co
 
 // ---- silence window ----
 
-SilenceWindow::SilenceWindow(milliseconds timeout, bool line_model, std::optional<milliseconds> fixed)
-    : timeout_(timeout), line_model_(line_model), fixed_(fixed) {}
+SilenceWindow::SilenceWindow(milliseconds timeout, bool line_model, std::optional<milliseconds> fixed, microseconds frame_gap)
+    : timeout_(timeout), line_model_(line_model), frame_gap_(frame_gap), fixed_(fixed) {}
 
 void SilenceWindow::Estimate::record(microseconds latency) {
   ring[count % kMaxSamples] = latency.count();
@@ -67,12 +67,18 @@ void SilenceWindow::late_reply(std::optional<microseconds> seen) {
   else widen_ = std::min(widen_ * 2, 1 << 10);
 }
 
+std::optional<microseconds> SilenceWindow::margin() const {
+  auto p = p99();
+  if (!p || !line_model_) return std::nullopt;
+  microseconds floor = samples() >= kTrustedSamples ? std::max<microseconds>(frame_gap_, microseconds(1)) : kLineFloor;
+  return std::max<microseconds>(kExcessMultiple * *p, floor);
+}
+
 microseconds SilenceWindow::window(microseconds line) const {
   if (fixed_) return *fixed_;
   auto p = p99();
   if (!p) return timeout_;
-  microseconds w = line_model_ ? line + std::max<microseconds>(kExcessMultiple * *p, kLineFloor)
-                               : std::max<microseconds>(kLatencyMultiple * *p, kFloor);
+  microseconds w = line_model_ ? line + *margin() : std::max<microseconds>(kLatencyMultiple * *p, kFloor);
   return std::min(std::max(w * widen_, late_floor_), timeout_);
 }
 
@@ -112,7 +118,7 @@ ReadResult read_frame(int fd, std::vector<uint8_t>& buf, Clock::time_point first
   return r;
 }
 
-size_t drain(int fd) {
+size_t drain(int fd, std::vector<uint8_t>* kept) {
   size_t total = 0;
   for (;;) {
     pollfd p{fd, POLLIN, 0};
@@ -121,6 +127,7 @@ size_t drain(int fd) {
     ssize_t n = read(fd, chunk, sizeof chunk);
     if (n <= 0) return total;
     total += size_t(n);
+    if (kept) kept->insert(kept->end(), chunk, chunk + n);
   }
 }
 

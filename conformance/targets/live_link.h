@@ -37,9 +37,13 @@ void check_params(const Uri& u, const std::string& uri, std::initializer_list<co
 //   exchange is known: the request's and the reply's characters plus t3.5
 //   before each (MB-SL v1.02 §2.5.1.1). Each latency is recorded as its
 //   excess over that line time, and the window for a request is its line time
-//   (with the longest reply the request can get) plus 2 x the p99 excess,
-//   at least kLineFloor: a margin over what varies, not a multiple of the
-//   characters' fixed wire time.
+//   (with the longest reply the request can get) plus a margin over what
+//   varies, not a multiple of the characters' fixed wire time: 2 x the p99
+//   excess (the p99 and as much again, which covers the p99 plus its spread
+//   over the median), at least kLineFloor until kTrustedSamples replies were
+//   timed (the p99 of a few is their maximum), then at least the line's own
+//   t3.5 (the standard names no turnaround a device must keep within; the
+//   samples hold this host's and the device's).
 // - Without one (Modbus TCP), the window is 4 x the p99 latency, at least
 //   kFloor.
 // Normal and exception replies are timed apart (a server may answer an
@@ -58,18 +62,26 @@ class SilenceWindow {
   static constexpr milliseconds kLineFloor{5};
   static constexpr int kExcessMultiple = 2;
   static constexpr size_t kMinSamples = 5;
+  static constexpr size_t kTrustedSamples = 100;
   static constexpr size_t kMaxSamples = 1024;
 
-  // `line_model`: the caller passes each exchange's line time to record() and window().
-  SilenceWindow(milliseconds timeout, bool line_model, std::optional<milliseconds> fixed);
+  // `line_model`: the caller passes each exchange's line time to record() and
+  // window(); `frame_gap`: the line's t3.5 (with a line model).
+  SilenceWindow(milliseconds timeout, bool line_model, std::optional<milliseconds> fixed,
+                microseconds frame_gap = microseconds(0));
   // `line`: the exchange's line time (with a line model).
   void record(microseconds latency, bool exception = false, microseconds line = microseconds(0));
   // A late reply; `seen` is how long after its request it was found, when known.
   void late_reply(std::optional<microseconds> seen = std::nullopt);
+
   // `line`: the line time of the request about to wait, with its longest reply.
   microseconds window(microseconds line = microseconds(0)) const;
   microseconds timeout() const { return timeout_; }
   std::optional<microseconds> p99() const;
+  // The margin over an exchange's line time that replies were seen to need
+  // (with a line model): what window() adds to the line time before a late
+  // reply widened it; nullopt until kMinSamples replies were timed.
+  std::optional<microseconds> margin() const;
   size_t samples() const { return normal_.count + exception_.count; }
   uint64_t late_count() const { return late_; }
 
@@ -82,6 +94,7 @@ class SilenceWindow {
   };
   microseconds timeout_;
   bool line_model_ = false;
+  microseconds frame_gap_{0};
   std::optional<milliseconds> fixed_;
   Estimate normal_, exception_;
   microseconds late_floor_{0};
@@ -101,8 +114,9 @@ struct ReadResult {
 ReadResult read_frame(int fd, std::vector<uint8_t>& buf, Clock::time_point first_byte_by, microseconds end_silence,
                       Clock::time_point hard_deadline, const std::function<bool(std::span<const uint8_t>)>& complete);
 
-// Reads and discards whatever is waiting on `fd` (a late reply); the count.
-size_t drain(int fd);
+// Reads whatever is waiting on `fd` (a late reply); the count. The bytes
+// are appended to `kept` when given, else discarded.
+size_t drain(int fd, std::vector<uint8_t>* kept = nullptr);
 
 // Writes all of `bytes`; throws std::runtime_error naming `what` on failure.
 void write_all(int fd, std::span<const uint8_t> bytes, const std::string& what);

@@ -44,19 +44,26 @@ constexpr char kDefaultParity = 'E';
 // is silent this long: t3.5 is far shorter than the gaps a USB adapter's
 // latency timer or a TCP gateway put inside one frame.
 constexpr milliseconds kReplyEndSilenceFloor{20};
-// A frame split by `gap_after` pauses at least 3 x t3.5 and this long, so
-// any receiver (a serial device, a USB adapter's latency timer, a pty) sees
-// two frames (MB-SL v1.02 §2.5.1.1); toward a gateway, whose own gap (serve's
-// RTU over TCP: 10 ms) the network adds to, longer. A receiver that a busy
-// host held up past the pause reads both parts at once and answers: the
-// runner then runs the case again with a pause of kSplitGapRecheck
-// (runner/runner.cpp), so that race gives no verdict.
+// A frame split by `gap_after` pauses so that the receiver sees two frames:
+// more than t3.5 of silence ends a frame (MB-SL v1.02 §2.5.1.1). On a serial
+// line the pause is t3.5 plus the margin the silence window learnt over the
+// line time (live::SilenceWindow::margin: twice the p99 of this host's and
+// the device's latency over the line time, at least another t3.5), for a
+// receiver that sees the pause shortened by its own wake-up jitter; never
+// longer than 3 x t3.5 and kSplitGapFloor, the pause before anything was
+// learnt (any receiver, a USB adapter's latency timer or a pty, sees two
+// frames). Toward a gateway, whose
+// own gap (serve's RTU over TCP: 10 ms) the network adds to, longer. A
+// receiver that a busy host held up past the pause reads both parts at once
+// and answers: the runner and the fuzzer then send it again with a pause of
+// 250 ms (runner/runner.cpp, blackbox/engine.cpp), so that race gives no verdict.
 constexpr milliseconds kSplitGapFloor{20};
 constexpr milliseconds kSplitGapGatewayFloor{50};
 constexpr milliseconds kDefaultTimeout{1000};
 // Unanswered requests whose late replies are still told from the current
-// request's own: a device (or host) held up for a few windows in a row.
-constexpr size_t kUnansweredKept = 8;
+// request's own: a device (or host) held up for a few windows in a row, and
+// the frames between that had to stay silent.
+constexpr size_t kUnansweredKept = 16;
 
 // RTU over TCP: connects a raw socket (bounded by `timeout`).
 int connect_tcp(const std::string& host, uint16_t port, milliseconds timeout, const std::string& uri) {
@@ -122,6 +129,18 @@ size_t longest_reply(std::span<const uint8_t> adu) {
   return std::min(std::max(exception_reply, by_code.value_or(adu.size())), kMaxRtuAdu);
 }
 
+// Whether no device may answer `adu` sent with `split` (MB-SL v1.02 §2.1:
+// broadcast, another slave id; §2.4.2: a bad CRC or length, a pause inside
+// the frame). Its window waits for the shortest reply, an exception, not the
+// longest: a device that answers it anyway, later, is found by its late
+// reply (Reply::late, late_replies(), which also widens the window) at the
+// next exchange, where a long wait for what should never come cost every
+// such frame the wire time of a reply of up to 256 bytes.
+bool forbidden_to_answer(std::span<const uint8_t> adu, uint8_t unit, bool split) {
+  return split || adu.empty() || adu[0] != unit || !crc_ok(adu) || rtu_adu_length(adu, Direction::request) != adu.size();
+}
+constexpr size_t kShortestReply = kRtuAddress + 2 + kRtuCrc;  // an exception (MBAP v1.1b3 §7)
+
 class RtuTarget final : public Target {
  public:
   explicit RtuTarget(const Uri& u) : window_(kDefaultTimeout, false, std::nullopt) {
@@ -149,7 +168,7 @@ class RtuTarget final : public Target {
     split_gap_ = std::max<microseconds>(3 * frame_gap_, serial_ ? kSplitGapFloor : kSplitGapGatewayFloor);
     gap_fixed_ = u.param("gap").has_value();
     if (gap_fixed_) split_gap_ = milliseconds(int_param(u, uri_text_, "gap", 0, 1, 10000));
-    window_ = SilenceWindow(timeout, baud.has_value(), fixed);
+    window_ = SilenceWindow(timeout, baud.has_value(), fixed, frame_gap_);
     timeout_ = timeout;
 
     if (serial_) {
@@ -192,9 +211,19 @@ class RtuTarget final : public Target {
   microseconds silence_window() const override { return window_.window(last_line_); }
   void set_wait(Wait w) override { wait_ = w; }
   uint64_t late_replies() const override { return window_.late_count(); }
-  // RTU over TCP: a new socket to the gateway. A serial line has nothing to reopen.
+  // RTU over TCP: a new socket to the gateway. A serial line: the device
+  // opened again (an adapter that was replugged, a pty whose other side is
+  // still there), what waits on it dropped; false when it cannot be opened.
+  // The fuzzer's fresh targets on a live line are this (Session::open_another).
   bool reconnect() override {
-    if (serial_) return false;
+    if (serial_) {
+      modbus_close(ctx_);
+      fd_ = -1;
+      if (modbus_connect(ctx_) == -1) return false;
+      fd_ = modbus_get_socket(ctx_);
+      drain(fd_);
+      return true;
+    }
     if (fd_ >= 0) close(fd_);
     fd_ = -1;
     try {
@@ -211,7 +240,7 @@ class RtuTarget final : public Target {
     bool timed = unit != 0;
     bool addressed = unit == info_.unit;
     if (ctx_ && !pdu.empty() && pdu.size() <= kMaxPdu) {
-      return exchange(adu, unit, timed, addressed, [&] {
+      return exchange(adu, unit, timed, addressed, !addressed, [&] {
         Bytes raw{unit};
         raw.insert(raw.end(), pdu.begin(), pdu.end());
         auto t = Clock::now();
@@ -220,7 +249,7 @@ class RtuTarget final : public Target {
         return t;
       });
     }
-    return exchange(adu, unit, timed, addressed, [&] {
+    return exchange(adu, unit, timed, addressed, !addressed, [&] {
       auto t = Clock::now();
       write_all(fd(), adu, info_.uri);
       return t;
@@ -230,13 +259,14 @@ class RtuTarget final : public Target {
   Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
     Bytes adu(bytes.begin(), bytes.end());
     uint8_t slave = adu.empty() ? info_.unit : adu[0];
-    return exchange(adu, slave, false, false, [&] {
+    bool split_frame = gap_after && *gap_after < adu.size();
+    return exchange(adu, slave, false, false, forbidden_to_answer(adu, info_.unit, split_frame), [&] {
       size_t split = gap_after ? std::min(*gap_after, adu.size()) : adu.size();
       auto t = Clock::now();
       write_all(fd(), std::span(adu).first(split), info_.uri);
       if (split < adu.size()) {
         if (serial_) tcdrain(fd_);  // the first part is on the wire before the pause starts
-        std::this_thread::sleep_for(split_gap_);
+        std::this_thread::sleep_for(pause());
         t = Clock::now();
         write_all(fd(), std::span(adu).subspan(split), info_.uri);
       }
@@ -244,9 +274,11 @@ class RtuTarget final : public Target {
     });
   }
 
-  std::optional<microseconds> split_gap() const override { return gap_fixed_ ? std::nullopt : std::optional(split_gap_); }
+  std::optional<microseconds> split_gap() const override { return gap_fixed_ ? std::nullopt : std::optional(pause()); }
+  // Kept until set again (the runner's re-run of a case whose split frame
+  // was answered sets a longer pause, then the one it had).
   void set_split_gap(microseconds gap) override {
-    if (!gap_fixed_) split_gap_ = gap;
+    if (!gap_fixed_) split_set_ = gap;
   }
 
   void advance(std::chrono::microseconds) override {
@@ -255,8 +287,20 @@ class RtuTarget final : public Target {
   void power_cycle() override { throw std::logic_error(info_.uri + ": a live device cannot be power-cycled from here"); }
 
  private:
+  // The pause inside a split frame (kSplitGapFloor): as the user fixed it
+  // (gap=) or the caller set it, else on a serial line derived from the
+  // line's t3.5 and the margin learnt once there is one.
+  microseconds pause() const {
+    if (gap_fixed_) return split_gap_;
+    if (split_set_) return *split_set_;
+    auto m = window_.margin();
+    if (!serial_ || !m) return split_gap_;
+    return std::min(split_gap_, frame_gap_ + std::max(*m, frame_gap_));
+  }
+
   // The socket of an RTU-over-TCP gateway that closed it is reopened.
   int fd() {
+    if (fd_ < 0 && serial_) throw std::runtime_error(fmt::format("target '{}': the serial line could not be opened again", info_.uri));
     if (fd_ < 0) fd_ = connect_tcp(host_, port_, timeout_, info_.uri);
     return fd_;
   }
@@ -265,22 +309,20 @@ class RtuTarget final : public Target {
   // Latency runs from there (on a serial line: from when the request left
   // the UART) to the reply's last byte.
   // `addressed`: a well-formed request to the target's unit (Wait::automatic waits for its reply).
+  // `forbidden`: a frame no device may answer (forbidden_to_answer).
   template <class Send>
-  Reply exchange(const Bytes& adu, uint8_t slave, bool timed, bool addressed, Send send) {
-    // A reply came after its window closed: it belongs to the last exchange
-    // judged silent at the latest, so it took at most this long.
-    if (drain(fd()) > 0)
-      window_.late_reply(silent_at_ ? std::optional(std::chrono::duration_cast<microseconds>(Clock::now() - *silent_at_))
-                                    : std::nullopt);
+  Reply exchange(const Bytes& adu, uint8_t slave, bool timed, bool addressed, bool forbidden, Send send) {
+    Reply r;
+    Bytes waiting;
+    if (drain(fd(), &waiting) > 0) take_late(waiting, r);
     auto t0 = send();
     if (serial_) {
       tcdrain(fd_);
       t0 = Clock::now();
     }
-    Reply r;
     r.request = adu;
     bool for_reply = wait_ == Wait::reply || (wait_ == Wait::automatic && addressed);
-    last_line_ = line_time(adu.size(), longest_reply(adu));
+    last_line_ = line_time(adu.size(), forbidden ? kShortestReply : longest_reply(adu));
     auto first_by = t0 + (for_reply ? window_.timeout() : window_.window(last_line_));
     auto wire = info_.baud ? wire_time(kMaxRtuAdu, *info_.baud) : microseconds(0);
     auto hard = first_by + window_.timeout() + 2 * wire;
@@ -290,10 +332,10 @@ class RtuTarget final : public Target {
     // this request went out: counted as late (as if drained before it), and
     // this request still waits for its own reply, now behind it on the line.
     while (!rr.closed) {
-      Clock::time_point sent;
-      size_t late = late_reply_at_front(r.frame, adu, sent);
+      Unanswered which;
+      size_t late = late_reply_at_front(r.frame, adu, which);
       if (late == 0) break;
-      window_.late_reply(std::chrono::duration_cast<microseconds>(Clock::now() - sent));
+      count_late(which, Bytes(r.frame.begin(), r.frame.begin() + ptrdiff_t(late)), r);
       r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(late));
       first_by = std::max(first_by, Clock::now() + (for_reply ? window_.timeout() : window_.window(last_line_)));
       hard = first_by + window_.timeout() + 2 * wire;
@@ -301,10 +343,8 @@ class RtuTarget final : public Target {
     }
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (r.frame.empty()) silent_at_ = t0;
-    // Only well-formed requests to this unit: a late answer to a broadcast,
-    // another slave id or a corrupted frame is the device's fault, not its pace.
     if (!r.frame.empty()) unanswered_.clear();  // replies come in order: theirs would have come first
-    else if (addressed) unanswered_.push_back({adu, t0});
+    else unanswered_.push_back({adu, t0});
     if (unanswered_.size() > kUnansweredKept) unanswered_.pop_front();
     if (rr.closed) {
       if (serial_) throw std::runtime_error(fmt::format("target '{}': the serial line closed", info_.uri));
@@ -317,29 +357,86 @@ class RtuTarget final : public Target {
     return r;
   }
 
-  // The length of the frame at the front of `frame` when it is the late
-  // reply to one of the requests to this unit that went unanswered since the
-  // last reply: a whole ADU from the same slave that answers it as the
-  // standard says (judge_reply) and does not answer `request` (else it is
-  // taken as request's own, as before); `sent` is when that request went
-  // out, and it and those before it are forgotten. Else 0.
-  size_t late_reply_at_front(const Bytes& frame, const Bytes& request, Clock::time_point& sent) {
-    if (unanswered_.empty()) return 0;
-    auto n = rtu_adu_length(frame, Direction::reply);
-    if (!n || *n > frame.size() || !crc_ok(std::span(frame).first(*n))) return 0;
-    auto reply = std::span(frame).first(*n);
-    auto answers = [&](std::span<const uint8_t> req) {
-      auto pdu = [](std::span<const uint8_t> a) { return a.subspan(kRtuAddress, a.size() - kRtuAddress - kRtuCrc); };
-      return req.size() >= kRtuAddress + 1 + kRtuCrc && req[0] == reply[0] && judge_reply(pdu(req), pdu(reply)).ok();
-    };
-    if (answers(request)) return 0;
+  struct Unanswered;
+
+  // Whether `reply` (a whole ADU) answers the request `req` (as framed) as
+  // the standard says (judge_reply): from the same slave id, or for a
+  // broadcast from 0 or, with `any_slave`, from any (a device that wrongly
+  // answers one may give its own id).
+  static bool answers(std::span<const uint8_t> req, std::span<const uint8_t> reply, bool any_slave = false) {
+    auto pdu = [](std::span<const uint8_t> a) { return a.subspan(kRtuAddress, a.size() - kRtuAddress - kRtuCrc); };
+    return req.size() >= kRtuAddress + 1 + kRtuCrc && reply.size() >= kRtuAddress + 1 + kRtuCrc &&
+           (req[0] == reply[0] || (req[0] == 0 && any_slave)) && judge_reply(pdu(req), pdu(reply)).ok();
+  }
+
+  // The request among those that went unanswered since the last reply that
+  // `reply` (a whole ADU, CRC right) answers; it and those before it are
+  // forgotten (replies come in order). `any_slave`: as answers(); only
+  // before the next request went out, where a reply from the unit cannot be
+  // that request's own, malformed.
+  std::optional<Unanswered> answered_by(std::span<const uint8_t> reply, bool any_slave) {
     for (size_t i = 0; i < unanswered_.size(); ++i)
-      if (answers(unanswered_[i].request)) {
-        sent = unanswered_[i].sent;
+      if (answers(unanswered_[i].request, reply, any_slave)) {
+        Unanswered u = unanswered_[i];
         unanswered_.erase(unanswered_.begin(), unanswered_.begin() + ptrdiff_t(i + 1));
-        return *n;
+        return u;
       }
-    return 0;
+    return std::nullopt;
+  }
+
+  // The length of the whole ADU, CRC right, at the front of `bytes`, if any.
+  static std::optional<size_t> whole_frame(std::span<const uint8_t> bytes) {
+    auto n = rtu_adu_length(bytes, Direction::reply);
+    if (!n || *n > bytes.size() || !crc_ok(bytes.first(*n))) return std::nullopt;
+    return n;
+  }
+
+  // The length of the frame at the front of `frame` when it is the late
+  // reply to one of the requests that went unanswered since the last reply
+  // (answered_by, `which`) and does not answer `request` (else it is taken
+  // as request's own, as before). Else 0.
+  size_t late_reply_at_front(const Bytes& frame, const Bytes& request, Unanswered& which) {
+    if (unanswered_.empty()) return 0;
+    auto n = whole_frame(frame);
+    if (!n) return 0;
+    auto reply = std::span(frame).first(*n);
+    if (answers(request, reply)) return 0;
+    auto u = answered_by(reply, false);
+    if (!u) return 0;
+    which = *u;
+    return *n;
+  }
+
+  // A late reply to `which`: it widens the window past the time it took,
+  // so that the runner's re-run of the cases judged since sees it in time,
+  // and is handed to the caller with its request: one to a frame that had
+  // to stay silent (broadcast, another slave id, a corrupted frame) is the
+  // device's fault (MB-SL v1.02 §2.1, §2.4.2), not only its pace.
+  void count_late(const Unanswered& which, Bytes frame, Reply& r) {
+    auto seen = std::chrono::duration_cast<microseconds>(Clock::now() - which.sent);
+    window_.late_reply(seen);
+    r.late.push_back({std::move(frame), which.request, seen});
+  }
+
+  // Bytes that came after their window closed, found before the next
+  // request goes out: each whole frame that answers one of the requests
+  // left unanswered is that one's late reply; what is left belongs to the
+  // last exchange judged silent at the latest, so took at most this long.
+  void take_late(const Bytes& waiting, Reply& r) {
+    std::span<const uint8_t> rest(waiting);
+    while (!rest.empty()) {
+      auto n = whole_frame(rest);
+      std::optional<Unanswered> which;
+      if (n) which = answered_by(rest.first(*n), true);
+      if (!which) break;
+      count_late(*which, Bytes(rest.begin(), rest.begin() + ptrdiff_t(*n)), r);
+      rest = rest.subspan(*n);
+    }
+    if (rest.empty()) return;
+    std::optional<microseconds> seen;
+    if (silent_at_) seen = std::chrono::duration_cast<microseconds>(Clock::now() - *silent_at_);
+    window_.late_reply(seen);
+    r.late.push_back({Bytes(rest.begin(), rest.end()), {}, microseconds(0)});
   }
 
   // The line time of an exchange at the line's baud: each frame's characters
@@ -360,6 +457,7 @@ class RtuTarget final : public Target {
   milliseconds timeout_{kDefaultTimeout};
   microseconds frame_gap_{0}, end_silence_{0}, split_gap_{0};
   bool gap_fixed_ = false;  // the user set `gap=`: kept as given
+  std::optional<microseconds> split_set_;  // set_split_gap's
   microseconds last_line_{0};  // the line time the last window was computed for
   std::optional<Clock::time_point> silent_at_;  // when the request of the last silent exchange went out
   // Requests to this unit that went unanswered since the last reply, and when each went out.

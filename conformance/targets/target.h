@@ -41,6 +41,15 @@ struct TargetInfo {
 // MBAP: header..PDU), empty on silence. `pdu` is set when a frame arrived
 // whose framing was valid (CRC right, slave/unit and transaction matching);
 // otherwise `framing_error` says what was wrong with it.
+// A reply to an earlier request that came after that request had been
+// judged silent (late_replies() counts it), found waiting before a later
+// request went out or in front of that request's reply.
+struct LateReply {
+  Bytes frame;    // as received
+  Bytes request;  // the request it answers, as framed, when the target could tell which; else empty
+  std::chrono::microseconds after{0};  // from that request going out to when it was found (request known)
+};
+
 struct Reply {
   Bytes request;   // the bytes sent, as framed on the wire
   Bytes frame;
@@ -48,6 +57,10 @@ struct Reply {
   std::string framing_error;
   std::chrono::microseconds latency{0};  // request sent -> last byte received (or timeout)
   bool closed = false;  // the peer closed the connection instead of answering (TCP kinds)
+  // Late replies to earlier requests found during this exchange (RTU kinds).
+  // One to a frame that had to stay silent (broadcast, another slave id, a
+  // corrupted frame: MB-SL v1.02 §2.1, §2.4.2) is that frame's fault.
+  std::vector<LateReply> late;
   bool silent() const { return frame.empty(); }
 };
 

@@ -8,7 +8,9 @@
 // Fuzzing goes on until --duration runs out. Each distinct finding (its kind
 // and the function code it came on) is reduced by delta debugging on fresh
 // targets to a minimal sequence of frames and saved once, as a frame script
-// (conformance/check/README.md) in DIR, with the command that replays it.
+// (conformance/check/README.md) in DIR, with the command that replays it;
+// one whose reduction a stop or the time allowed cut off is saved as far as
+// the reduction got, and says so: a finding is never dropped.
 // Findings whose kind (or signature, "KIND fcNN") a quirks file declares
 // (--quirks, conformance/README.md) are left aside and counted.
 // Exit 0: nothing found; 1: a finding; 2: could not run.
@@ -118,17 +120,22 @@ int run_fuzz(FuzzArgs& a) {
   o.isolate = info.kind == "plugin";
   o.journal = (fs::path(a.t.out) / ".journal").string();
   if (!quirks.empty()) o.declared = [&](const std::string& sig) { return quirks.for_kind(sig) != nullptr; };
+  o.stopped = [&] { return session.stopped().has_value(); };
   fmt::print("fuzzing {} as {} for {}, seed {}, batches of {} frames ({} readable, {} writable registers)\n", info.uri,
              s.device.id, a.duration, o.seed, a.batch, plan.readable.size(), plan.writable.size());
   std::fflush(stdout);
 
   size_t saved = 0;
   auto out = conf::blackbox::fuzz(std::move(target), open, plan, o, [&](const conf::blackbox::Reported& r) {
-    if (session.stopped()) return;  // cut off by a stop or the deadline: not a finding of the target
+    // A finding whose reduction a stop or the deadline cut off is saved as
+    // far as it got: it was seen on the target, and is never dropped.
     ++saved;
     progress.clear();
     fmt::print("FINDING {} after {} steps: {}\n", r.finding.kind, r.history, r.finding.message);
-    if (!r.reproduced)
+    if (r.cut_off)
+      fmt::print("its reduction was cut off ({}); saving {} step(s), {}\n", session.stopped().value_or("stopped"),
+                 r.steps.size(), r.reproduced ? "which reproduce it on a fresh target" : "the last ones sent, unreduced");
+    else if (!r.reproduced)
       fmt::print("the finding does not reproduce on a fresh target (timing, state outside the frames, or the target is gone); "
                  "saving the last {} steps unreduced\n", r.steps.size());
     fs::path file = save(a.t.out, plan, r, uri);
@@ -148,10 +155,16 @@ int run_fuzz(FuzzArgs& a) {
   if (out.declared) fmt::print("{} finding(s) of a kind {} declares left aside\n", out.declared, a.quirks_file);
   if (out.target_lost && !ran_out) fmt::print("the target could not be opened again: fuzzing stopped before --duration ran out\n");
   if (ran_out) fmt::print("the time allowed (--duration + {} s) ran out; what was left of a reduction was cut off\n", kAfterDuration.count());
-  if (out.wire_time_bound_seconds > 0)
+  if (out.wire_time_bound_seconds > 0) {
     fmt::print("{} exchanges ({} silent) in {:.2f} s against a wire-time bound of {:.2f} s at {} baud: {:.2f}x\n",
                out.exchanges, out.silences, out.seconds, out.wire_time_bound_seconds, *info.baud,
                out.seconds / out.wire_time_bound_seconds);
+    // A silence takes at least the time a reply may take to be told apart:
+    // the same bound with the p99 reply latency of this run per silent exchange.
+    fmt::print("with each silence counted at the p99 reply latency ({:.2f} ms): a bound of {:.2f} s: {:.2f}x\n",
+               out.reply_latency_p99_seconds * 1e3, out.bound_with_silences_seconds(),
+               out.seconds / out.bound_with_silences_seconds());
+  }
   if (saved == 0) {
     fmt::print("no finding: {} frames in {} batches, every probe answered ({:.0f} frames/s)\n", out.frames, out.batches,
                out.frames_per_second());

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <random>
 #include <set>
+#include <thread>
 
 #include "blackbox/engine.h"
 #include "modbus/crc16.h"
@@ -174,6 +175,28 @@ TEST_F(JudgeTest, NoReplyToBroadcastOtherSlaveOrCorruptedFrame) {
   EXPECT_EQ(kind(bad, reply(1, write)), "answered-corrupted-frame");
 }
 
+// A reply that came after its frame was judged silent (Reply::late, the
+// RTU target pairs it with the frame it answers) is judged as that frame's
+// reply would have been: forbidden for broadcast, another slave id or a
+// corrupted frame (MB-SL v1.02 §2.1, §2.4.2); a well-formed request's late
+// reply is the device's pace, and one paired with nothing says nothing.
+TEST_F(JudgeTest, ALateReplyToAFrameThatHadToStaySilentIsAFinding) {
+  Bytes write{0x06, 0x00, 0x00, 0x00, 0x01};
+  Step read = generated(check::frame(&mbc::kRtu, 1, {0x03, 0x00, 0x00, 0x00, 0x01}));
+  auto with_late = [&](const Bytes& request, uint8_t from) {
+    Reply r = reply(1, {0x03, 0x02, 0x12, 0x34});
+    r.late.push_back({rtu_frame(from, write), request, std::chrono::milliseconds(40)});
+    return r;
+  };
+  Bytes corrupted = rtu_frame(1, write);
+  corrupted.back() ^= 0x01;
+  EXPECT_EQ(kind(read, with_late(rtu_frame(0, write), 0)), "answered-broadcast");
+  EXPECT_EQ(kind(read, with_late(rtu_frame(9, write), 9)), "answered-other-slave");
+  EXPECT_EQ(kind(read, with_late(corrupted, 1)), "answered-corrupted-frame");
+  EXPECT_EQ(kind(read, with_late(rtu_frame(1, write), 1)), "");
+  EXPECT_EQ(kind(read, with_late({}, 0)), "");
+}
+
 TEST_F(JudgeTest, ProbeMustBeAnsweredNormally) {
   Step probe = probe_step(p);
   EXPECT_EQ(probe.expect.kind, K::normal);
@@ -239,6 +262,186 @@ TEST(Reducer, RealTargetReducesToTheFrameThatFails) {
   // The correct device does not fail it.
   Open correct = [] { return open_target("ref:hsc60"); };
   EXPECT_FALSE(run_fresh(correct, p, min));
+}
+
+}  // namespace
+}  // namespace mbc::conf::blackbox
+
+namespace mbc::conf::blackbox {
+namespace {
+
+// Sending stops (a stop signal, fuzz's deadline) while a finding is being
+// reduced: the finding is kept, as far as its reduction got, and says so.
+// The session's fresh targets then cannot be opened (Session::open_another
+// throws Stopped): here the first reopen stops, as the deadline would.
+TEST(Reducer, AFindingWhoseReductionIsCutOffIsKeptUnreduced) {
+  const std::string uri = "ref:hsc60?fault=answer-broadcast";
+  spec::Spec s = spec::load_spec_by_id("hsc60");
+  auto first = open_target(uri);
+  Plan p = make_plan(s, first->info(), WritePolicy{});
+  bool stopped = false;
+  Open open = [&]() -> std::unique_ptr<Target> {
+    stopped = true;
+    throw std::runtime_error("sending stopped: the deadline ran out");
+  };
+  Options o;
+  o.duration = std::chrono::milliseconds(10'000);
+  o.seed = 7;
+  o.stopped = [&] { return stopped; };
+  std::vector<Reported> heard;
+  Outcome out = fuzz(std::move(first), open, p, o, [&](const Reported& r) { heard.push_back(r); });
+  ASSERT_EQ(out.findings.size(), 1u);
+  ASSERT_EQ(heard.size(), 1u);
+  const Reported& r = out.findings[0];
+  EXPECT_EQ(r.finding.kind, "answered-broadcast");
+  EXPECT_TRUE(r.cut_off);
+  EXPECT_FALSE(r.reproduced);
+  // The last batch as sent, ending with the frame that was answered.
+  ASSERT_FALSE(r.steps.empty());
+  ASSERT_EQ(r.steps.back().kind, Step::Kind::raw);
+  EXPECT_EQ(r.steps.back().bytes.at(0), 0) << check::line(r.steps.back());
+  EXPECT_NE(reproducer(p, r, "replay").comment.find("reduction was cut off"), std::string::npos);
+}
+
+// Cut off after the finding reproduced on a fresh target, before ddmin
+// could remove anything: those steps are kept, said to reproduce it.
+TEST(Reducer, ACutOffAfterTheFindingReproducedKeepsWhatReproduces) {
+  const std::string uri = "ref:hsc60?fault=answer-broadcast";
+  spec::Spec s = spec::load_spec_by_id("hsc60");
+  auto first = open_target(uri);
+  Plan p = make_plan(s, first->info(), WritePolicy{});
+  int opened = 0;
+  Open open = [&] {
+    ++opened;
+    return open_target(uri);
+  };
+  Options o;
+  o.duration = std::chrono::milliseconds(10'000);
+  o.seed = 7;
+  o.stopped = [&] { return opened > 0; };  // stops as the first fresh target opens
+  Outcome out = fuzz(std::move(first), open, p, o, {});
+  ASSERT_EQ(out.findings.size(), 1u);
+  const Reported& r = out.findings[0];
+  EXPECT_TRUE(r.cut_off);
+  EXPECT_TRUE(r.reproduced);
+  EXPECT_EQ(opened, 1) << "runs after the stop";
+  ASSERT_FALSE(r.steps.empty());
+  EXPECT_EQ(r.steps.back().bytes.at(0), 0) << check::line(r.steps.back());
+}
+
+}  // namespace
+}  // namespace mbc::conf::blackbox
+
+namespace mbc::conf::blackbox {
+namespace {
+
+// A target that takes `pace` per exchange, as a slow serial line does.
+class Paced final : public Target {
+ public:
+  Paced(std::unique_ptr<Target> inner, std::chrono::microseconds pace) : inner_(std::move(inner)), pace_(pace) {}
+  const TargetInfo& info() const override { return inner_->info(); }
+  Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override {
+    std::this_thread::sleep_for(pace_);
+    return inner_->transact(unit, pdu);
+  }
+  Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
+    std::this_thread::sleep_for(pace_);
+    return inner_->send_raw(bytes, gap_after);
+  }
+  void advance(std::chrono::microseconds dt) override { inner_->advance(dt); }
+  void power_cycle() override { inner_->power_cycle(); }
+
+ private:
+  std::unique_ptr<Target> inner_;
+  std::chrono::microseconds pace_;
+};
+
+// The deadline is looked at before each exchange, not only between batches:
+// a batch of 1000 frames that take 2 ms each (2 s) stops once 20 ms ran out.
+// Each exchange sleeps, so however slow the host, all 1000 cannot fit.
+TEST(Fuzz, TheDeadlineIsLookedAtBeforeEachExchange) {
+  spec::Spec s = spec::load_spec_by_id("hsc60");
+  auto first = std::make_unique<Paced>(open_target("ref:hsc60"), std::chrono::milliseconds(2));
+  Plan p = make_plan(s, first->info(), WritePolicy{});
+  Options o;
+  o.duration = std::chrono::milliseconds(20);
+  o.batch = 1000;
+  Open open = [] { return std::make_unique<Paced>(open_target("ref:hsc60"), std::chrono::milliseconds(2)); };
+  Outcome out = fuzz(std::move(first), open, p, o, {});
+  EXPECT_TRUE(out.findings.empty());
+  EXPECT_GT(out.frames, 0);
+  EXPECT_LT(out.frames, o.batch) << "the whole batch went out past the deadline";
+  EXPECT_EQ(out.batches, 1);
+}
+
+}  // namespace
+}  // namespace mbc::conf::blackbox
+
+namespace mbc::conf::blackbox {
+namespace {
+
+// A live line whose receiver reads a split frame as one (a host that held
+// it up past the pause) unless the pause is long: it answers the split
+// frame at the target's own pause, and stays silent at the long one.
+class HeldUpReceiver final : public Target {
+ public:
+  explicit HeldUpReceiver(bool always) : always_(always) {
+    info_ = live_rtu(1);
+    info_.baud = 115200;
+  }
+  const TargetInfo& info() const override { return info_; }
+  Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override {
+    Reply r;
+    r.request = rtu_frame(unit, pdu);
+    r.frame = rtu_frame(unit, Bytes{3, 2, 0, 0});
+    r.pdu = Bytes{3, 2, 0, 0};
+    return r;
+  }
+  Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
+    Reply r;
+    r.request.assign(bytes.begin(), bytes.end());
+    pauses.push_back(gap_);
+    if (gap_after && (always_ || gap_ < std::chrono::milliseconds(100))) {
+      r.frame = rtu_frame(1, Bytes{6, 0, 0, 0, 1});
+      r.pdu = Bytes{6, 0, 0, 0, 1};
+    }
+    return r;
+  }
+  std::optional<std::chrono::microseconds> split_gap() const override { return gap_; }
+  void set_split_gap(std::chrono::microseconds g) override { gap_ = g; }
+  void advance(std::chrono::microseconds) override {}
+  void power_cycle() override {}
+  std::vector<std::chrono::microseconds> pauses;
+
+ private:
+  TargetInfo info_;
+  bool always_;
+  std::chrono::microseconds gap_{3500};
+};
+
+// A split frame answered at the target's own pause is sent again with a
+// pause of 250 ms (as the runner does); only an answer then is a finding
+// (MB-SL v1.02 §2.5.1.1: a pause inside a frame breaks it).
+TEST(Fuzz, ASplitFrameAnsweredIsSentAgainWithALongPauseBeforeItIsAFinding) {
+  spec::Spec s = spec::load_spec_by_id("hsc60");
+  Step split = check::raw_rtu(rtu_frame(1, write_single_register(0x0000, 1)));
+  split.gap = 3;
+  for (bool always : {false, true}) {
+    HeldUpReceiver t(always);
+    Plan p = make_plan(s, t.info(), WritePolicy{});
+    split.expect = expect_for(p, split);
+    auto f = execute(t, p, split);
+    ASSERT_EQ(t.pauses.size(), 2u);
+    EXPECT_EQ(t.pauses[0], std::chrono::microseconds(3500));
+    EXPECT_EQ(t.pauses[1], std::chrono::milliseconds(250));
+    EXPECT_EQ(t.split_gap(), std::chrono::microseconds(3500)) << "the pause is put back";
+    if (always) {
+      ASSERT_TRUE(f);
+      EXPECT_EQ(f->kind, "answered-corrupted-frame");
+    } else {
+      EXPECT_FALSE(f) << f->message;
+    }
+  }
 }
 
 }  // namespace

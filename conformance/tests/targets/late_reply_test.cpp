@@ -20,6 +20,7 @@
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "loader.h"
+#include "blackbox/engine.h"
 #include "check/check.h"
 #include "runner/runner.h"
 #include "targets/target.h"
@@ -63,6 +64,8 @@ class PtySlave {
   std::atomic<int64_t> gap_us{0}, held_us{0};
   // Nonzero: every answer is exception 01 (illegal function) for this code.
   std::atomic<int> illegal_fc{0};
+  // Broadcasts (slave id 0) are answered too, from 0 (MB-SL v1.02 §2.1 forbids it).
+  std::atomic<bool> answer_broadcast{false};
 
  private:
   void serve() {
@@ -84,8 +87,9 @@ class PtySlave {
       // Not addressed to unit 1: no reply; with `merge`, the next request is
       // taken as the rest of that frame and dropped too (a receiver held up
       // past the window reads both at once).
-      if (in[0] != 1 || swallow_next_) {
-        swallow_next_ = in[0] != 1 && merge.load();
+      bool ours = in[0] == 1 || (in[0] == 0 && answer_broadcast.load());
+      if (!ours || swallow_next_) {
+        swallow_next_ = !ours && merge.load();
         in.clear();
         continue;
       }
@@ -130,6 +134,70 @@ TEST(RtuLateReply, IsDrainedCountedAndWidensTheWindowPastItsTime) {
   // Widened past the time the late reply took (twice what it was seen with),
   // not merely doubled.
   EXPECT_GE(target->silence_window(), std::min<std::chrono::microseconds>(2 * delay, 1000ms));
+}
+
+// A broadcast answered after its window closed (MB-SL v1.02 §2.1: never
+// answered at all): the next exchange hands the late reply over with the
+// broadcast it answers, widens the window past the time it took (as any
+// late reply does, so that the runner's re-run sees it in time), and the
+// fuzzer's judge calls it a finding.
+TEST(RtuLateReply, ALateReplyToABroadcastIsHandedOverAndIsAFinding) {
+  PtySlave slave;
+  slave.answer_broadcast = true;
+  auto target = open_target("rtu://" + slave.path() + "?baud=115200&parity=N&unit=1");
+  Bytes read = read_request(3, 0, 1);
+  target->set_wait(Target::Wait::reply);
+  for (int i = 0; i < 20; ++i) ASSERT_TRUE(target->transact(1, read).pdu) << i;
+  auto window = target->silence_window();
+  ASSERT_LT(window, 1000ms) << "the window did not adapt";
+
+  auto delay = std::chrono::duration_cast<std::chrono::microseconds>(window + 50ms);
+  slave.delay_us = delay.count();
+  target->set_wait(Target::Wait::window);
+  Reply bc = target->transact(0, read);
+  EXPECT_TRUE(bc.silent());
+  EXPECT_TRUE(bc.late.empty());
+  while (slave.answered.load() < 21) std::this_thread::sleep_for(5ms);  // the late reply is on the line
+
+  slave.delay_us = 0;
+  target->set_wait(Target::Wait::reply);
+  Reply r = target->transact(1, read);
+  ASSERT_TRUE(r.pdu) << r.framing_error << " " << to_hex(r.frame);
+  ASSERT_EQ(r.late.size(), 1u);
+  EXPECT_EQ(r.late[0].frame, rtu_frame(0, Bytes{3, 2, 0x12, 0x34}));
+  EXPECT_EQ(r.late[0].request, rtu_frame(0, read));
+  EXPECT_GE(r.late[0].after, delay);
+  EXPECT_EQ(target->late_replies(), 1u);
+  EXPECT_GE(target->silence_window(), std::min<std::chrono::microseconds>(2 * delay, 1000ms));
+
+  spec::Spec s = spec::load_spec_by_id("hsc60");
+  auto plan = blackbox::make_plan(s, target->info(), WritePolicy{});
+  Step st = check::frame(plan.info.framing, 1, read);
+  st.expect = blackbox::expect_for(plan, st);
+  auto f = blackbox::judge(plan, st, r);
+  ASSERT_TRUE(f);
+  EXPECT_EQ(f->kind, "answered-broadcast") << f->message;
+}
+
+// The pause inside a split frame: 20 ms until a reply was timed, then the
+// line's t3.5 (MB-SL v1.02 §2.5.1.1) plus the margin the silence window
+// learnt, never above the 20 ms; a pause set from outside (the runner's
+// re-run with a longer one) is kept until set again.
+TEST(RtuSplitGap, IsTheLinesT35PlusTheLearntMargin) {
+  PtySlave slave;
+  auto target = open_target("rtu://" + slave.path() + "?baud=115200&parity=N&unit=1");
+  ASSERT_EQ(target->split_gap(), std::optional<std::chrono::microseconds>(20ms));
+  target->set_wait(Target::Wait::reply);
+  for (int i = 0; i < 20; ++i) ASSERT_TRUE(target->transact(1, read_request(3, 0, 1)).pdu) << i;
+  auto gap = target->split_gap();
+  ASSERT_TRUE(gap);
+  EXPECT_GE(*gap, 2 * frame_gap(115200));
+  EXPECT_LE(*gap, 20ms);
+  target->set_split_gap(250ms);
+  EXPECT_EQ(target->split_gap(), std::optional<std::chrono::microseconds>(250ms));
+  // gap= fixes it: no derived pause, none to set.
+  auto fixed = open_target("rtu://" + slave.path() + "?baud=115200&parity=N&unit=1&gap=30");
+  EXPECT_FALSE(fixed->split_gap());
 }
 
 // A request that follows an unanswered one and goes unanswered itself is run

@@ -222,6 +222,18 @@ TEST_P(LiveTarget, ReconnectsAfterTheServerClosedTheConnection) {
   EXPECT_TRUE(ok.pdu) << ok.framing_error;
 }
 
+// A fresh target on a live link (the fuzzer's reductions and its rounds
+// after a finding: Session::open_another) is the link opened again: a new
+// socket, or the serial line (here a pty) opened again.
+TEST_P(LiveTarget, OpensAgainForAFreshStart) {
+  const auto& r = served.default_word();
+  Bytes pdu = read_request(served.read_fc(r), r.address, 1);
+  ASSERT_TRUE(target->transact(pdu).pdu);
+  ASSERT_TRUE(target->reconnect());
+  Reply again = target->transact(pdu);
+  EXPECT_TRUE(again.pdu) << again.framing_error << " " << to_hex(again.frame);
+}
+
 TEST_P(LiveTarget, RawWellFormedFrameIsAnsweredLikeTransact) {
   const auto& r = served.default_word();
   Bytes pdu = read_request(served.read_fc(r), r.address, 1);
