@@ -341,9 +341,39 @@ class RtuTarget final : public Target {
       hard = first_by + window_.timeout() + 2 * wire;
       rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);
     }
+    // Two whole frames read at once (a USB adapter hands its buffer over in
+    // chunks; a busy host reads late), the second answering this request:
+    // replies come in order, so the first is a late reply (to one of the
+    // requests left unanswered, or to one whose reply was taken for a later
+    // request's because it answered that one too) and the second is this
+    // request's own.
+    if (!rr.closed)
+      if (auto n = whole_frame(r.frame); n && *n < r.frame.size())
+        if (auto m = whole_frame(std::span(r.frame).subspan(*n)); m && answers(adu, std::span(r.frame).subspan(*n, *m))) {
+          Bytes first(r.frame.begin(), r.frame.begin() + ptrdiff_t(*n));
+          bool split = true;
+          if (auto u = answered_by(first, false)) {
+            count_late(*u, std::move(first), r);
+          } else if (owed_) {
+            window_.late_reply(std::nullopt);
+            r.late.push_back({std::move(first), {}, microseconds(0)});
+          } else {
+            split = false;  // nothing was owed: a device that answered twice (trailing bytes)
+          }
+          if (split) r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(*n));
+        }
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (r.frame.empty()) silent_at_ = t0;
-    if (!r.frame.empty()) unanswered_.clear();  // replies come in order: theirs would have come first
+    // Replies come in order: theirs would have come first. A reply taken
+    // that answers one of them as well may have been theirs: then this
+    // request's own reply is owed, and may come with the next one (for that
+    // next exchange only; a device that answers twice is still caught).
+    owed_ = false;
+    if (!r.frame.empty()) {
+      if (auto n = whole_frame(r.frame); n && *n == r.frame.size())
+        for (const auto& u : unanswered_) owed_ = owed_ || answers(u.request, r.frame);
+      unanswered_.clear();
+    }
     else unanswered_.push_back({adu, t0});
     if (unanswered_.size() > kUnansweredKept) unanswered_.pop_front();
     if (rr.closed) {
@@ -364,7 +394,7 @@ class RtuTarget final : public Target {
   // broadcast from 0 or, with `any_slave`, from any (a device that wrongly
   // answers one may give its own id).
   static bool answers(std::span<const uint8_t> req, std::span<const uint8_t> reply, bool any_slave = false) {
-    auto pdu = [](std::span<const uint8_t> a) { return a.subspan(kRtuAddress, a.size() - kRtuAddress - kRtuCrc); };
+    auto pdu = [](std::span<const uint8_t> a) { return kRtu.pdu_bytes(a); };
     return req.size() >= kRtuAddress + 1 + kRtuCrc && reply.size() >= kRtuAddress + 1 + kRtuCrc &&
            (req[0] == reply[0] || (req[0] == 0 && any_slave)) && judge_reply(pdu(req), pdu(reply)).ok();
   }
@@ -466,6 +496,7 @@ class RtuTarget final : public Target {
     Clock::time_point sent;
   };
   std::deque<Unanswered> unanswered_;
+  bool owed_ = false;  // the last reply taken answered an unanswered request too: this one's may follow
   Wait wait_ = Wait::automatic;
 };
 

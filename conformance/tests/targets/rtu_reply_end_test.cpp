@@ -303,6 +303,57 @@ TEST(RtuReplyEnd, ALateReplyThatAnswersThisRequestTooIsItsReply) {
   Reply r = target->transact(1, read_request(3, 0, 1));
   ASSERT_TRUE(r.pdu) << r.framing_error << " " << to_hex(r.frame);
   EXPECT_EQ(*r.pdu, hex("03 02 12 34"));
+  // Read one by one, the first reply is taken as the second's and the
+  // second's own is late in its turn; read together (a busy host), the first
+  // is late and the second is its own. Either way one reply is late once the
+  // line is quiet again, and nothing is a framing error.
+  EXPECT_LE(target->late_replies(), 1u);
+  Reply next = target->transact(1, read_request(3, 0, 1));
+  ASSERT_TRUE(next.pdu) << next.framing_error << " " << to_hex(next.frame);
+  EXPECT_EQ(target->late_replies(), 1u);
+}
+
+// Both replies in one read while the first request is unanswered: the first
+// frame is that one's late reply, the second this request's.
+TEST(RtuReplyEnd, TwoRepliesReadTogetherAreTheLateOneThenThisOne) {
+  std::atomic<int> n{0};
+  ScriptedSlave slave([&](const Bytes&) {
+    int i = n++;
+    if (i == 20) return std::vector<Part>{};  // the first read of the pair goes unanswered for now
+    if (i == 21) {  // the late reply and this one, in one write: one read takes both
+      Bytes both = kRegisterReply;
+      both.insert(both.end(), kRegisterReply.begin(), kRegisterReply.end());
+      return std::vector<Part>{{both, std::chrono::microseconds(0)}};
+    }
+    return std::vector<Part>{{kRegisterReply, std::chrono::microseconds(0)}};
+  });
+  auto target = open_target(slave.uri());
+  target->set_wait(Target::Wait::reply);
+  for (int i = 0; i < 20; ++i) ASSERT_TRUE(target->transact(1, read_request(3, 0, 1)).pdu) << i;
+  target->set_wait(Target::Wait::window);
+  ASSERT_TRUE(target->transact(1, read_request(3, 0, 1)).silent());
+  target->set_wait(Target::Wait::reply);
+  Reply r = target->transact(1, read_request(3, 0, 1));
+  ASSERT_TRUE(r.pdu) << r.framing_error << " " << to_hex(r.frame);
+  EXPECT_EQ(*r.pdu, hex("03 02 12 34"));
+  EXPECT_EQ(target->late_replies(), 1u);
+  ASSERT_EQ(r.late.size(), 1u);
+}
+
+// With nothing unanswered and nothing owed, a second copy of the reply in the
+// same read is the device answering twice: trailing bytes, not a late reply.
+TEST(RtuReplyEnd, AReplyTwiceWithNothingOwedIsTrailingBytes) {
+  ScriptedSlave slave([&](const Bytes&) {
+    Bytes both = kRegisterReply;
+    both.insert(both.end(), kRegisterReply.begin(), kRegisterReply.end());
+    return std::vector<Part>{{both, std::chrono::microseconds(0)}};
+  });
+  auto target = open_target(slave.uri());
+  target->set_wait(Target::Wait::reply);
+  Reply r = target->transact(1, read_request(3, 0, 1));
+  EXPECT_FALSE(r.pdu) << to_hex(r.frame);
+  EXPECT_EQ(r.frame.size(), 2 * kRegisterReply.size());
+  EXPECT_TRUE(r.late.empty());
   EXPECT_EQ(target->late_replies(), 0u);
 }
 
