@@ -27,9 +27,8 @@ constexpr const char* kProbeNote = "liveness probe: a read of a register the spe
 // Probes a round starts with on a live target: as many replies as a silence
 // window needs timed before it is learnt (live::SilenceWindow::kMinSamples).
 constexpr int kWarmupProbes = 5;
-// The pause inside a split frame that was answered, for its second try: the
-// runner's (runner/runner.cpp), at least ten times the first.
-constexpr std::chrono::milliseconds kSplitGapRecheck{250};
+// The pause inside a split frame that was answered, for its second try, is
+// the runner's: check::kSplitGapRecheck (check/check.h).
 
 // After these the target may be gone: nothing more is learnt from it.
 bool target_may_be_gone(const Finding& f) { return f.kind == "no-answer" || f.kind == "target-error" || f.kind == "crash"; }
@@ -258,7 +257,7 @@ std::optional<Finding> execute(Target& t, const Plan& p, const Step& s, Outcome*
     // of kSplitGapRecheck, and that verdict stands (as the runner does).
     if (s.kind == Step::Kind::raw && s.gap && !r.silent())
       if (auto gap = t.split_gap()) {
-        t.set_split_gap(std::max<std::chrono::microseconds>(10 * *gap, kSplitGapRecheck));
+        t.set_split_gap(std::max<std::chrono::microseconds>(10 * *gap, check::kSplitGapRecheck));
         try {
           r = t.send_raw(s.bytes, s.gap);
         } catch (...) {

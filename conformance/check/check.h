@@ -138,6 +138,13 @@ std::string describe(const Reliance&);
 // Step builders.
 Step frame(Framing framing, uint8_t unit, Bytes pdu, Expect expect = {}, std::string note = "");
 Step raw_rtu(Bytes adu, std::optional<size_t> gap = std::nullopt, Expect expect = {}, std::string note = "");
+// A split frame (a raw RTU step with a gap) that got a reply is sent again
+// once with this pause inside it (at least ten times the first) before the
+// reply counts against the device: a receiver that the host held up past the
+// first pause may have read both parts as one frame, which says nothing of
+// the device; one that joins them again does so for real. The runner and the
+// black-box fuzzer both re-check this way.
+inline constexpr std::chrono::milliseconds kSplitGapRecheck{250};
 Step raw_mbap(Bytes adu, Expect expect = {}, std::string note = "");
 Step advance(uint64_t us);
 Step power_cycle();

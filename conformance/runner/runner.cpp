@@ -22,11 +22,8 @@ constexpr int kMaxTargetErrors = 3;
 // later than every widened window keeps its last verdict).
 constexpr int kMaxReruns = 2;
 
-// A case with a split frame that got a reply runs again once with this pause
-// inside the frame (at least ten times the first): a receiver that the host
-// held up past the first pause may have read both parts as one frame, which
-// says nothing of the device; one that joins them again does so for real.
-constexpr std::chrono::milliseconds kSplitGapRecheck{250};
+// A case with a split frame that got a reply runs again once with
+// check::kSplitGapRecheck inside the frame (check/check.h).
 
 bool answered_a_split_frame(const Case& c, const CaseResult& r) {
   for (size_t k = 0; k < c.steps.size() && k < r.frames.size(); ++k)
@@ -83,7 +80,7 @@ DeviceRun run_cases(Link& link, const spec::Spec& spec, const std::vector<Case>&
     CaseResult r = check::run_case(x, spec, cases[k]);
     auto gap = link.split_gap();
     if (!live || !gap || r.outcome != Outcome::fail || !answered_a_split_frame(cases[k], r)) return r;
-    auto longer = std::max<std::chrono::microseconds>(10 * *gap, kSplitGapRecheck);
+    auto longer = std::max<std::chrono::microseconds>(10 * *gap, check::kSplitGapRecheck);
     link.set_split_gap(longer);
     try {
       r = check::run_case(x, spec, cases[k]);
