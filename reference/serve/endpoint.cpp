@@ -91,6 +91,7 @@ RawPty open_raw_pty(const std::string& link) {
   tcsetattr(p.slave, TCSANOW, &t);
   set_nonblocking(p.master);
   fcntl(p.slave, F_SETFD, FD_CLOEXEC);
+  if (link.empty()) return p;
   struct stat st{};
   if (lstat(link.c_str(), &st) == 0) {
     if (!S_ISLNK(st.st_mode)) {

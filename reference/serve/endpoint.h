@@ -33,9 +33,9 @@ struct RawPty {
   std::string name;  // /dev/pts/N
 };
 // A pty in raw mode, like a serial port a Modbus master opens (no echo, no
-// line editing, no CR/LF translation, 8 data bits), and `link` a symlink to
-// its slave. An existing symlink at `link` is replaced; anything else there
-// is refused. Throws std::runtime_error naming what failed.
-RawPty open_raw_pty(const std::string& link);
+// line editing, no CR/LF translation, 8 data bits), and `link` (unless
+// empty) a symlink to its slave. An existing symlink at `link` is replaced;
+// anything else there is refused. Throws std::runtime_error naming what failed.
+RawPty open_raw_pty(const std::string& link = "");
 
 }  // namespace mbc::serve

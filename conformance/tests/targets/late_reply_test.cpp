@@ -8,8 +8,6 @@
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <poll.h>
-#include <pty.h>
-#include <termios.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -23,6 +21,7 @@
 #include "blackbox/engine.h"
 #include "check/check.h"
 #include "runner/runner.h"
+#include "serve/endpoint.h"
 #include "targets/target.h"
 
 namespace mbc::conf {
@@ -38,14 +37,10 @@ using namespace std::chrono_literals;
 class PtySlave {
  public:
   PtySlave() {
-    if (openpty(&master_, &slave_, nullptr, nullptr, nullptr) != 0) throw std::runtime_error("openpty");
-    termios t{};
-    tcgetattr(slave_, &t);
-    cfmakeraw(&t);
-    tcsetattr(slave_, TCSANOW, &t);
-    char name[256];
-    ttyname_r(slave_, name, sizeof name);
-    path_ = name;
+    serve::RawPty pty = serve::open_raw_pty();  // a raw line, as the master's end is
+    master_ = pty.master;
+    slave_ = pty.slave;
+    path_ = pty.name;
     thread_ = std::thread([this] { serve(); });
   }
   ~PtySlave() {

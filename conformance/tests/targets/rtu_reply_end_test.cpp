@@ -7,8 +7,6 @@
 // slave is played by this test on a real pty.
 #include <gtest/gtest.h>
 #include <poll.h>
-#include <pty.h>
-#include <termios.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -21,6 +19,7 @@
 #include "modbus/hex.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
+#include "serve/endpoint.h"
 #include "targets/target.h"
 
 namespace mbc::conf {
@@ -83,14 +82,10 @@ class ScriptedSlave {
  public:
   using Answer = std::function<std::vector<Part>(const Bytes& request)>;
   explicit ScriptedSlave(Answer answer) : answer_(std::move(answer)) {
-    if (openpty(&master_, &slave_, nullptr, nullptr, nullptr) != 0) throw std::runtime_error("openpty");
-    termios t{};
-    tcgetattr(slave_, &t);
-    cfmakeraw(&t);
-    tcsetattr(slave_, TCSANOW, &t);
-    char name[256];
-    ttyname_r(slave_, name, sizeof name);
-    path_ = name;
+    serve::RawPty pty = serve::open_raw_pty();  // a raw line, as the master's end is
+    master_ = pty.master;
+    slave_ = pty.slave;
+    path_ = pty.name;
     thread_ = std::thread([this] { serve(); });
   }
   ~ScriptedSlave() {
