@@ -56,7 +56,7 @@ constexpr milliseconds kReplyEndSilenceFloor{20};
 // own gap (serve's RTU over TCP: 10 ms) the network adds to, longer. A
 // receiver that a busy host held up past the pause reads both parts at once
 // and answers: the runner and the fuzzer then send it again with a pause of
-// 250 ms (runner/runner.cpp, blackbox/engine.cpp), so that race gives no verdict.
+// check::kSplitGapRecheck (check/check.h), so that race gives no verdict.
 constexpr milliseconds kSplitGapFloor{20};
 constexpr milliseconds kSplitGapGatewayFloor{50};
 constexpr milliseconds kDefaultTimeout{1000};
@@ -341,27 +341,7 @@ class RtuTarget final : public Target {
       hard = first_by + window_.timeout() + 2 * wire;
       rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);
     }
-    // Two whole frames read at once (a USB adapter hands its buffer over in
-    // chunks; a busy host reads late), the second answering this request:
-    // replies come in order, so the first is a late reply (to one of the
-    // requests left unanswered, or to one whose reply was taken for a later
-    // request's because it answered that one too) and the second is this
-    // request's own.
-    if (!rr.closed)
-      if (auto n = whole_frame(r.frame); n && *n < r.frame.size())
-        if (auto m = whole_frame(std::span(r.frame).subspan(*n)); m && answers(adu, std::span(r.frame).subspan(*n, *m))) {
-          Bytes first(r.frame.begin(), r.frame.begin() + ptrdiff_t(*n));
-          bool split = true;
-          if (auto u = answered_by(first, false)) {
-            count_late(*u, std::move(first), r);
-          } else if (owed_) {
-            window_.late_reply(std::nullopt);
-            r.late.push_back({std::move(first), {}, microseconds(0)});
-          } else {
-            split = false;  // nothing was owed: a device that answered twice (trailing bytes)
-          }
-          if (split) r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(*n));
-        }
+    if (!rr.closed) take_late_front(adu, r);
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (r.frame.empty()) silent_at_ = t0;
     // Replies come in order: theirs would have come first. A reply taken
@@ -437,6 +417,32 @@ class RtuTarget final : public Target {
     return *n;
   }
 
+  // Two whole frames read at once (a USB adapter hands its buffer over in
+  // chunks; a busy host reads late), the second answering `request`: replies
+  // come in order, so the first is a late reply, to one of the requests left
+  // unanswered or the one owed (owed_), and the second is this request's
+  // own. With nothing unanswered or owed it stays: a device that answered
+  // twice (trailing bytes).
+  void take_late_front(const Bytes& request, Reply& r) {
+    auto n = whole_frame(r.frame);
+    if (!n || *n == r.frame.size()) return;
+    auto rest = std::span<const uint8_t>(r.frame).subspan(*n);
+    auto m = whole_frame(rest);
+    if (!m || !answers(request, rest.first(*m))) return;
+    Bytes first(r.frame.begin(), r.frame.begin() + ptrdiff_t(*n));
+    if (auto u = answered_by(first, false)) count_late(*u, std::move(first), r);
+    else if (owed_) count_late_unknown(std::move(first), std::nullopt, r);
+    else return;
+    r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(*n));
+  }
+
+  // A late frame whose request is not known: it widens the window (by `seen`
+  // when known) and is handed to the caller without a request.
+  void count_late_unknown(Bytes frame, std::optional<microseconds> seen, Reply& r) {
+    window_.late_reply(seen);
+    r.late.push_back({std::move(frame), {}, microseconds(0)});
+  }
+
   // A late reply to `which`: it widens the window past the time it took,
   // so that the runner's re-run of the cases judged since sees it in time,
   // and is handed to the caller with its request: one to a frame that had
@@ -465,8 +471,7 @@ class RtuTarget final : public Target {
     if (rest.empty()) return;
     std::optional<microseconds> seen;
     if (silent_at_) seen = std::chrono::duration_cast<microseconds>(Clock::now() - *silent_at_);
-    window_.late_reply(seen);
-    r.late.push_back({Bytes(rest.begin(), rest.end()), {}, microseconds(0)});
+    count_late_unknown(Bytes(rest.begin(), rest.end()), seen, r);
   }
 
   // The line time of an exchange at the line's baud: each frame's characters
