@@ -1,0 +1,105 @@
+#include "roles/roles.h"
+
+#include <algorithm>
+#include <array>
+#include <cctype>
+#include <string>
+
+namespace mbc::spec {
+namespace {
+
+struct Word {
+  Role role;
+  std::string_view text;
+  bool whole_word;  // English: matched only at word boundaries ("run" not in "current")
+};
+
+// In order: the first match wins (roles.h). Chinese words match as
+// substrings; English ones as words, case-insensitively.
+constexpr std::array kLexicon{
+    // slave address
+    Word{Role::slave_address, "站号", false}, Word{Role::slave_address, "从站地址", false},
+    Word{Role::slave_address, "通讯地址", false}, Word{Role::slave_address, "通信地址", false},
+    Word{Role::slave_address, "设备地址", false}, Word{Role::slave_address, "本机地址", false},
+    Word{Role::slave_address, "slave address", true}, Word{Role::slave_address, "slave id", true},
+    Word{Role::slave_address, "station address", true}, Word{Role::slave_address, "station number", true},
+    Word{Role::slave_address, "node address", true}, Word{Role::slave_address, "node id", true},
+    Word{Role::slave_address, "device address", true}, Word{Role::slave_address, "modbus address", true},
+    Word{Role::slave_address, "unit id", true},
+    // baud
+    Word{Role::baud, "波特率", false}, Word{Role::baud, "baud", true}, Word{Role::baud, "baudrate", true},
+    Word{Role::baud, "bit rate", true},
+    // parity and frame format
+    Word{Role::parity, "校验", false}, Word{Role::parity, "parity", true},
+    Word{Role::frame_format, "数据格式", false}, Word{Role::frame_format, "通讯格式", false},
+    Word{Role::frame_format, "data format", true}, Word{Role::frame_format, "frame format", true},
+    Word{Role::frame_format, "stop bits", true}, Word{Role::frame_format, "data bits", true},
+    // factory reset (before save: "恢复出厂设置" is not a save)
+    Word{Role::factory_reset, "恢复出厂", false}, Word{Role::factory_reset, "出厂设置", false},
+    Word{Role::factory_reset, "初始化", false}, Word{Role::factory_reset, "factory", true},
+    Word{Role::factory_reset, "defaults", true}, Word{Role::factory_reset, "default settings", true},
+    // save
+    Word{Role::save, "保存", false}, Word{Role::save, "存储", false}, Word{Role::save, "eeprom", true},
+    Word{Role::save, "store", true}, Word{Role::save, "save", true},
+    // motion
+    Word{Role::motion, "运行", false}, Word{Role::motion, "启动", false}, Word{Role::motion, "停止", false},
+    Word{Role::motion, "正转", false}, Word{Role::motion, "反转", false}, Word{Role::motion, "点动", false},
+    Word{Role::motion, "控制字", false}, Word{Role::motion, "命令", false}, Word{Role::motion, "回零", false},
+    Word{Role::motion, "run", true}, Word{Role::motion, "start", true}, Word{Role::motion, "stop", true},
+    Word{Role::motion, "jog", true}, Word{Role::motion, "direction", true}, Word{Role::motion, "control word", true},
+    Word{Role::motion, "controlword", true}, Word{Role::motion, "command", true}, Word{Role::motion, "forward", true},
+    Word{Role::motion, "reverse", true}, Word{Role::motion, "homing", true},
+};
+
+std::string lower(std::string_view s) {
+  std::string out(s);
+  std::transform(out.begin(), out.end(), out.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return out;
+}
+
+bool word_char(char c) { return std::isalnum(static_cast<unsigned char>(c)) != 0; }
+
+bool contains(const std::string& hay, std::string_view needle, bool whole_word) {
+  for (size_t at = hay.find(needle); at != std::string::npos; at = hay.find(needle, at + 1)) {
+    if (!whole_word) return true;
+    bool left = at == 0 || !word_char(hay[at - 1]);
+    size_t end = at + needle.size();
+    bool right = end >= hay.size() || !word_char(hay[end]);
+    if (left && right) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+const char* to_string(Role r) {
+  switch (r) {
+    case Role::none: return "none";
+    case Role::slave_address: return "slave-address";
+    case Role::baud: return "baud";
+    case Role::parity: return "parity";
+    case Role::frame_format: return "frame-format";
+    case Role::motion: return "motion";
+    case Role::save: return "save";
+    case Role::factory_reset: return "factory-reset";
+  }
+  return "none";
+}
+
+std::optional<Role> role_from_string(std::string_view text) {
+  const std::string t = lower(text);
+  for (Role r : {Role::none, Role::slave_address, Role::baud, Role::parity, Role::frame_format, Role::motion, Role::save,
+                 Role::factory_reset})
+    if (t == to_string(r)) return r;
+  return std::nullopt;
+}
+
+RoleMatch role_of_name(std::string_view en, std::string_view zh) {
+  const std::string e = lower(en), z(zh);
+  for (const Word& w : kLexicon) {
+    if (contains(z, w.text, w.whole_word) || contains(e, w.text, w.whole_word)) return {w.role, std::string(w.text)};
+  }
+  return {};
+}
+
+}  // namespace mbc::spec
