@@ -31,9 +31,34 @@ constexpr int kWarmupProbes = 5;
 // the runner's: check::kSplitGapRecheck (check/check.h).
 
 // After these the target may be gone: nothing more is learnt from it.
-bool target_may_be_gone(const Finding& f) { return f.kind == "no-answer" || f.kind == "target-error" || f.kind == "crash"; }
+bool target_may_be_gone(const Finding& f) {
+  return f.kind == FindingKind::no_answer || f.kind == FindingKind::target_error || f.kind == FindingKind::crash;
+}
 
 }  // namespace
+
+const char* to_string(FindingKind k) {
+  switch (k) {
+    case FindingKind::no_answer: return "no-answer";
+    case FindingKind::probe_refused: return "probe-refused";
+    case FindingKind::malformed_framing: return "malformed-framing";
+    case FindingKind::malformed_reply: return "malformed-reply";
+    case FindingKind::unknown_exception_code: return "unknown-exception-code";
+    case FindingKind::answered_broadcast: return "answered-broadcast";
+    case FindingKind::answered_other_slave: return "answered-other-slave";
+    case FindingKind::answered_corrupted_frame: return "answered-corrupted-frame";
+    case FindingKind::target_error: return "target-error";
+    case FindingKind::crash: return "crash";
+    case FindingKind::cannot_reopen: return "cannot-reopen";
+  }
+  return "?";
+}
+
+std::optional<FindingKind> finding_kind(std::string_view name) {
+  for (FindingKind k : kAllFindingKinds)
+    if (name == to_string(k)) return k;
+  return std::nullopt;
+}
 
 // ---- what the spec and the safety rules allow ----
 
@@ -151,6 +176,13 @@ check::Expect expect_for(const Plan& p, const Step& s) {
 }
 
 namespace {
+// How the plan's target is judged: a live line may hold other units (check/judge.h).
+check::JudgeContext context(const Plan& p) {
+  check::JudgeContext c{p.info.unit, p.info.framing, p.spec, {}};
+  c.shared_line = p.info.live;
+  return c;
+}
+
 // A late reply (Reply::late) to a frame that had to stay silent: it came
 // after that frame was judged silent, and is still a reply MB-SL v1.02 §2.1
 // (broadcast, another slave id) or §2.4.2 (a corrupted frame) forbids. A
@@ -160,16 +192,19 @@ std::optional<Finding> late_finding(const Plan& p, const Reply& r) {
   for (const auto& l : r.late) {
     const Bytes& req = l.request;
     if (req.size() < kRtuAddress + 1 + kRtuCrc) continue;
-    std::string kind, why;
+    FindingKind kind;
+    std::string why;
+    // On a multi-drop line another unit answers its own frames (check/judge.h).
+    if (!check::reply_is_targets(req[0], l.frame, context(p))) continue;
     if (req[0] == 0) {
-      kind = "answered-broadcast";
+      kind = FindingKind::answered_broadcast;
       why = "broadcast (MB-SL v1.02 §2.1: no response)";
     } else if (req[0] != p.info.unit) {
-      kind = "answered-other-slave";
+      kind = FindingKind::answered_other_slave;
       why = "another slave id (MB-SL v1.02 §2.1: no response)";
     } else if ((!crc_ok(req) || rtu_adu_length(req, Direction::request) != req.size()) &&
                p.spec->profile.policy(spec::Violation::crc_error).kind != spec::PolicyEntry::Kind::exception) {
-      kind = "answered-corrupted-frame";
+      kind = FindingKind::answered_corrupted_frame;
       why = "a frame with a bad CRC or length (MB-SL v1.02 §2.4.2: no response)";
     } else {
       continue;
@@ -182,36 +217,39 @@ std::optional<Finding> late_finding(const Plan& p, const Reply& r) {
 }  // namespace
 
 std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r) {
-  auto m = check::judge(s, r, check::JudgeContext{p.info.unit, p.info.framing, p.spec, {}});
+  auto m = check::judge(s, r, context(p));
   if (!m) return late_finding(p, r);
   std::string why = m->why;
-  std::string kind;
+  FindingKind kind = FindingKind::malformed_reply;
   using M = check::Mismatch::Kind;
-  bool addressed = s.kind != Step::Kind::raw || (!s.bytes.empty() && s.bytes[0] == p.info.unit);
+  uint8_t to = s.kind == Step::Kind::frame ? s.unit : s.bytes.empty() ? p.info.unit : s.bytes[0];
+  bool addressed = s.kind != Step::Kind::raw ? s.unit != 0 : to == p.info.unit;
   switch (m->kind) {
     case M::answered:
+      // The judge holds only the target's own replies against it (check::reply_is_targets).
       if (!addressed) {
-        bool broadcast = s.kind == Step::Kind::frame ? s.unit == 0 : s.bytes[0] == 0;
-        kind = broadcast ? "answered-broadcast" : "answered-other-slave";
-        why = "a reply to a frame for another slave id or to broadcast (MB-SL v1.02 §2.1: no response)";
+        kind = to == 0 ? FindingKind::answered_broadcast : FindingKind::answered_other_slave;
+        why = to == 0 ? "a reply to a broadcast (MB-SL v1.02 §2.1: no response)"
+                      : fmt::format("a reply from slave {} (the target) to a frame for slave {} (MB-SL v1.02 §2.2: only the addressed slave answers)",
+                                    p.info.unit, to);
       } else if (!r.framing_error.empty()) {
-        kind = "malformed-framing";
+        kind = FindingKind::malformed_framing;
         why = r.framing_error;
       } else {
-        kind = "answered-corrupted-frame";
+        kind = FindingKind::answered_corrupted_frame;
         why = "a reply to a frame with a bad CRC, length or gap (MB-SL v1.02 §2.4.2: no response)";
       }
       break;
-    case M::malformed_framing: kind = "malformed-framing"; break;
-    case M::malformed_reply: kind = "malformed-reply"; break;
-    case M::unknown_exception: kind = "unknown-exception-code"; break;
+    case M::malformed_framing: kind = FindingKind::malformed_framing; break;
+    case M::malformed_reply: kind = FindingKind::malformed_reply; break;
+    case M::unknown_exception: kind = FindingKind::unknown_exception_code; break;
     case M::silent:
-      kind = "no-answer";
+      kind = FindingKind::no_answer;
       why = "the target stopped answering: no reply to the liveness probe (a read of a register the spec maps)";
       break;
     case M::refused:
     case M::different:
-      kind = "probe-refused";
+      kind = FindingKind::probe_refused;
       why = "the liveness probe (a read of a register the spec maps) was refused";
       break;
   }
@@ -269,7 +307,7 @@ std::optional<Finding> execute(Target& t, const Plan& p, const Step& s, Outcome*
       }
     return judge(p, s, r);
   } catch (const std::exception& e) {
-    return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(s))};
+    return Finding{FindingKind::target_error, fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(s))};
   }
 }
 
@@ -437,7 +475,7 @@ std::optional<Finding> run_fresh(const Open& open, const Plan& p, const std::vec
   try {
     t = open();
   } catch (const std::exception& e) {
-    return Finding{"cannot-reopen", e.what()};
+    return Finding{FindingKind::cannot_reopen, e.what()};
   }
   for (const auto& st : steps) {
     // As round() waits: a live target's reconnect() keeps what it learnt of
@@ -460,7 +498,7 @@ std::optional<Finding> isolated(const std::function<std::optional<Finding>()>& f
   if (pid == 0) {
     close(fds[0]);
     auto f = fn();
-    std::string out = f ? f->kind + "\n" + f->message : "";
+    std::string out = f ? std::string(to_string(f->kind)) + "\n" + f->message : "";
     (void)!write(fds[1], out.data(), out.size());
     _exit(0);
   }
@@ -472,10 +510,12 @@ std::optional<Finding> isolated(const std::function<std::optional<Finding>()>& f
   int status = 0;
   waitpid(pid, &status, 0);
   if (WIFSIGNALED(status))
-    return Finding{"crash", fmt::format("the target's process died with signal {} ({})", WTERMSIG(status), strsignal(WTERMSIG(status)))};
+    return Finding{FindingKind::crash, fmt::format("the target's process died with signal {} ({})", WTERMSIG(status), strsignal(WTERMSIG(status)))};
   if (got.empty()) return std::nullopt;
   auto nl = got.find('\n');
-  return Finding{got.substr(0, nl), nl == std::string::npos ? "" : got.substr(nl + 1)};
+  auto kind = finding_kind(got.substr(0, nl));
+  if (!kind) return Finding{FindingKind::target_error, "the isolated round reported an unknown finding: " + got.substr(0, nl)};
+  return Finding{*kind, nl == std::string::npos ? "" : got.substr(nl + 1)};
 }
 
 namespace {
@@ -535,7 +575,7 @@ std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch,
       try {
         replies = t.transact_all(requests, depth);
       } catch (const std::exception& e) {
-        return Finding{"target-error", fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(steps.back()))};
+        return Finding{FindingKind::target_error, fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(steps.back()))};
       }
       out.frames += long(steps.size());
       for (size_t i = 0; i < steps.size(); ++i) account(out, p, steps[i], replies[i]);
@@ -562,10 +602,10 @@ std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch,
 // broadcast, or garbles every CRC, is one finding; a bad FC 03 reply and a
 // bad FC 16 reply are two).
 std::string signature(const Finding& f, const Plan& p, const Step& last) {
-  if (f.kind != "malformed-reply" && f.kind != "unknown-exception-code") return f.kind;
+  if (f.kind != FindingKind::malformed_reply && f.kind != FindingKind::unknown_exception_code) return to_string(f.kind);
   auto pdu = check::request_pdu(last, p.info.unit);
-  if (!pdu || pdu->empty()) return f.kind;
-  return fmt::format("{} fc{:02X}", f.kind, (*pdu)[0]);
+  if (!pdu || pdu->empty()) return to_string(f.kind);
+  return fmt::format("{} fc{:02X}", to_string(f.kind), (*pdu)[0]);
 }
 
 // The steps since the last probe before the finding (most findings need no earlier state).
@@ -577,7 +617,7 @@ std::vector<Step> last_batch(const std::vector<Step>& h) {
 }
 
 Reported reduce(const Open& open, const Plan& p, const Options& o, const Finding& f, const std::vector<Step>& history) {
-  Reported rep{f, history.empty() ? f.kind : signature(f, p, history.back()), {}, true, false, 0, history.size()};
+  Reported rep{f, history.empty() ? to_string(f.kind) : signature(f, p, history.back()), {}, true, false, 0, history.size()};
   // The same finding, past others (already reported) on the way.
   Wanted same = [&](const Finding& g, const Step& st) { return g.kind == f.kind && signature(g, p, st) == rep.signature; };
   auto stopped = [&] { return o.stopped && o.stopped(); };
@@ -674,12 +714,12 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
     target.reset();
     if (!f) break;
     // The session refused to send once stopped: the stop, not the target's fault.
-    if (f->kind == "target-error" && o.stopped && o.stopped()) break;
-    if (f->kind == "cannot-reopen") {
+    if (f->kind == FindingKind::target_error && o.stopped && o.stopped()) break;
+    if (f->kind == FindingKind::cannot_reopen) {
       out.target_lost = true;
       break;
     }
-    std::string sig = history.empty() ? f->kind : signature(*f, p, history.back());
+    std::string sig = history.empty() ? to_string(f->kind) : signature(*f, p, history.back());
     if (declared(sig)) {
       ++out.declared;  // declared, and it took the target with it: on a fresh one
       continue;

@@ -28,6 +28,7 @@
 #include <random>
 #include <set>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "safety/safety.h"
@@ -40,8 +41,31 @@ namespace mbc::conf::blackbox {
 
 using Step = check::Step;
 
+// What a finding is. Its name (to_string) is stable: reports, JSON, the
+// reproducers' file names and `fuzz --quirks` signatures use it.
+enum class FindingKind : uint8_t {
+  no_answer,                 // "no-answer": the liveness probe got no reply
+  probe_refused,             // "probe-refused": the liveness probe got an exception or another reply
+  malformed_framing,         // "malformed-framing": a reply whose framing is wrong (CRC, unit, length)
+  malformed_reply,           // "malformed-reply": a reply PDU that breaks MBAP v1.1b3 §6 for its request
+  unknown_exception_code,    // "unknown-exception-code": neither MBAP v1.1b3 §7 nor the spec knows the code
+  answered_broadcast,        // "answered-broadcast": MB-SL v1.02 §2.1
+  answered_other_slave,      // "answered-other-slave": the target answered a frame for another unit (MB-SL v1.02 §2.2)
+  answered_corrupted_frame,  // "answered-corrupted-frame": MB-SL v1.02 §2.4.2
+  target_error,              // "target-error": the target threw (connection lost, plugin error)
+  crash,                     // "crash": the target's process died by a signal
+  cannot_reopen,             // "cannot-reopen": the target could not be opened again
+};
+inline constexpr FindingKind kAllFindingKinds[] = {
+    FindingKind::no_answer,           FindingKind::probe_refused,          FindingKind::malformed_framing,
+    FindingKind::malformed_reply,     FindingKind::unknown_exception_code, FindingKind::answered_broadcast,
+    FindingKind::answered_other_slave, FindingKind::answered_corrupted_frame, FindingKind::target_error,
+    FindingKind::crash,               FindingKind::cannot_reopen};
+const char* to_string(FindingKind);
+std::optional<FindingKind> finding_kind(std::string_view name);
+
 struct Finding {
-  std::string kind;     // stable name: no-answer, malformed-reply, answered-broadcast, ...
+  FindingKind kind = FindingKind::no_answer;
   std::string message;  // what was sent, what came, why it is wrong
 };
 

@@ -70,197 +70,33 @@ std::string policy_text(const PolicyEntry& p, Violation v) {
   }
 }
 
-// What one violation of the request lets the reply be: each reading of its policy.
-struct Allowed {
-  Violation violation;
-  std::vector<PolicyEntry> readings;
-  std::vector<Reliance> relies;
-  std::shared_ptr<const std::vector<Reliance>> shared;  // `relies`, once complete
+// A request's classification (cases/facts.h, classify) with its facts
+// shared: every verdict on it points at them.
+struct Classification {
+  facts::Classified c;
+  std::shared_ptr<const std::vector<Reliance>> shared;               // c.relies
+  std::vector<std::shared_ptr<const std::vector<Reliance>>> breach;  // each c.breaches[i].relies
 };
 
-Allowed allowed(const spec::Spec& s, Violation v) {
-  Allowed a{v, {}, {}, {}};
-  PolicyEntry p = facts::policy(a.relies, s, v);
-  if (!p.readings.empty()) a.readings = p.readings;
-  else a.readings.push_back(p);
-  return a;
-}
-
-// The request's breaches of the spec, in the order a server meets them
-// (MBAP v1.1b3 §6: function, quantity, address, value).
-struct Breaches {
-  std::vector<Allowed> list;
-  std::vector<Reliance> relies;   // facts a valid request's verdict rests on
-  std::shared_ptr<const std::vector<Reliance>> shared;  // `relies`, once complete
-  std::vector<std::pair<spec::Table, uint16_t>> registers;  // mapped registers it addresses
-};
-
-// The spec's registers by wire address, per table: the map is asked about
-// every address of every request (a linear search per address cost most of
-// the time on a long capture).
-struct Index {
-  const spec::Spec* spec = nullptr;
-  const spec::Register* first = nullptr;
-  size_t count = 0;
-  std::string id;
-  std::array<std::vector<const spec::Register*>, 4> cover;
-  std::array<std::optional<uint16_t>, 4> last;
-  bool for_spec(const spec::Spec& s) const {
-    return spec == &s && first == s.registers.data() && count == s.registers.size() && id == s.device.id;
-  }
-};
-
-const Index& index_of(const spec::Spec& s) {
-  static Index ix;
-  if (ix.for_spec(s)) return ix;
-  ix = Index{};
-  ix.spec = &s;
-  ix.first = s.registers.data();
-  ix.count = s.registers.size();
-  ix.id = s.device.id;
-  for (auto& c : ix.cover) c.assign(0x10000, nullptr);
-  for (const auto& r : s.registers)
-    for (uint32_t a = r.address; a <= r.last_address() && a <= 0xFFFF; ++a) {
-      auto t = size_t(r.table);
-      ix.cover[t][a] = &r;
-      ix.last[t] = std::max<uint16_t>(ix.last[t].value_or(0), uint16_t(a));
-    }
-  return ix;
-}
-
-void add_range(const spec::Spec& s, Breaches& b, spec::Table table, uint32_t first, uint32_t count, bool write) {
-  bool unmapped = false, past = false, denied = false;
-  const Index& ix = index_of(s);
-  auto last = ix.last[size_t(table)];
-  std::vector<Reliance> access;
-  for (uint32_t a = first; a < first + count && a <= 0xFFFF; ++a) {
-    const spec::Register* r = ix.cover[size_t(table)][a];
-    if (!r) {
-      if (!last || a > *last) past = true;
-      else unmapped = true;
-      continue;
-    }
-    if (b.registers.size() < 256 && (b.registers.empty() || b.registers.back().second != r->address))
-      b.registers.emplace_back(table, r->address);
-    bool ok = write ? facts::writable(access, *r) : facts::readable(access, *r);
-    if (!ok) denied = true;
-  }
-  if (first + count > 0x10000) past = true;
-  if (past) b.list.push_back(allowed(s, Violation::address_past_map));
-  if (unmapped) b.list.push_back(allowed(s, Violation::unmapped_address));
-  if (denied) {
-    Allowed a = allowed(s, write ? Violation::write_read_only : Violation::read_write_only);
-    a.relies.insert(a.relies.end(), access.begin(), access.end());
-    b.list.push_back(std::move(a));
-  } else {
-    b.relies.insert(b.relies.end(), access.begin(), access.end());
-  }
-}
-
-void add_value(const spec::Spec& s, Breaches& b, spec::Table table, uint16_t address, uint16_t value) {
-  const spec::Register* r = index_of(s).cover[size_t(table)][address];
-  if (!r || r->address != address || r->words != 1) return;  // 32-bit values: both words are needed (not judged word by word)
-  std::vector<Reliance> rel;
-  const auto& range = facts::range(rel, *r);
-  if (!range) return;
-  double v = r->is_signed() ? double(int16_t(value)) : double(value);
-  if (v < range->min || v > range->max) {
-    Allowed a = allowed(s, Violation::value_out_of_range);
-    a.relies.insert(a.relies.end(), rel.begin(), rel.end());
-    b.list.push_back(std::move(a));
-  } else {
-    b.relies.insert(b.relies.end(), rel.begin(), rel.end());
-  }
-}
-
-Breaches compute_breaches(const spec::Spec& s, std::span<const uint8_t> pdu) {
-  Breaches b;
-  uint8_t fc = pdu[0];
-  const spec::FunctionCode* f = s.profile.function(fc);
-  if (!f) {
-    b.list.push_back(allowed(s, Violation::unsupported_function));
-    return b;
-  }
-  facts::supported(b.relies, *f);
-  ParsedRequest pr = parse_request(pdu);
-  if (!pr.request) {
-    b.list.push_back(allowed(s, Violation::wrong_byte_count));
-    return b;
-  }
-  const Request& r = *pr.request;
-  for (const auto& p : pr.problems)
-    if (p.find("byte count") != std::string::npos) {
-      b.list.push_back(allowed(s, Violation::wrong_byte_count));
-      break;
-    }
-  spec::Table table = spec::table_for_function(fc);
-  auto quantity = [&](uint32_t q, const char* which) {
-    if (q == 0) {
-      b.list.push_back(allowed(s, Violation::quantity_zero));
-      return false;
-    }
-    std::vector<Reliance> rel;
-    if (auto lim = facts::limit(rel, *f, which); lim && int(q) > *lim) {
-      Allowed a = allowed(s, Violation::quantity_over_limit);
-      a.relies.insert(a.relies.end(), rel.begin(), rel.end());
-      b.list.push_back(std::move(a));
-      return false;
-    }
-    b.relies.insert(b.relies.end(), rel.begin(), rel.end());
-    return true;
-  };
-  switch (fc) {
-    case fc::read_coils: case fc::read_discrete_inputs: case fc::read_holding_registers: case fc::read_input_registers:
-      if (quantity(r.quantity, "max_quantity")) add_range(s, b, table, r.address, r.quantity, false);
-      break;
-    case fc::write_single_coil:
-      add_range(s, b, table, r.address, 1, true);
-      break;
-    case fc::write_single_register:
-      add_range(s, b, table, r.address, 1, true);
-      if (b.list.empty()) add_value(s, b, table, r.address, r.value);
-      break;
-    case fc::write_multiple_coils:
-      if (quantity(r.quantity, "max_quantity")) add_range(s, b, table, r.address, r.quantity, true);
-      break;
-    case fc::write_multiple_registers:
-      if (quantity(r.quantity, "max_quantity")) {
-        add_range(s, b, table, r.address, r.quantity, true);
-        if (b.list.empty())
-          for (size_t i = 0; i < r.registers.size(); ++i) add_value(s, b, table, uint16_t(r.address + i), r.registers[i]);
-      }
-      break;
-    case fc::mask_write_register:
-      add_range(s, b, table, r.address, 1, true);
-      break;
-    case fc::read_write_multiple_registers:
-      if (quantity(r.quantity, "max_read_quantity") && quantity(r.write_quantity, "max_write_quantity")) {
-        add_range(s, b, table, r.write_address, r.write_quantity, true);
-        add_range(s, b, table, r.address, r.quantity, false);
-      }
-      break;
-    default:
-      break;
-  }
-  return b;
-}
-
-// A request's breaches depend on its PDU alone (and the spec): a capture
-// repeats its requests (polling), so each distinct one is worked out once.
-const Breaches& breaches(const spec::Spec& s, std::span<const uint8_t> pdu) {
-  static std::unordered_map<std::string, std::unique_ptr<Breaches>> cache;
-  static const Index* for_index = nullptr;
-  const Index* ix = &index_of(s);
-  if (for_index != ix || !ix->for_spec(s) || cache.size() >= 4096) cache.clear();
-  for_index = ix;
+// A request's classification depends on its PDU alone (and the spec): a
+// capture repeats its requests (polling), so each distinct one is worked out once.
+const Classification& classified(const spec::Spec& s, std::span<const uint8_t> pdu) {
+  static std::unordered_map<std::string, std::unique_ptr<Classification>> cache;
+  static const spec::Spec* for_spec = nullptr;
+  static std::string for_id;
+  static size_t for_count = 0;
+  if (for_spec != &s || for_id != s.device.id || for_count != s.registers.size() || cache.size() >= 4096) cache.clear();
+  for_spec = &s;
+  for_id = s.device.id;
+  for_count = s.registers.size();
   std::string key(pdu.begin(), pdu.end());
-  key += s.device.id;
   auto it = cache.find(key);
   if (it != cache.end()) return *it->second;
-  auto b = std::make_unique<Breaches>(compute_breaches(s, pdu));
-  b->shared = std::make_shared<const std::vector<Reliance>>(std::move(b->relies));
-  for (auto& a : b->list) a.shared = std::make_shared<const std::vector<Reliance>>(std::move(a.relies));
-  return *cache.emplace(std::move(key), std::move(b)).first->second;
+  auto j = std::make_unique<Classification>();
+  j->c = facts::classify(s, pdu);
+  j->shared = std::make_shared<const std::vector<Reliance>>(std::move(j->c.relies));
+  for (auto& b : j->c.breaches) j->breach.push_back(std::make_shared<const std::vector<Reliance>>(std::move(b.relies)));
+  return *cache.emplace(std::move(key), std::move(j)).first->second;
 }
 
 Verdict verdict(CheckKey k, bool pass, std::string message, std::shared_ptr<const std::vector<Reliance>> relies = {}) {
@@ -294,16 +130,17 @@ std::vector<Verdict> judge_exchange(const spec::Spec& s, const Exchange& x, cons
 
   if (rtu && !rq.crc_ok) {
     // A corrupted request: the device's answer is its crc_error policy.
-    Allowed a = allowed(s, Violation::crc_error);
-    a.shared = std::make_shared<const std::vector<Reliance>>(std::move(a.relies));
+    std::vector<Reliance> rel;
+    PolicyEntry p = facts::policy(rel, s, Violation::crc_error);
+    std::vector<PolicyEntry> readings = p.readings.empty() ? std::vector<PolicyEntry>{p} : p.readings;
+    auto shared = std::make_shared<const std::vector<Reliance>>(std::move(rel));
     CheckKey k{Check::policy, 0, Violation::crc_error};
     if (x.reply || x.abandoned) {
-      bool ok = std::any_of(a.readings.begin(), a.readings.end(),
-                            [](const PolicyEntry& p) { return p.kind != PolicyEntry::Kind::silent; });
-      out.push_back(verdict(k, ok, ok ? "" : "a reply to a request with a bad CRC; expected " + policy_text(a.readings[0], a.violation),
-                            a.shared));
+      bool ok = std::any_of(readings.begin(), readings.end(), [](const PolicyEntry& e) { return e.kind != PolicyEntry::Kind::silent; });
+      out.push_back(verdict(k, ok, ok ? "" : "a reply to a request with a bad CRC; expected " + policy_text(readings[0], Violation::crc_error),
+                            shared));
     } else {
-      out.push_back(verdict(k, true, "", a.shared));
+      out.push_back(verdict(k, true, "", shared));
     }
     return out;
   }
@@ -316,14 +153,12 @@ std::vector<Verdict> judge_exchange(const spec::Spec& s, const Exchange& x, cons
     return out;
   }
 
-  const Breaches& b = breaches(s, rq.pdu);
+  const Classification& jd = classified(s, rq.pdu);
+  const facts::Classified& b = jd.c;
   if (!x.reply) {
-    bool silent_allowed = false;
-    for (const auto& a : b.list)
-      for (const auto& p : a.readings)
-        if (p.kind != PolicyEntry::Kind::exception) silent_allowed = true;
-    if (silent_allowed) {
-      for (const auto& a : b.list) out.push_back(verdict({Check::policy, 0, a.violation}, true, "", a.shared));
+    if (b.allows_silence()) {
+      for (size_t i = 0; i < b.breaches.size(); ++i)
+        out.push_back(verdict({Check::policy, 0, b.breaches[i].violation}, true, "", jd.breach[i]));
     } else if (!x.abandoned) {
       // A capture misses packets; its silence is never a failure of the device.
       out.push_back(verdict({Check::unanswered}, false,
@@ -352,24 +187,20 @@ std::vector<Verdict> judge_exchange(const spec::Spec& s, const Exchange& x, cons
   bool exception = (rp.pdu[0] & kExceptionBit) && (rp.pdu[0] & 0x7F) == fc;
   uint8_t code = exception && rp.pdu.size() >= 2 ? rp.pdu[1] : 0;
 
-  if (!b.list.empty()) {
+  if (!b.valid()) {
     // The spec's policy for the breach says the reply; a breach whose policy
     // the spec leaves open is OBSERVED by the level rule.
-    bool any_exact = false;
+    bool any_exact = b.open() || (exception && b.allows_exception(code));
     std::string expected;
-    for (const auto& a : b.list)
-      for (const auto& p : a.readings) {
-        if (p.kind == PolicyEntry::Kind::unspecified) any_exact = true;
-        if (p.kind == PolicyEntry::Kind::exception && exception && code == p.code) any_exact = true;
-        expected += (expected.empty() ? "" : " or ") + policy_text(p, a.violation);
-      }
+    for (const auto& a : b.breaches)
+      for (const auto& p : a.readings) expected += (expected.empty() ? "" : " or ") + policy_text(p, a.violation);
     std::string got = exception ? fmt::format("exception {:02X} ({})", code, exception_name(code))
                                 : "a normal reply: " + describe_pdu(rp.pdu, false);
-    for (const auto& a : b.list)
-      out.push_back(verdict({Check::policy, 0, a.violation}, any_exact,
+    for (size_t i = 0; i < b.breaches.size(); ++i)
+      out.push_back(verdict({Check::policy, 0, b.breaches[i].violation}, any_exact,
                             any_exact ? "" : fmt::format("packet {}: {} to {}: expected {}, got {}", x.reply_packet,
                                                          describe_pdu(rq.pdu, true), x.conversation, expected, got),
-                            a.shared));
+                            jd.breach[i]));
     return out;
   }
 
@@ -377,11 +208,12 @@ std::vector<Verdict> judge_exchange(const spec::Spec& s, const Exchange& x, cons
   if (exception) {
     // 04-06 (device failure, acknowledge, busy) depend on the device's state,
     // not on the request; 01-03 contradict the spec's facts.
-    bool contradicts = code >= 1 && code <= 3;
+    // A value the spec cannot place in or out of range may get its refusal.
+    bool contradicts = code >= 1 && code <= 3 && !(b.maybe && b.allows_exception(code));
     out.push_back(verdict({Check::reply_well_formed, fc}, !contradicts,
                           fmt::format("packet {}: exception {:02X} ({}) to {}, which the spec allows", x.reply_packet, code,
                                       exception_name(code), describe_pdu(rq.pdu, true)),
-                          b.shared));
+                          jd.shared));
     return out;
   }
   Judged j = judge_reply(rq.pdu, rp.pdu);
@@ -393,8 +225,8 @@ std::vector<Verdict> judge_exchange(const spec::Spec& s, const Exchange& x, cons
     for (size_t i = 0; i < v.size(); ++i) t += (i ? "; " : "") + v[i];
     return t;
   };
-  out.push_back(verdict({Check::reply_byte_count, fc}, count_problems.empty(), count_problems.empty() ? "" : joined(count_problems), b.shared));
-  out.push_back(verdict({Check::reply_well_formed, fc}, other.empty(), other.empty() ? "" : joined(other), b.shared));
+  out.push_back(verdict({Check::reply_byte_count, fc}, count_problems.empty(), count_problems.empty() ? "" : joined(count_problems), jd.shared));
+  out.push_back(verdict({Check::reply_well_formed, fc}, other.empty(), other.empty() ? "" : joined(other), jd.shared));
   bool good = j.ok();
   for (const auto& [table, address] : b.registers) {
     CheckKey k{counts_as_write(fc) ? Check::register_write : Check::register_read, 0, Violation::unsupported_function, table, address};

@@ -318,13 +318,16 @@ class Reader {
     while (at < buf.size()) {
       std::span<const uint8_t> rest(buf.data() + at, buf.size() - at);
       if (!s.carrier) {
-        // Told apart once per conversation: an MBAP header, else an RTU
-        // frame whose CRC checks (RTU over TCP).
+        // Told apart once per conversation: an RTU frame whose CRC checks
+        // (RTU over TCP), else an MBAP header. The CRC first: a common RTU
+        // request looks like an MBAP header ("01 03 00 00 00 0A C5 CD":
+        // protocol 0, length 10), while an MBAP ADU whose first bytes end in
+        // a CRC that checks is a chance of 1 in 65536.
         if (rest.size() < 8) break;
-        if (mbap_header_ok(rest)) {
-          s.carrier = Carrier::mbap;
-        } else if (auto n = rtu_length(rest, to_server); n && crc_ok(rest.first(*n))) {
+        if (auto n = rtu_length(rest, to_server); n && crc_ok(rest.first(*n))) {
           s.carrier = Carrier::rtu;
+        } else if (mbap_header_ok(rest)) {
+          s.carrier = Carrier::mbap;
         } else if (rest.size() >= kMaxRtuAdu || rest.size() >= 8) {
           note(strf("%s: %zu bytes that are neither an MBAP header (protocol %u, length %u) nor an RTU frame with a "
                     "good CRC: skipped",
@@ -369,10 +372,10 @@ class Reader {
     Stream* s = stream(src, dst, be16(d, 0), be16(d, 2), true, to_server);
     if (!s) return;
     auto payload = d.subspan(8, std::min<size_t>(d.size(), be16(d, 4)) - std::min<size_t>(8, be16(d, 4)));
-    if (mbap_header_ok(payload) && payload.size() == 6 + size_t(be16(payload, 4)))
-      emit(*s, to_server, Carrier::mbap, payload);
-    else if (payload.size() >= 4 && crc_ok(payload))
+    if (payload.size() >= 4 && crc_ok(payload))  // an RTU frame first, as for TCP
       emit(*s, to_server, Carrier::rtu, payload);
+    else if (mbap_header_ok(payload) && payload.size() == 6 + size_t(be16(payload, 4)))
+      emit(*s, to_server, Carrier::mbap, payload);
     else if (!payload.empty())
       note(strf("%s: a %zu-byte datagram that is neither one MBAP ADU nor one RTU frame", s->name.c_str(), payload.size()));
   }

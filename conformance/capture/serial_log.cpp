@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "modbus/hex.h"
+#include "modbus/crc16.h"
 #include "modbus/mbap.h"
 #include "modbus/text.h"
 
@@ -168,8 +169,11 @@ ReadStats read_serial_log(FILE* f, FrameSink& sink) {
     fr.to_server = tok[dir] == "rx";
     // A serve trace of a TCP link carries MBAP ADUs: a header whose length
     // matches the line's bytes; anything else is an RTU frame.
+    // An RTU frame whose CRC checks is RTU even when it also reads as one
+    // MBAP ADU ("01 03 00 00 00 02 C4 0B": protocol 0, length 2).
     auto h = parse_mbap(*bytes);
-    bool mbap = h && h->protocol == 0 && h->adu_size() == bytes->size() && h->length_ok();
+    bool mbap = !(bytes->size() >= 4 && crc_ok(*bytes)) && h && h->protocol == 0 && h->adu_size() == bytes->size() &&
+                h->length_ok();
     fr.carrier = mbap ? Carrier::mbap : Carrier::rtu;
     fr.timed_line = !mbap;
     fr.adu = std::move(*bytes);

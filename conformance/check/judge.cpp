@@ -2,6 +2,7 @@
 
 #include <fmt/core.h>
 
+#include "modbus/crc16.h"
 #include "modbus/judge.h"
 #include "modbus/limits.h"
 #include "modbus/mbap.h"
@@ -62,6 +63,14 @@ std::string describe(const Expect& e) {
   return "";
 }
 
+bool reply_is_targets(uint8_t to, std::span<const uint8_t> reply, const JudgeContext& ctx) {
+  if (to == ctx.unit || !ctx.shared_line || ctx.framing != &mbc::kRtu) return true;
+  bool told = reply.size() >= kRtuAddress + kRtuCrc + 1 && crc_ok(reply);  // its address can be read
+  // A broadcast reaches the target too: its reply is the target's unless it names another drive.
+  if (to == 0) return !told || reply[0] == 0 || reply[0] == ctx.unit;
+  return told && reply[0] == ctx.unit;
+}
+
 namespace {
 
 // MBAP v1.1b3 §7: an exception reply is the function code with its high bit
@@ -80,6 +89,9 @@ std::optional<Mismatch> judge_expect(const Expect& e, const Step& s, const Reply
   if (e.kind == K::none) return std::nullopt;
   if (e.kind == K::silence) {
     if (r.silent()) return std::nullopt;
+    // A frame for another unit answered by another drive of the line.
+    uint8_t to = s.kind == Step::Kind::frame ? s.unit : s.bytes.empty() ? ctx.unit : s.bytes[0];
+    if ((s.kind == Step::Kind::frame || s.framing == &mbc::kRtu) && !reply_is_targets(to, r.frame, ctx)) return std::nullopt;
     return Mismatch{M::answered, "a reply came"};
   }
   if (r.silent()) {

@@ -33,6 +33,9 @@ struct JudgeContext {
   const spec::Spec* spec = nullptr;  // adds the exception codes the device documents
   // The replies (PDUs) of the earlier steps of the same case (`same`).
   std::span<const std::optional<Bytes>> earlier;
+  // The target's line may hold other units (a live RTU line; TargetInfo::live):
+  // see reply_is_targets. In process (ref:, a plugin) the target is alone.
+  bool shared_line = false;
 };
 
 // Empty when `reply` to step `s` meets s.expect (or one of its `either`
@@ -51,6 +54,17 @@ std::string judge_reading(const Step& s, const Reply& reply, const JudgeContext&
 std::optional<Bytes> request_pdu(const Step& s, uint8_t unit);
 
 bool exception_code_known(const spec::Spec* spec, uint8_t code);
+
+// Whether a reply to a frame addressed to unit `to` (0: broadcast) is the
+// target's. On a multi-drop RTU line (ctx.shared_line; MB-SL v1.02 §2.2) a
+// frame for another unit is answered by that unit: a reply is the target's
+// only when its CRC checks and it carries the target's address (ctx.unit);
+// one that cannot be told apart is not held against the target. A reply to
+// a broadcast is the target's unless it names another drive (a good CRC and
+// an address other than 0 and the target's). A frame to the target's own
+// unit, every reply of a target alone on its line, and every Modbus TCP
+// reply are the target's.
+bool reply_is_targets(uint8_t to, std::span<const uint8_t> reply, const JudgeContext& ctx);
 
 // The expectation in words ("exception 03", "exactly 03 02 00 01", ...).
 std::string describe(const Expect&);

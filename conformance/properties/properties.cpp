@@ -14,6 +14,7 @@
 #include "modbus/judge.h"
 #include "modbus/rtu.h"
 #include "properties/stateful.h"
+#include "session/session.h"
 
 namespace mbc::conf::props {
 
@@ -126,6 +127,24 @@ std::string what_failed(const std::string& description) {
   return m.substr(0, m.find('\n'));
 }
 
+// Empty when the target answers a liveness probe (after one reconnect),
+// else why it is taken as lost.
+std::string still_there(Target& t, const spec::Spec& spec) {
+  Bytes probe = probe_request(spec);
+  for (int attempt = 0; attempt < 2; ++attempt) {
+    try {
+      if (attempt) t.reconnect();
+      Reply r = t.transact(probe);
+      if (!r.silent()) return "";
+    } catch (const std::logic_error&) {
+      return "";  // the gate or the target cannot probe: nothing learnt, the verdict stands
+    } catch (const std::exception& e) {
+      return fmt::format("it no longer answers ({})", e.what());
+    }
+  }
+  return "it no longer answers a liveness probe, even after a reconnect";
+}
+
 }  // namespace
 
 CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const Options& options) {
@@ -155,6 +174,9 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   int runs = 0;
   std::vector<Step> last_failure;
   std::string last_failure_text;
+  // Why the target was lost in the last failing run (a transport that threw:
+  // the connection closed, the line gone), or empty: that run is no verdict.
+  std::string lost;
   // On a live line every drive takes a broadcast write: the report names each one sent.
   nlohmann::json broadcasts = nlohmann::json::array();
   auto note_broadcasts = [&](const Session& session) {
@@ -169,10 +191,19 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
     // stateful commands' model) across runs while it shrinks.
     Session session(*target, probe_view, facts);
     ++runs;
+    std::string gone;
     try {
-      inv.check(session);
+      try {
+        inv.check(session);
+      } catch (const RecoveredFault&) {
+        throw;  // the thing under test failed the exchange: a verdict
+      } catch (const std::runtime_error& e) {
+        gone = e.what();  // the target is gone (Stopped too: sending stopped): no verdict
+        throw;
+      }
     } catch (...) {
       last_failure = session.steps();
+      lost = gone;
       note_broadcasts(session);
       throw;
     }
@@ -189,6 +220,10 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   meta.description = inv.requirement;
   QuietListener quiet;
   rc::detail::TestResult result = rc::detail::checkTestable(property, meta, params, quiet);
+  // A live target that fails and then no longer answers (its connection
+  // closed and cannot be opened again, a line gone) was lost: no verdict.
+  rc::detail::FailureResult failure;
+  if (lost.empty() && shared->info().live && result.match(failure)) lost = still_there(*shared, spec);
   if (!broadcasts.empty()) c.extra["broadcast_writes"] = broadcasts;
 
   if (!probe_view.not_held().empty()) c.extra["not_held"] = probe_view.not_held();
@@ -207,6 +242,12 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
       c.message += fmt::format("; {} fact{} the manual does not state (inferred, observed or printed two ways) not held "
                                "against the device, first: {}",
                                nh.size(), nh.size() == 1 ? "" : "s", nh.front());
+  } else if (result.match(failed) && !lost.empty()) {
+    // The target was lost (or sending stopped): INCOMPLETE, never "falsified".
+    c.outcome = Outcome::error;
+    c.extra["cases"] = failed.numSuccess;
+    c.extra["target_lost"] = lost;
+    c.message = fmt::format("INCOMPLETE: the target was lost after {} cases (seed {}): {}", failed.numSuccess, seed, lost);
   } else if (result.match(failed)) {
     c.outcome = Outcome::fail;
     c.extra["cases"] = failed.numSuccess + 1;

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <limits>
 
+#include "cases/facts.h"
 #include "modbus/judge.h"
 #include "modbus/limits.h"
 #include "modbus/pdu.h"
@@ -151,11 +152,7 @@ std::vector<int> SpecView::unsupported_functions() const {
   return out;
 }
 
-Expected SpecView::expected(Violation v) const {
-  spec::PolicyEntry p = spec_->profile.policy(v);
-  // The language: quantity_zero, when absent, is covered by quantity_over_limit.
-  if (v == Violation::quantity_zero && !spec_->profile.exception_policy.count(v))
-    p = spec_->profile.policy(Violation::quantity_over_limit);
+Expected expected_of(const spec::PolicyEntry& p) {
   // An inferred, observed or twice-printed answer is not held against the
   // device: any refusal passes.
   if (p.basis.is_inferred()) return {Expected::Kind::refused, 0};
@@ -177,22 +174,15 @@ Expected SpecView::expected(Violation v) const {
   return {};
 }
 
+Expected SpecView::expected(Violation v) const {
+  facts::Relies ignored;
+  return expected_of(facts::policy(ignored, *spec_, v));  // the one policy lookup (quantity_zero's fallback there)
+}
+
 bool SpecView::in_range(const Register& r, uint32_t raw) const {
-  if (r.type == DataType::f32) {
-    // No range: any float (NaN included: nothing in the spec excludes it).
-    float f = std::bit_cast<float>(raw);
-    return !r.range || (!std::isnan(f) && f >= r.range->min && f <= r.range->max);
-  }
-  double v = r.words == 1 ? (r.type == DataType::s16 ? double(int16_t(raw)) : double(uint16_t(raw)))
-                          : (r.type == DataType::s32 ? double(int32_t(raw)) : double(raw));
-  // A range printed two ways: in range means inside every reading.
-  for (const auto& x : r.range_readings)
-    if (v < x.min || v > x.max) return false;
-  if (r.range) return v >= r.range->min && v <= r.range->max;
-  if (r.type == DataType::enumeration && !r.enum_id.empty())
-    if (const spec::Enumeration* e = spec_->find_enum(r.enum_id))
-      return std::any_of(e->values.begin(), e->values.end(), [&](const spec::EnumValue& x) { return double(x.value) == v; });
-  return true;
+  // In range means inside every reading of a range printed two ways.
+  facts::Relies ignored;
+  return facts::in_range(ignored, *spec_, r, raw).value_or(false);
 }
 
 std::vector<uint32_t> SpecView::boundary_values(const Register& r) const {

@@ -29,6 +29,9 @@ struct Expected {
   // Whether `reply` (a judged reply, or silence) is allowed.
   bool allows(const Reply& reply) const;
 };
+// What one policy entry (cases/facts.h policy()) lets a device answer; an
+// inferred or observed answer is not held against the device (any refusal).
+Expected expected_of(const spec::PolicyEntry&);
 
 class SpecView {
  public:

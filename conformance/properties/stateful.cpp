@@ -21,6 +21,12 @@ using spec::Register;
 using spec::Table;
 using spec::Violation;
 
+Expected refusal_of(const std::vector<facts::Breach>& breaches) {
+  Expected e = expected_of(breaches.front().policy);
+  for (size_t i = 1; i < breaches.size(); ++i) e.either.push_back(expected_of(breaches[i].policy));
+  return e;
+}
+
 namespace {
 
 using Words = std::map<uint16_t, std::optional<uint16_t>>;  // address -> word; nullopt = not known
@@ -34,6 +40,7 @@ struct Model {
   const DeviceFacts* facts = nullptr;
   uint8_t unit = 1;
   bool raw = false, virtual_clock = false, power_cycle = false, live = false;  // what the target offers
+  Framing framing = &mbc::kRtu;  // the target's: how its replies are framed
   Words words;
   Words stored;
   // A save command in progress (device facts: settle time): the words it
@@ -41,6 +48,13 @@ struct Model {
   std::optional<Words> saving;
   uint64_t save_left_us = 0;
 };
+
+// How the model's target is judged: a live line may hold other units (check/judge.h).
+check::JudgeContext context(const Model& m) {
+  check::JudgeContext c{m.unit, m.framing, &m.view->spec(), {}};
+  c.shared_line = m.live;
+  return c;
+}
 
 // What the model says one frame must do.
 struct Prediction {
@@ -55,13 +69,20 @@ struct Prediction {
   std::string why;                     // the rule, for messages
 };
 
-Prediction refused(const Model& m, Violation v, std::string why) {
+Prediction refused(const std::vector<facts::Breach>& breaches, std::string why) {
   Prediction p;
   p.kind = Prediction::Kind::refused;
-  p.violation = v;
-  p.refusal = m.view->expected(v);
+  p.violation = breaches.front().violation;
+  p.refusal = refusal_of(breaches);
   p.why = std::move(why);
   return p;
+}
+
+Prediction refused(const Model& m, Violation v, std::string why) {
+  facts::Breach b;
+  b.violation = v;
+  b.policy = facts::policy(b.relies, m.view->spec(), v);
+  return refused(std::vector<facts::Breach>{b}, std::move(why));
 }
 
 bool is_fact(const Model& m, const std::optional<CommandFact>& f, uint16_t address, uint16_t value) {
@@ -70,29 +91,15 @@ bool is_fact(const Model& m, const std::optional<CommandFact>& f, uint16_t addre
   return r && r->address == address && r->words == 1 && value == uint16_t(f->value);
 }
 
-// Address checks in the standard's order (MBAP v1.1b3 §6.3/§6.12 figures:
-// quantity, then address, then value), with the spec language's kinds.
-std::optional<Violation> check_addresses(const Model& m, Table table, uint32_t start, uint32_t qty, bool reading) {
+// A write of `values` at `start` to holding registers, which the classifier
+// found valid (`maybe`: its value may be out of range, a word of it unknown).
+Prediction predict_write(const Model& m, uint16_t start, std::span<const uint16_t> values, Bytes echo,
+                         const std::optional<facts::Breach>& maybe) {
   const spec::Spec& s = m.view->spec();
-  auto last = s.last_address(table);
-  for (uint32_t a = start; a < start + qty; ++a) {
-    if (a > 0xFFFF || !last || a > *last) return Violation::address_past_map;
-    const Register* r = s.register_covering(uint16_t(a), table);
-    if (!r) return Violation::unmapped_address;
-    if (reading && r->access == Access::wo) return Violation::read_write_only;
-    if (!reading && r->access == Access::ro) return Violation::write_read_only;
-  }
-  return std::nullopt;
-}
-
-// A write of `values` at `start` to holding registers.
-Prediction predict_write(const Model& m, uint16_t start, std::span<const uint16_t> values, Bytes echo) {
-  const SpecView& v = *m.view;
-  const spec::Spec& s = v.spec();
   Prediction p;
   p.kind = Prediction::Kind::normal;
   p.exact = std::move(echo);
-  // Every register the write touches, with its new words (other words as modelled).
+  // Every register the write touches.
   std::vector<const Register*> touched;
   for (size_t i = 0; i < values.size(); ++i) {
     const Register* r = s.register_covering(uint16_t(start + i));
@@ -111,72 +118,53 @@ Prediction predict_write(const Model& m, uint16_t start, std::span<const uint16_
         return p;
       }
     }
-    std::vector<uint16_t> w;
-    bool known = true;
-    for (int k = 0; k < r->words; ++k) {
-      uint16_t a = uint16_t(r->address + k);
-      if (a >= start && a < start + values.size()) {
-        w.push_back(values[a - start]);
-      } else if (auto it = m.words.find(a); it != m.words.end() && it->second) {
-        w.push_back(*it->second);
-      } else {
-        known = false;
-      }
-    }
-    if (!known) {
-      p.or_refused = true;  // the range of a half-written 2-word value depends on a word the model does not know
-    } else if (!v.in_range(*r, v.raw_of(*r, w))) {
-      return refused(m, Violation::value_out_of_range,
-                     fmt::format("0x{:X} is outside the range of 0x{:04X} (spec range/enum)", v.raw_of(*r, w), r->address));
-    }
   }
+  // The range of a half-written 2-word value may depend on a word the model does not know.
+  p.or_refused = maybe.has_value();
   for (size_t i = 0; i < values.size(); ++i) {
     uint16_t a = uint16_t(start + i);
     if (m.words.count(a)) p.updates[a] = p.or_refused ? std::nullopt : std::optional<uint16_t>(values[i]);
   }
-  p.refusal = v.expected(Violation::value_out_of_range);
+  if (maybe) p.refusal = expected_of(maybe->policy);
   p.why = "a valid write: echoed (MBAP v1.1b3 §6.6, §6.12)";
   return p;
 }
 
+std::string breach_text(const facts::Classified& c) {
+  std::string t;
+  for (const auto& b : c.breaches) t += (t.empty() ? "" : ", ") + std::string(spec::to_string(b.violation));
+  return t;
+}
+
 Prediction predict_pdu(const Model& m, std::span<const uint8_t> pdu) {
-  const SpecView& v = *m.view;
+  // What the request breaks (MBAP v1.1b3 §6, §7 and the spec): the one
+  // classifier; the words the model holds complete a half-written value.
+  facts::KnownWord known = [&m](Table t, uint16_t a) -> std::optional<uint16_t> {
+    if (t != Table::holding) return std::nullopt;
+    auto it = m.words.find(a);
+    return it == m.words.end() ? std::nullopt : it->second;
+  };
+  facts::Classified c = facts::classify(m.view->spec(), pdu, known);
   uint8_t fc = pdu[0];
-  if ((fc & 0x80) || !v.in_profile(fc))
-    return refused(m, Violation::unsupported_function, fmt::format("FC {:02} is not in the profile", fc & 0x7F));
+  if (!c.valid()) return refused(c.breaches, fmt::format("{} ({})", describe_pdu(pdu, true), breach_text(c)));
   switch (fc) {
     case 3:
     case 4: {
-      if (pdu.size() != 5) return refused(m, Violation::wrong_byte_count, "a read PDU is 5 bytes");
-      uint16_t start = be16(pdu, 1), qty = be16(pdu, 3);
-      if (qty == 0) return refused(m, Violation::quantity_zero, "quantity 0");
-      if (qty > v.quantity_limit(fc)) return refused(m, Violation::quantity_over_limit, fmt::format("quantity {} over the limit {}", qty, v.quantity_limit(fc)));
-      if (auto bad = check_addresses(m, fc == 3 ? Table::holding : Table::input, start, qty, true))
-        return refused(m, *bad, fmt::format("0x{:04X} x{}", start, qty));
       Prediction p;
       p.kind = Prediction::Kind::normal;
-      if (fc == 3) p.read = std::make_pair(start, qty);
+      if (fc == 3) p.read = std::make_pair(be16(pdu, 1), be16(pdu, 3));
       p.why = "a valid read";
       return p;
     }
     case 6: {
-      if (pdu.size() != 5) return refused(m, Violation::wrong_byte_count, "an FC 06 PDU is 5 bytes");
-      uint16_t a = be16(pdu, 1), value = be16(pdu, 3);
-      if (auto bad = check_addresses(m, Table::holding, a, 1, false)) return refused(m, *bad, fmt::format("0x{:04X}", a));
-      return predict_write(m, a, std::span<const uint16_t>(&value, 1), Bytes(pdu.begin(), pdu.end()));
+      uint16_t value = be16(pdu, 3);
+      return predict_write(m, be16(pdu, 1), std::span<const uint16_t>(&value, 1), Bytes(pdu.begin(), pdu.end()), c.maybe);
     }
     case 16: {
-      if (pdu.size() < 6) return refused(m, Violation::wrong_byte_count, "an FC 16 PDU is at least 6 bytes");
-      uint16_t start = be16(pdu, 1), qty = be16(pdu, 3);
-      if (qty == 0) return refused(m, Violation::quantity_zero, "quantity 0");
-      if (qty > v.quantity_limit(16)) return refused(m, Violation::quantity_over_limit, fmt::format("quantity {} over the limit {}", qty, v.quantity_limit(16)));
-      if (pdu[5] != qty * 2 || pdu.size() != size_t(6 + pdu[5]))
-        return refused(m, Violation::wrong_byte_count, "byte count != 2 x quantity, or != the data sent");
-      if (auto bad = check_addresses(m, Table::holding, start, qty, false))
-        return refused(m, *bad, fmt::format("0x{:04X} x{}", start, qty));
+      uint16_t qty = be16(pdu, 3);
       std::vector<uint16_t> values(qty);
       for (uint16_t i = 0; i < qty; ++i) values[i] = be16(pdu, 6 + 2 * i);
-      return predict_write(m, start, values, Bytes(pdu.begin(), pdu.begin() + 5));
+      return predict_write(m, be16(pdu, 1), values, Bytes(pdu.begin(), pdu.begin() + 5), c.maybe);
     }
     default: {
       // Functions the model does not follow: any well-formed answer; the
@@ -226,32 +214,73 @@ Prediction predict(const Model& m, std::span<const uint8_t> adu) {
   return silence;
 }
 
-// What the model predicts for a frame, as a frame-script expectation
-// (written into counterexamples and regressions).
-check::Expect expectation(const Model& m, const Prediction& p, std::span<const uint8_t> adu) {
+// A refusal the model allows, as a frame-script expectation: each reading
+// (`either`); "any exception or silence" (a policy the manual leaves open) as
+// each exception code the standard (MBAP v1.1b3 §7: 01-04) or the spec knows,
+// or silence, which is what the replay's judge takes too.
+check::Expect refusal_expect(const spec::Spec& s, const Expected& x) {
   using K = check::Expect::Kind;
+  std::vector<check::Expect> alts;
+  auto one = [&](const Expected& e) {
+    if (e.kind == Expected::Kind::exception) alts.push_back({.kind = K::exception, .code = uint8_t(e.code)});
+    else if (e.kind == Expected::Kind::silence) alts.push_back({.kind = K::silence});
+    else {
+      for (int code = 1; code < 128; ++code)
+        if (check::exception_code_known(&s, uint8_t(code))) alts.push_back({.kind = K::exception, .code = uint8_t(code)});
+      alts.push_back({.kind = K::silence});
+    }
+  };
+  one(x);
+  for (const auto& e : x.either) one(e);
+  // One of each: the first is the expectation, the rest its readings.
+  std::vector<check::Expect> unique;
+  for (auto& e : alts)
+    if (std::none_of(unique.begin(), unique.end(), [&](const check::Expect& u) { return u.kind == e.kind && u.code == e.code; }))
+      unique.push_back(std::move(e));
+  check::Expect out = unique.front();
+  out.either.assign(unique.begin() + 1, unique.end());
+  return out;
+}
+
+// The words of `qty` registers from `start` as the model holds them, if it knows every one.
+std::optional<std::vector<uint16_t>> known_words(const Model& m, uint16_t start, uint16_t qty) {
+  std::vector<uint16_t> w;
+  for (uint16_t i = 0; i < qty; ++i) {
+    auto it = m.words.find(uint16_t(start + i));
+    if (it == m.words.end() || !it->second) return std::nullopt;
+    w.push_back(*it->second);
+  }
+  return w;
+}
+
+// What the model predicts for a frame, as a frame-script expectation
+// (written into counterexamples and regressions): as strict as the model,
+// so that `mbconform replay` of a counterexample fails where the model does.
+check::Expect expectation(const Model& m, const Prediction& p) {
+  using K = check::Expect::Kind;
+  const spec::Spec& s = m.view->spec();
   switch (p.kind) {
     case Prediction::Kind::silence: return {.kind = K::silence};
     case Prediction::Kind::any: return {.kind = K::any_or_silence};
-    case Prediction::Kind::refused:
-      if (p.refusal.kind == Expected::Kind::exception) return {.kind = K::exception, .code = uint8_t(p.refusal.code)};
-      if (p.refusal.kind == Expected::Kind::silence) return {.kind = K::silence};
-      return {.kind = K::any_or_silence};  // an exception or silence: the policy is unspecified
+    case Prediction::Kind::refused: return refusal_expect(s, p.refusal);
     case Prediction::Kind::normal: break;
   }
-  if (p.or_refused) return {.kind = K::any};
-  if (p.exact) return {.kind = K::reply, .pdu = *p.exact};
-  if (p.read && adu.size() >= 4) {
-    // Every word read known to the model: the reply is exact (MBAP v1.1b3 §6.3).
-    Bytes r{adu[1], uint8_t(2 * p.read->second)};
-    for (uint16_t i = 0; i < p.read->second; ++i) {
-      auto it = m.words.find(uint16_t(p.read->first + i));
-      if (it == m.words.end() || !it->second) return {.kind = K::normal};
-      r.insert(r.end(), {uint8_t(*it->second >> 8), uint8_t(*it->second)});
-    }
-    return {.kind = K::reply, .pdu = r};
+  check::Expect e{.kind = K::normal};
+  if (p.exact) {
+    e = {.kind = K::reply, .pdu = *p.exact};
+  } else if (p.read) {
+    // Every word read known to the model: the reply holds exactly them (MBAP v1.1b3 §6.3).
+    if (auto w = known_words(m, p.read->first, p.read->second)) e = {.kind = K::registers, .words = *w};
   }
-  return {.kind = K::normal};
+  if (p.or_refused) {
+    // Or refused: the range depends on a word the model does not know.
+    check::Expect r = refusal_expect(s, p.refusal);
+    std::vector<check::Expect> more = std::move(r.either);
+    r.either.clear();
+    e.either.push_back(std::move(r));
+    for (auto& x : more) e.either.push_back(std::move(x));
+  }
+  return e;
 }
 
 std::string reply_text(const Reply& r) {
@@ -266,7 +295,9 @@ std::string judge(const Model& m, const Prediction& p, std::span<const uint8_t> 
   if (!rep.silent() && !rep.pdu) return fmt::format("bad reply frame {}: {}", to_hex(rep.frame), rep.framing_error);
   switch (p.kind) {
     case Prediction::Kind::silence:
-      return rep.silent() ? "" : fmt::format("expected silence ({}), got {}", p.why, reply_text(rep));
+      // On a multi-drop line a frame for another unit is answered by that unit (check/judge.h).
+      if (rep.silent() || !check::reply_is_targets(adu.empty() ? m.unit : adu[0], rep.frame, context(m))) return "";
+      return fmt::format("expected silence ({}), got {}", p.why, reply_text(rep));
     case Prediction::Kind::refused:
       return p.refusal.allows(rep) ? ""
                                    : fmt::format("expected {} ({}: {}), got {}", p.refusal.text(),
@@ -390,6 +421,7 @@ std::optional<Model> initial_model(Session& s, std::string& error) {
   m.unit = s.unit();
   const TargetInfo& t = s.target().info();
   m.raw = t.raw && t.framing == &mbc::kRtu;
+  m.framing = t.framing;
   m.virtual_clock = t.virtual_clock;
   m.power_cycle = t.power_cycle;
   m.live = t.live;
@@ -415,6 +447,16 @@ std::optional<Model> initial_model(Session& s, std::string& error) {
 Reply send_step(Session& s, bool raw, const Step& st) {
   if (raw || st.frame.size() < 4) return s.send_raw(st.frame, st.note);
   return s.send_to(st.frame[0], mbc::kRtu.pdu_bytes(st.frame), st.note);
+}
+
+// Whether the last step's reply meets the expectation it is written with
+// (check/judge.h, as `mbconform replay` judges it); "" when it does.
+std::string script_miss(Session& s, const Model& m, const Reply& rep) {
+  if (s.steps().empty()) return "";
+  check::JudgeContext ctx = context(m);
+  ctx.spec = &s.spec();
+  auto miss = check::judge(s.steps().back().script(), rep, ctx);
+  return miss ? miss->why : "";
 }
 
 // ---- the RapidCheck commands -------------------------------------------------
@@ -525,8 +567,10 @@ struct StepCmd final : rc::state::Command<Model, Sut> {
     if (step.kind == Step::Kind::power_cycle) return sut.session.power_cycle();
     Prediction p = predict(m, step.frame);
     Reply rep = send_step(sut.session, m.raw, step);
-    sut.session.expect_last(expectation(m, p, step.frame));
+    sut.session.expect_last(expectation(m, p));
     std::string why = judge(m, p, step.frame, rep);
+    // The expectation the counterexample will carry holds too (what `replay` judges).
+    if (why.empty()) why = script_miss(sut.session, m, rep);
     if (!why.empty()) RC_FAIL(fmt::format("{}{}: {}", to_hex(step.frame), step.note.empty() ? "" : " (" + step.note + ")", why));
   }
 
@@ -540,6 +584,11 @@ struct StepCmd final : rc::state::Command<Model, Sut> {
 std::string final_image_check(Session& s, const Model& m) {
   for (const Register* r : s.view().writable()) {
     ReadResult rr = read_register(s.transact(), s.view(), *r);
+    // The read goes into the counterexample with what the model holds.
+    if (auto known = known_words(m, r->address, uint16_t(r->words)))
+      s.expect_last({.kind = check::Expect::Kind::registers, .words = *known});
+    else
+      s.expect_last({.kind = check::Expect::Kind::normal});
     if (!rr.raw) return fmt::format("final read of {}: {}", describe(*r), rr.error);
     auto w = s.view().words_of(*r, *rr.raw);
     for (int k = 0; k < r->words; ++k) {
@@ -595,11 +644,11 @@ std::string replay(Session& s, const std::vector<Step>& steps) {
     }
     Prediction p = predict(*m, st.frame);
     Reply rep = send_step(s, m->raw, st);
-    s.expect_last(expectation(*m, p, st.frame));
+    s.expect_last(expectation(*m, p));
     if (std::string why = judge(*m, p, st.frame, rep); !why.empty())
       return fmt::format("step {} ({}): {}", i + 1, st.line(), why);
     // The expectation written in the file holds too.
-    if (auto miss = check::judge(st.script(), rep, check::JudgeContext{m->unit, &mbc::kRtu, &s.spec(), {}}))
+    if (auto miss = check::judge(st.script(), rep, context(*m)))
       return fmt::format("step {} ({}): {}", i + 1, st.line(), miss->why);
     apply_frame(*m, p, &rep);
   }

@@ -10,11 +10,16 @@
 #include <string>
 #include <vector>
 
+#include "cases/facts.h"
 #include "properties/properties.h"
 
 namespace mbc::conf::props {
 
 Invariant stateful_invariant();
+
+// What the spec's policy lets a device answer to a request's breaches (any
+// of them: cases/facts.h classify). `breaches` is not empty.
+Expected refusal_of(const std::vector<facts::Breach>& breaches);
 
 // A regression file: what it was found with, and its steps.
 struct Regression {

@@ -250,6 +250,7 @@ ReplayResult replay(Link& link, const check::Script& sc, const spec::Spec* spec,
   // Steps without a case: each judged as it comes; the first miss stops the
   // replay and is named by its line (a reproducer shows one failure).
   check::JudgeContext ctx{info.unit, info.framing, spec, {}};
+  ctx.shared_line = info.live;  // other drives of the line answer their own frames
   std::vector<std::optional<Bytes>> earlier;
   check::Exchange x(link, res.run);
   for (const auto& s : sc.steps) {
@@ -288,8 +289,10 @@ ReplayResult replay(Link& link, const check::Script& sc, const spec::Spec* spec,
       res.message = e.what();
       return res;
     } catch (const std::exception& e) {
-      // The target went away during the replay: the steps sent so far did it.
+      // A plugin that crashed or hung on a step failed it; a target that went
+      // away (the transport threw) is lost: no verdict (INCOMPLETE).
       res.outcome = ReplayResult::Outcome::failed;
+      res.target_lost = !dynamic_cast<const RecoveredFault*>(&e);
       res.line = s.line;
       res.message = fmt::format("the target failed: {}", e.what());
       return res;

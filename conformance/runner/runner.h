@@ -58,6 +58,7 @@ struct ReplayResult {
   // or cannot run, and why; they stop at the first miss.
   int line = 0;
   std::string message;
+  bool target_lost = false;  // `failed` because the target went away (not a plugin's crash): INCOMPLETE
   std::vector<Reply> replies;
   // Cases (a plan): every one run the way `run` runs it, OBSERVED and
   // SHOULD outcomes recorded as such; `failed` when a MUST case failed.

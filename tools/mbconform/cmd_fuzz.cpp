@@ -13,7 +13,7 @@
 // the reduction got, and says so: a finding is never dropped.
 // Findings whose kind (or signature, "KIND fcNN") a quirks file declares
 // (--quirks, conformance/README.md) are left aside and counted.
-// Exit 0: nothing found; 1: a finding; 2: could not run.
+// Exit 0: nothing found; 1: a finding; 2: could not run, or not to the end (a stop, a target lost: INCOMPLETE).
 //
 // Live drives get back the values they had (conformance/safety/safety.h).
 #include <fmt/core.h>
@@ -59,7 +59,7 @@ constexpr std::chrono::seconds kAfterDuration{6};
 fs::path save(const fs::path& dir, const conf::blackbox::Plan& plan, const conf::blackbox::Reported& r, const std::string& uri) {
   fs::path file;
   for (int i = 1;; ++i) {
-    file = dir / fmt::format("finding-{}-{}.txt", r.finding.kind, i);
+    file = dir / fmt::format("finding-{}-{}.txt", conf::blackbox::to_string(r.finding.kind), i);
     if (!fs::exists(file)) break;
   }
   std::string replay = fmt::format("mbconform replay {} --target '{}'", file.string(), uri);
@@ -131,7 +131,7 @@ int run_fuzz(FuzzArgs& a) {
     // far as it got: it was seen on the target, and is never dropped.
     ++saved;
     progress.clear();
-    fmt::print("FINDING {} after {} steps: {}\n", r.finding.kind, r.history, r.finding.message);
+    fmt::print("FINDING {} after {} steps: {}\n", conf::blackbox::to_string(r.finding.kind), r.history, r.finding.message);
     if (r.cut_off)
       fmt::print("its reduction was cut off ({}); saving {} step(s), {}\n", session.stopped().value_or("stopped"),
                  r.steps.size(), r.reproduced ? "which reproduce it on a fresh target" : "the last ones sent, unreduced");
@@ -153,7 +153,6 @@ int run_fuzz(FuzzArgs& a) {
   }
   const bool ran_out = session.stopped().has_value();  // the deadline: --duration + the reduction's time
   if (out.declared) fmt::print("{} finding(s) of a kind {} declares left aside\n", out.declared, a.quirks_file);
-  if (out.target_lost && !ran_out) fmt::print("the target could not be opened again: fuzzing stopped before --duration ran out\n");
   if (ran_out) fmt::print("the time allowed (--duration + {} s) ran out; what was left of a reduction was cut off\n", kAfterDuration.count());
   if (out.wire_time_bound_seconds > 0) {
     fmt::print("{} exchanges ({} silent) in {:.2f} s against a wire-time bound of {:.2f} s at {} baud: {:.2f}x\n",
@@ -165,10 +164,17 @@ int run_fuzz(FuzzArgs& a) {
                out.reply_latency_p99_seconds * 1e3, out.bound_with_silences_seconds(),
                out.seconds / out.bound_with_silences_seconds());
   }
+  if (out.target_lost && !ran_out) {
+    // A lost target is no verdict on what was not sent (the findings before it stand, and are saved).
+    fmt::print("INCOMPLETE: the target was lost (it could not be opened again) after {} frames, before --duration ran out; "
+               "{} distinct finding(s) saved{}\n",
+               out.frames, saved, saved ? " in " + a.t.out : "");
+    return kExitUsage;
+  }
   if (saved == 0) {
     fmt::print("no finding: {} frames in {} batches, every probe answered ({:.0f} frames/s)\n", out.frames, out.batches,
                out.frames_per_second());
-    return out.target_lost && !ran_out ? kExitUsage : kExitOk;
+    return kExitOk;
   }
   fmt::print("{} distinct finding(s), {} repeat(s) not saved again, {} frames in {} round(s) ({:.0f} frames/s, reductions "
              "left out); reproducers in {}\n",

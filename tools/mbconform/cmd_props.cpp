@@ -11,7 +11,8 @@
 // conformance/properties/regressions/ (add it there to replay it in ctest).
 //
 // Exit codes: 0 every property held; 1 a property was falsified (or a replay
-// disagreed); 2 the run could not be done (bad target, bad spec, bad arguments).
+// disagreed); 2 the run could not be done or finish (bad target, bad spec, bad
+// arguments, a stop signal, a target lost on the way: INCOMPLETE).
 #include <fmt/core.h>
 
 #include <chrono>
@@ -145,7 +146,7 @@ int run(PropsArgs& a) {
   std::string out = a.t.out.empty() ? default_out_dir("props") : a.t.out;
   if (!conf::out_dir_ok(out, "mbconform props")) return kExitUsage;
   conf::install_stop_signals();
-  bool failed = false;
+  bool failed = false, lost = false;
   std::vector<std::pair<std::string, std::string>> regressions;  // file name, text
 
   for (const auto& uri : targets) {
@@ -200,6 +201,14 @@ int run(PropsArgs& a) {
         dr.cases.push_back(std::move(c));
         break;
       }
+      if (c.extra.contains("target_lost")) {
+        // The target is gone: no verdict from this property nor the ones after it.
+        fmt::print("  {:<34} INCOMPLETE: the target was lost: {}\n", c.id, c.extra["target_lost"].get<std::string>());
+        c.extra.erase("regression");
+        dr.interrupted = report.interrupted = lost = true;
+        dr.cases.push_back(std::move(c));
+        break;
+      }
       for (const auto& b : c.extra.value("broadcast_writes", nlohmann::json::array())) dr.broadcast_writes.push_back(c.id + ": " + b.get<std::string>());
       fmt::print("  {:<34} {:<5} {:>5} cases {:>8.1f} ms{}\n", c.id, conf::to_string(c.outcome), c.extra.value("cases", 0),
                  c.duration_ms, c.outcome == conf::Outcome::skip ? "  (" + c.message + ")" : "");
@@ -230,6 +239,7 @@ int run(PropsArgs& a) {
   fmt::print("{}", conf::summary_table(report));
   fmt::print("reports: {}\n", out);
   if (!regressions.empty()) fmt::print("counterexamples: {}/regressions/ (copy to conformance/properties/regressions/ to replay in ctest)\n", out);
+  if (lost) fmt::print("INCOMPLETE: the target was lost; the properties not run are not verdicts\n");
   if (report.interrupted) return kExitUsage;
   return failed ? kExitFailed : kExitOk;
 }

@@ -9,7 +9,8 @@
 // OBSERVED and SHOULD outcomes recorded as such, one line of counts.
 // Exit 0: every expectation met (cases: no MUST case failed); 1: one was not;
 // 2: the script cannot run there (raw bytes of another framing, a clock or a
-// power cycle on a live target, an unreadable file, a target that cannot be opened).
+// power cycle on a live target, an unreadable file, a target that cannot be
+// opened), or it did not run to the end (a stop, a target lost: INCOMPLETE).
 #include <fmt/core.h>
 
 #include "commands.h"
@@ -88,6 +89,10 @@ int replay_file(const std::string& file, const std::string& uri_in, const Target
     fmt::print("{} on {}: INCOMPLETE: {} at line {}\n", file, uri, *stop, r.line);
     return kExitUsage;
   }
+  if (r.target_lost) {
+    fmt::print("{} on {}: INCOMPLETE: the target was lost at line {}: {}\n", file, uri, r.line, r.message);
+    return kExitUsage;
+  }
   if (r.outcome != Outcome::cannot_run && r.line == 0 && !sc.cases.empty()) {
     // Cases: one line of counts, a line per failed case (as `run` counts them).
     auto n = conf::count(r.run);
@@ -98,7 +103,10 @@ int replay_file(const std::string& file, const std::string& uri_in, const Target
     fmt::print("{} on {}: {} cases: {} pass, {} fail, {} observed, {} skip{}{}\n", file, uri, r.run.cases.size(), n.pass,
                n.fail, n.observed, n.skip, n.error ? fmt::format(", {} error", n.error) : "",
                sc.steps.empty() ? "" : fmt::format(" (and {} steps before the first case, every expectation met)", sc.steps.size()));
-    if (!r.run.error.empty()) fmt::print(stderr, "mbconform {}: {}\n", command, r.run.error);
+    if (!r.run.error.empty()) {
+      fmt::print("{} on {}: INCOMPLETE: {}\n", file, uri, r.run.error);  // a lost target: no verdict on the rest
+      return kExitUsage;
+    }
     return n.must_failed > 0 ? kExitFailed : kExitOk;
   }
   switch (r.outcome) {

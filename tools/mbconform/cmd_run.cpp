@@ -361,12 +361,13 @@ int run(RunArgs& a) {
   }
   fmt::print("{}", conf::summary_table(report));
   fmt::print("reports: {}\n", out);
-  // Interrupted: the run was not done (2), whatever it found so far. A lost
-  // target is recorded as the FAIL of the case it was lost in (1).
+  // Interrupted, or a target lost (DeviceRun::error): the run was not done
+  // (2, INCOMPLETE), whatever it found so far; the case it was lost in is a
+  // FAIL in the report (a device that dies on a request is a finding).
   if (report.interrupted) return kExitUsage;
-  if (run_failed(report) || !quirks_gone.empty()) return kExitFailed;
   for (const auto& d : report.devices)
     if (!d.error.empty()) return kExitUsage;
+  if (run_failed(report) || !quirks_gone.empty()) return kExitFailed;
   return kExitOk;
 }
 

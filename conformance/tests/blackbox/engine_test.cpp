@@ -137,7 +137,7 @@ struct JudgeTest : ::testing::Test {
   }
   std::string kind(const Step& st, const Reply& r) {
     auto f = judge(p, st, r);
-    return f ? f->kind : "";
+    return f ? to_string(f->kind) : "";
   }
 };
 
@@ -171,8 +171,36 @@ TEST_F(JudgeTest, NoReplyToBroadcastOtherSlaveOrCorruptedFrame) {
     EXPECT_EQ(kind(*st, silent), "");
   }
   EXPECT_EQ(kind(broadcast, reply(0, write)), "answered-broadcast");
-  EXPECT_EQ(kind(other, reply(9, write)), "answered-other-slave");
   EXPECT_EQ(kind(bad, reply(1, write)), "answered-corrupted-frame");
+  // A live line may hold slave 9 (MB-SL v1.02 §2.2): its reply, carrying its
+  // address, is its own; the target's fault is a reply carrying the target's.
+  EXPECT_EQ(kind(other, reply(9, write)), "");
+  EXPECT_EQ(kind(other, reply(1, write)), "answered-other-slave");
+  Reply garbled = reply(9, write);
+  garbled.frame.back() ^= 0xFF;  // whose it is cannot be told: not held against the target
+  garbled.pdu.reset();
+  EXPECT_EQ(kind(other, garbled), "");
+  EXPECT_EQ(kind(broadcast, reply(7, write)), "");  // a reply to a broadcast that names slave 7
+  // Alone on its line (in process), every reply is the target's.
+  TargetInfo alone = live_rtu(1);
+  alone.live = false;
+  Plan solo = make_plan(s, alone, WritePolicy{});
+  auto f = judge(solo, other, reply(9, write));
+  ASSERT_TRUE(f);
+  EXPECT_EQ(f->kind, FindingKind::answered_other_slave);
+}
+
+// The finding kinds' names are stable (reports, reproducers' file names, quirks files).
+TEST(FindingKinds, NamesRoundTrip) {
+  std::set<std::string> names;
+  for (FindingKind k : kAllFindingKinds) {
+    names.insert(to_string(k));
+    EXPECT_EQ(finding_kind(to_string(k)), k) << to_string(k);
+  }
+  EXPECT_EQ(names.size(), std::size(kAllFindingKinds));
+  EXPECT_EQ(std::string(to_string(FindingKind::answered_other_slave)), "answered-other-slave");
+  EXPECT_EQ(std::string(to_string(FindingKind::malformed_reply)), "malformed-reply");
+  EXPECT_FALSE(finding_kind("no-such-kind"));
 }
 
 // A reply that came after its frame was judged silent (Reply::late, the
@@ -191,7 +219,8 @@ TEST_F(JudgeTest, ALateReplyToAFrameThatHadToStaySilentIsAFinding) {
   Bytes corrupted = rtu_frame(1, write);
   corrupted.back() ^= 0x01;
   EXPECT_EQ(kind(read, with_late(rtu_frame(0, write), 0)), "answered-broadcast");
-  EXPECT_EQ(kind(read, with_late(rtu_frame(9, write), 9)), "answered-other-slave");
+  EXPECT_EQ(kind(read, with_late(rtu_frame(9, write), 9)), "");  // slave 9's own reply (a live line)
+  EXPECT_EQ(kind(read, with_late(rtu_frame(9, write), 1)), "answered-other-slave");
   EXPECT_EQ(kind(read, with_late(corrupted, 1)), "answered-corrupted-frame");
   EXPECT_EQ(kind(read, with_late(rtu_frame(1, write), 1)), "");
   EXPECT_EQ(kind(read, with_late({}, 0)), "");
@@ -250,10 +279,10 @@ TEST(Reducer, RealTargetReducesToTheFrameThatFails) {
   Open open = [&] { return open_target(uri); };
   auto f = run_fresh(open, p, steps);
   ASSERT_TRUE(f);
-  ASSERT_EQ(f->kind, "answered-broadcast");
+  ASSERT_EQ(f->kind, FindingKind::answered_broadcast);
   std::function<bool(const std::vector<Step>&)> fails = [&](const std::vector<Step>& v) {
     auto g = run_fresh(open, p, v);
-    return g && g->kind == "answered-broadcast";
+    return g && g->kind == FindingKind::answered_broadcast;
   };
   int runs = 0;
   auto min = ddmin<Step>(steps, fails, 400, runs);
@@ -293,7 +322,7 @@ TEST(Reducer, AFindingWhoseReductionIsCutOffIsKeptUnreduced) {
   ASSERT_EQ(out.findings.size(), 1u);
   ASSERT_EQ(heard.size(), 1u);
   const Reported& r = out.findings[0];
-  EXPECT_EQ(r.finding.kind, "answered-broadcast");
+  EXPECT_EQ(r.finding.kind, FindingKind::answered_broadcast);
   EXPECT_TRUE(r.cut_off);
   EXPECT_FALSE(r.reproduced);
   // The last batch as sent, ending with the frame that was answered.
@@ -437,7 +466,7 @@ TEST(Fuzz, ASplitFrameAnsweredIsSentAgainWithALongPauseBeforeItIsAFinding) {
     EXPECT_EQ(t.split_gap(), std::chrono::microseconds(3500)) << "the pause is put back";
     if (always) {
       ASSERT_TRUE(f);
-      EXPECT_EQ(f->kind, "answered-corrupted-frame");
+      EXPECT_EQ(f->kind, FindingKind::answered_corrupted_frame);
     } else {
       EXPECT_FALSE(f) << f->message;
     }

@@ -167,6 +167,58 @@ TEST(CaptureRead, RtuOverTcpOnAnotherPortIsFoundByItsCrc) {
   EXPECT_EQ(find_case(r, "/capture/framing/crc")->outcome, Outcome::pass);
 }
 
+// A common RTU request reads as an MBAP header too: "01 03 00 00 00 0A C5 CD"
+// has bytes 2-3 = 0 (protocol 0) and 4-5 = 10 (a length). Its CRC checks:
+// RTU over TCP, never MBAP (MB-SL v1.02 §2.5.1.2: the CRC is the frame's end).
+TEST(CaptureRead, RtuThatLooksLikeMbapIsReadAsRtu) {
+  Builder b;
+  auto c = b.conv(40007, 1503);
+  Bytes rq = rtu_frame(1, read_request(3, 0, 10));
+  ASSERT_EQ(to_hex(rq), "01 03 00 00 00 0A C5 CD");
+  const uint16_t ten[10] = {1, 2, 3, 4, 5, 6, 7, 8, 9, 10};
+  b.put(c.data(true, rq));
+  b.put(c.data(false, rtu_frame(1, read_registers_reply(3, ten))));
+  b.put(c.data(true, rtu_frame(1, read_request(3, 0, 2))));  // "01 03 00 00 00 02 C4 0B": length 2, protocol 0
+  const uint16_t two[] = {1, 2};
+  b.put(c.data(false, rtu_frame(1, read_registers_reply(3, two))));
+  Options o;
+  o.read.ports.push_back(1503);
+  Result r = check(b.file, o);
+  EXPECT_EQ(r.coverage.requests, 2u);
+  EXPECT_EQ(r.coverage.exchanges, 2u);
+  EXPECT_EQ(find_case(r, "/capture/framing/crc")->outcome, Outcome::pass);
+  EXPECT_EQ(find_case(r, "/capture/function-codes/fc03/reply")->outcome, Outcome::pass);
+  EXPECT_EQ(conf::count(r.run).must_failed, 0u);
+  // The same frames in a serial log: each line that is an RTU frame whose CRC checks is RTU.
+  std::string log = "0.000000 line rx " + to_hex(rtu_frame(1, read_request(3, 0, 2))) + "\n" +
+                    "0.020000 line tx " + to_hex(rtu_frame(1, read_registers_reply(3, two))) + "\n";
+  Result l = check(Bytes(log.begin(), log.end()));
+  EXPECT_EQ(l.coverage.exchanges, 1u);
+  EXPECT_EQ(find_case(l, "/capture/framing/crc")->outcome, Outcome::pass);
+}
+
+// A client that reuses a transaction id while the first request waits: a
+// server answers requests in turn, so the replies pair by order (MB
+// Messaging on TCP/IP v1.0b §3.1.3: the id pairs a reply with its request;
+// two alike are told apart only by their order).
+TEST(CaptureRead, AReusedTransactionIdPairsByOrder) {
+  Builder b;
+  auto c = b.conv(40008);
+  b.put(c.data(true, mbap_frame(9, 1, read_request(3, 0, 1))));       // mapped
+  b.put(c.data(true, mbap_frame(9, 1, read_request(3, 0x0100, 1))));  // in the gap: exception 02
+  b.put(c.data(true, mbap_frame(9, 1, read_request(3, 0, 2))));       // mapped, 2 registers
+  const uint16_t one[] = {5}, two[] = {5, 6};
+  b.put(c.data(false, mbap_frame(9, 1, read_registers_reply(3, one))));
+  b.put(c.data(false, mbap_frame(9, 1, exception_reply(3, 2))));
+  b.put(c.data(false, mbap_frame(9, 1, read_registers_reply(3, two))));
+  Result r = check(b.file);
+  EXPECT_EQ(r.coverage.exchanges, 3u);
+  EXPECT_EQ(r.coverage.unsolicited, 0u);
+  EXPECT_EQ(find_case(r, "/capture/policy/unmapped_address")->outcome, Outcome::pass);
+  EXPECT_EQ(find_case(r, "/capture/function-codes/fc03/byte-count")->outcome, Outcome::pass);
+  EXPECT_EQ(conf::count(r.run).must_failed, 0u) << conf::count(r.run).fail;
+}
+
 TEST(CaptureRead, TruncatedAndMalformedCapturesGiveOneLineNotACrash) {
   Builder b;
   auto c = b.conv(40005);

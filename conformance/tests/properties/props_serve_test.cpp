@@ -57,8 +57,9 @@ TEST(PropsOverServe, ServedFaultIsCaught) {
 
 // ---- the command line ------------------------------------------------------
 
-int run_cli(const std::string& args, std::string* out = nullptr) {
-  std::string cmd = serve_test::mbconform_bin() + " props " + args + " 2>&1";
+// `mbconform COMMAND ARGS`: its exit code, its output in *out.
+int run_tool(const std::string& command, const std::string& args, std::string* out = nullptr) {
+  std::string cmd = serve_test::mbconform_bin() + " " + command + " " + args + " 2>&1";
   FILE* p = popen(cmd.c_str(), "r");
   std::string text;
   char buf[4096];
@@ -67,6 +68,7 @@ int run_cli(const std::string& args, std::string* out = nullptr) {
   if (out) *out = text;
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
+int run_cli(const std::string& args, std::string* out = nullptr) { return run_tool("props", args, out); }
 
 TEST(PropsCli, ExitCodesReportsAndCounterexamples) {
   TempDir dir;
@@ -84,6 +86,11 @@ TEST(PropsCli, ExitCodesReportsAndCounterexamples) {
   // The written counterexample replays: the clean device agrees, the broken one does not.
   EXPECT_EQ(run_cli("--replay " + regression, &out), 0) << out;
   EXPECT_EQ(run_cli("--target 'ref:hsc60?fault=lost-write' --replay " + regression, &out), 1) << out;
+  // It is written with every expectation the model had: `mbconform replay`,
+  // which reads only the file, gives the same verdicts.
+  EXPECT_EQ(run_tool("replay", regression + " --target 'ref:hsc60?fault=lost-write'", &out), 1) << out;
+  EXPECT_NE(out.find("not met on"), std::string::npos) << out;
+  EXPECT_EQ(run_tool("replay", regression + " --target ref:hsc60", &out), 0) << out;
 
   EXPECT_EQ(run_cli("--target ref:no-such-device", &out), 2) << out;
   EXPECT_EQ(run_cli("--target ref:hsc60 --only no-such-invariant", &out), 2) << out;
