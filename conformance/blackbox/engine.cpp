@@ -719,6 +719,16 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
       out.target_lost = true;
       break;
     }
+    // The target threw and cannot be opened again: it was lost, which is no
+    // finding (one whose target comes back is: it is reduced below).
+    if (f->kind == FindingKind::target_error) {
+      try {
+        open().reset();  // closed again at once: the reduction opens its own
+      } catch (const std::exception&) {
+        out.target_lost = true;
+        break;
+      }
+    }
     std::string sig = history.empty() ? to_string(f->kind) : signature(*f, p, history.back());
     if (declared(sig)) {
       ++out.declared;  // declared, and it took the target with it: on a fresh one

@@ -142,7 +142,10 @@ void foreign_or_corrupt_ignored(Session& s) {
     // MB-SL v1.02 §2.2: only the addressed slave answers; on a multi-drop
     // line slave `other` may be there, and its reply is its own.
     if (!rep.silent() && reply_is_targets(s, other, rep))
-      fail(fmt::format("{}: a frame for slave {} was answered by slave {}: {}", note, other, s.unit(), to_hex(rep.frame)));
+      fail(fmt::format("{}: a frame for slave {} was answered{}: {}", note, other,
+                       s.target().info().live ? fmt::format(" with the address of slave {}, the target", s.unit())
+                                              : " (in process the target is alone on its line)",
+                       to_hex(rep.frame)));
   }
   expect_unchanged(before, image_or_fail(s, "after"), req.note + (corrupt ? " (corrupted)" : " (other slave)"));
 }

@@ -89,6 +89,13 @@ int replay_file(const std::string& file, const std::string& uri_in, const Target
     fmt::print("{} on {}: INCOMPLETE: {} at line {}\n", file, uri, *stop, r.line);
     return kExitUsage;
   }
+  // A live target that failed a step and then no longer answers (its
+  // connection closed and cannot be opened again, the line gone) was lost.
+  if (!r.target_lost && r.outcome == Outcome::failed && session.info().live)
+    if (std::string why = session.reachable(); !why.empty()) {
+      r.target_lost = true;
+      r.message += "\n  then: " + why;
+    }
   if (r.target_lost) {
     fmt::print("{} on {}: INCOMPLETE: the target was lost at line {}: {}\n", file, uri, r.line, r.message);
     return kExitUsage;

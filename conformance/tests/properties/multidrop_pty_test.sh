@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# Two drives on one serial line (`serve --device hsc60@1 --device hsc60@2 --pty`):
+# Drives on one serial line (`serve --device hsc60@1 --device hsc60@2 ... --pty`):
 # a frame for slave 2 is answered by slave 2, which is no fault of slave 1
 # (MB-SL v1.02 §2.2: the addressed slave answers). `props` (the MUST property
-# foreign-or-corrupt-ignored and the stateful model) and `fuzz` against
+# foreign-or-corrupt-ignored) and `fuzz` against
 # slave 1 must pass (exit 0) and name no "answered-other-slave"; the same
 # runs against the reference device alone still catch a drive that answers
 # frames for other slaves (fault reply-other-slave: every reply is its own).
@@ -12,7 +12,11 @@ mbc=$1 out=$2
 rm -rf "$out" && mkdir -p "$out"
 pids=()
 trap 'for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; wait "$p" 2>/dev/null || true; done' EXIT
-"$mbc" serve --device hsc60@1 --device hsc60@2 --pty "$out/line" --baud 115200 --line-rate 115200 \
+# Slaves 2..40 beside slave 1: the properties and the fuzzer pick "another
+# slave id" at random, and most of their picks must be drives that answer.
+others=()
+for u in $(seq 2 40); do others+=(--device "hsc60@$u"); done
+"$mbc" serve --device hsc60@1 "${others[@]}" --pty "$out/line" --baud 115200 --line-rate 115200 \
   > "$out/serve.out" 2> "$out/serve.err" &
 pids+=($!)
 for _ in $(seq 100); do grep -q '^listening pty' "$out/serve.out" && break; sleep 0.1; done
@@ -36,8 +40,8 @@ run() {  # run NAME EXPECTED_RC COMMAND...
   cat "$out/$name.log"
   [ "$rc" -eq "$want" ] || { echo "$name: exit $rc, expected $want"; exit 1; }
 }
-run props 0 "$mbc" props --target "$uri" --device hsc60 --only foreign-or-corrupt-ignored --only stateful-model \
-  --cases 40 --max-size 20 --seed 5 --out "$out/props" -q
+run props 0 "$mbc" props --target "$uri" --device hsc60 --only foreign-or-corrupt-ignored --cases 60 --seed 5 \
+  --out "$out/props" -q
 ! grep -q 'was answered' "$out/props.log" || { echo "props held slave 2's reply against slave 1"; exit 1; }
 grep -q 'foreign-or-corrupt-ignored.*pass' "$out/props.log" || { echo "foreign-or-corrupt-ignored did not pass"; exit 1; }
 run fuzz 0 "$mbc" fuzz --target "$uri" --device hsc60 --duration 4s --seed 7 --out "$out/fuzz" -q
