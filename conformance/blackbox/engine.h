@@ -14,6 +14,13 @@
 // hands it over with a later exchange: Reply::late); after each batch a
 // liveness probe (a read of a register the spec maps) must be answered normally.
 //
+// On a live RTU line other drives may answer frames for their own address:
+// a reply to a frame for another slave id is a finding (answered-other-slave)
+// only when it carries the target's address (check::reply_is_targets); in
+// process the target is alone and every reply is its own. A target that
+// throws and cannot be opened again is lost (Outcome::target_lost), which is
+// no finding: `fuzz` says INCOMPLETE and exits 2.
+//
 // Safety with live drives (conformance/safety/safety.h): writes only to
 // registers may_write() allows, never to the serial settings or the "do not
 // persist" switch; on live targets writes go only to registers the spec

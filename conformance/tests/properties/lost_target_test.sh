@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# A target lost on the way is no verdict: `props`, `fuzz` and `replay` against
-# `mbconform serve` killed (SIGKILL) while they run say INCOMPLETE and exit 2,
-# never "falsified" or a finding with exit 1. Usage: lost_target_test.sh MBCONFORM OUTDIR
+# A target lost on the way is no verdict: `props`, `fuzz`, `replay` and `run`
+# against `mbconform serve` killed (SIGKILL) while they run say INCOMPLETE and
+# exit 2, never "falsified" or a finding with exit 1 (the case `run` lost it in
+# is still a FAIL in its report). Usage: lost_target_test.sh MBCONFORM OUTDIR
 set -euo pipefail
 mbc=$1 out=$2
 rm -rf "$out" && mkdir -p "$out"
@@ -50,4 +51,10 @@ wait 3000
 rtu 01 03 00 00 00 01 84 0A  -> normal
 SCRIPT
 lost replay 1 "$mbc" replay "$out/script.txt" --target "rtu-tcp://127.0.0.1:$port?unit=1" --device hsc60 --out "$out/replay" -q
-echo "a lost target is INCOMPLETE (exit 2) in props, fuzz and replay"
+# `run` on a serial line (a pty at 9600 baud: slow enough to be cut off).
+"$mbc" serve --device hsc60@1 --pty "$out/line" --baud 9600 --line-rate 9600 > "$out/serve.out" 2> "$out/serve.err" &
+spid=$!
+pids+=($spid)
+for _ in $(seq 100); do grep -q '^listening pty' "$out/serve.out" && break; sleep 0.1; done
+lost run 3 "$mbc" run --target "rtu://$out/line?baud=9600&parity=N&unit=1" --device hsc60 --out "$out/run" -q
+echo "a lost target is INCOMPLETE (exit 2) in props, fuzz, replay and run"
