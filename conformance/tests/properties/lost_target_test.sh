@@ -38,7 +38,7 @@ lost() {  # lost NAME SECONDS COMMAND...
 }
 
 serve
-lost props 2 "$mbc" props --target "rtu-tcp://127.0.0.1:$port?unit=1" --device hsc60 --only stateful-model \
+lost props 2 "$mbc" props --target "rtu-tcp://127.0.0.1:$port?unit=1" --device hsc60 --only read-after-write \
   --cases 100000 --seed 3 --out "$out/props" -q
 serve
 lost fuzz 2 "$mbc" fuzz --target "rtu-tcp://127.0.0.1:$port?unit=1" --device hsc60 --duration 30s --seed 3 \
