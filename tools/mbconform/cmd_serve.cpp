@@ -17,6 +17,7 @@ struct ServeArgs {
   std::vector<std::pair<mbc::Transport, std::string>> endpoints;  // in command-line order
   std::string eeprom_dir;
   std::optional<int> baud, line_rate;
+  std::string line;  // --line 19200-8E1
   bool trace = false;
   std::string pcap;
   std::vector<std::string> faults;  // --fault NAME[,NAME], repeatable
@@ -50,6 +51,14 @@ serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_
   // The nominal pty rate: as given, else the first device's default (its
   // manual's), else the standard's required default 19200 (MB-SL v1.02 §3.2).
   o.baud = a.baud.value_or(first_device_baud.value_or(19200));
+  if (!a.line.empty()) {
+    o.line = serve::parse_line_format(a.line);
+    if (!o.line) throw CLI::ValidationError("--line", "'" + a.line + "': expected BAUD-FORMAT, as 19200-8E1 or 9600-8N2");
+    if (a.baud && *a.baud != o.line->baud) throw CLI::ValidationError("--line", "--baud says another rate than --line");
+    // The line's rate is the frame gap's and the replies' pace.
+    o.baud = o.line->baud;
+    if (!o.line_rate) o.line_rate = o.line->baud;
+  }
   return o;
 }
 
@@ -96,6 +105,9 @@ void add_serve_command(CLI::App& app, int& exit_code) {
       ->check(CLI::Range(300, 4000000));
   cmd->add_option("--line-rate", a.line_rate, "pace RTU replies at the wire time of this baud rate")
       ->check(CLI::Range(300, 4000000));
+  cmd->add_option("--line", a.line,
+                  "BAUD-FORMAT (19200-8E1): the serial line a --pty stands for; a master at another baud rate gets what a "
+                  "UART at the wrong rate makes of it (garbage or silence); replies paced at its rate");
   cmd->add_flag("--trace", a.trace, "log every frame to stderr, timestamped (the serial log format check-capture reads)");
   cmd->add_option("--pcap", a.pcap, "FILE: also write every frame as pcapng (Wireshark; conformance/capture/README.md)");
   cmd->add_option("--fault", a.faults,
