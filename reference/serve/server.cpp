@@ -421,6 +421,9 @@ struct Server::Impl {
     } else {
       // A master at another baud rate than the served line's: what the
       // line's UART makes of its characters (uart.h), both ways.
+      // A 2-wire adapter on the master's side hears its own request: the
+      // master reads it back first, as it went out (serve --echo).
+      if (opt.echo && l.transport == Transport::pty) l.out.insert(l.out.end(), l.in.begin(), l.in.end());
       std::optional<LineFormat> master = master_line(l);
       if (master) {
         Bytes sent = l.in;

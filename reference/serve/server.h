@@ -49,6 +49,9 @@ struct Options {
   // baud rate reads and sends what a UART at the wrong rate would (uart.h).
   // Sets baud and line_rate to its rate.
   std::optional<LineFormat> line;
+  // The master's adapter echoes its request back on the pty before the reply
+  // (2-wire RS-485 adapters without echo suppression).
+  bool echo = false;
   bool trace = false;            // every frame to stderr, timestamped (trace.h)
   std::string pcap;              // every frame to this pcapng file (trace.h: PcapTrace)
   faults::FaultSet faults;       // injected into every device served (empty: correct devices)

@@ -18,6 +18,7 @@ struct ServeArgs {
   std::string eeprom_dir;
   std::optional<int> baud, line_rate;
   std::string line;  // --line 19200-8E1
+  bool echo = false;
   bool trace = false;
   std::string pcap;
   std::vector<std::string> faults;  // --fault NAME[,NAME], repeatable
@@ -38,6 +39,7 @@ serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_
   o.eeprom_dir = a.eeprom_dir;
   o.trace = a.trace;
   o.pcap = a.pcap;
+  o.echo = a.echo;
   o.line_rate = a.line_rate;
   o.idle_timeout_s = a.idle_timeout_s;
   o.max_connections = a.max_connections;
@@ -108,6 +110,8 @@ void add_serve_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--line", a.line,
                   "BAUD-FORMAT (19200-8E1): the serial line a --pty stands for; a master at another baud rate gets what a "
                   "UART at the wrong rate makes of it (garbage or silence); replies paced at its rate");
+  cmd->add_flag("--echo", a.echo, "--pty: echo each request back before its reply, as a 2-wire RS-485 adapter without echo "
+                                  "suppression does to its master");
   cmd->add_flag("--trace", a.trace, "log every frame to stderr, timestamped (the serial log format check-capture reads)");
   cmd->add_option("--pcap", a.pcap, "FILE: also write every frame as pcapng (Wireshark; conformance/capture/README.md)");
   cmd->add_option("--fault", a.faults,
