@@ -3,6 +3,8 @@
 #pragma once
 
 #include <memory>
+#include <string>
+#include <vector>
 
 #include "targets/target.h"
 
@@ -16,5 +18,10 @@ std::unique_ptr<Target> make_tls_target(const Uri& uri);       // tls_target.cpp
 // Fills reply.pdu or reply.framing_error from reply.frame, an RTU ADU that
 // should come from `slave` (MB-SL v1.02 §2.5.1: address, PDU, CRC low first).
 void decode_rtu_reply(Reply& reply, uint8_t slave);
+
+// What a USB serial adapter's latency timer means for timing (rtu_target.cpp):
+// one note for `device` (a path or a symlink to /dev/ttyUSBn) when
+// `sysfs`/bus/usb-serial/devices/<name>/latency_timer exists, else none.
+std::vector<std::string> usb_latency_notes(const std::string& device, const std::string& sysfs = "/sys");
 
 }  // namespace mbc::conf

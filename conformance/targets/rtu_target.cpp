@@ -21,6 +21,8 @@
 #include <cerrno>
 #include <cstring>
 #include <deque>
+#include <filesystem>
+#include <fstream>
 #include <stdexcept>
 #include <thread>
 
@@ -33,6 +35,26 @@
 #include "targets/live_link.h"
 
 namespace mbc::conf {
+namespace {
+
+}  // namespace
+
+std::vector<std::string> usb_latency_notes(const std::string& device, const std::string& sysfs) {
+  std::error_code ec;
+  auto real = std::filesystem::canonical(device, ec);
+  if (ec) return {};
+  const std::string name = real.filename().string();
+  std::ifstream f(sysfs + "/bus/usb-serial/devices/" + name + "/latency_timer");
+  int ms = 0;
+  if (!(f >> ms)) return {};
+  if (ms <= 1)
+    return {fmt::format("{}: USB latency timer {} ms: reply times are as fine as the line's", name, ms)};
+  return {fmt::format("{}: USB latency timer {} ms: the adapter hands bytes over in batches up to {} ms apart, so reply "
+                      "times are coarse by that much and a gap inside a frame cannot be seen; for 1 ms: echo 1 > "
+                      "{}/bus/usb-serial/devices/{}/latency_timer",
+                      name, ms, ms, sysfs, name)};
+}
+
 namespace {
 
 using namespace live;
@@ -147,9 +169,26 @@ class RtuTarget final : public Target {
     uri_text_ = u.scheme + "://" + (u.host.empty() ? u.path : u.host + ":" + std::to_string(u.port));
     serial_ = u.scheme == "rtu";
     if (serial_)
-      check_params(u, uri_text_, {"unit", "baud", "parity", "data", "stop", "timeout", "silence", "gap"});
+      check_params(u, uri_text_, {"unit", "baud", "parity", "data", "stop", "timeout", "silence", "gap", "echo", "rs485", "rts", "rts_delay"});
     else
-      check_params(u, uri_text_, {"unit", "baud", "timeout", "silence", "gap"});
+      check_params(u, uri_text_, {"unit", "baud", "timeout", "silence", "gap", "echo"});
+    // The adapter's local echo (2-wire RS-485 adapters hear their own
+    // request): echo=1 strips and checks it, echo=0 takes none; by default a
+    // serial line finds it by itself (a frame that starts with the request
+    // whole, where no reply could be the request).
+    if (auto e = u.param("echo")) {
+      if (*e != "0" && *e != "1" && *e != "auto")
+        throw std::invalid_argument(fmt::format("target '{}': echo={}: expected 0, 1 or auto", uri_text_, *e));
+      echo_ = *e == "1" ? Echo::on : *e == "0" ? Echo::off : Echo::automatic;
+    } else {
+      echo_ = serial_ ? Echo::automatic : Echo::off;
+    }
+    if (auto k = u.param("rs485"); k && *k != "kernel")
+      throw std::invalid_argument(fmt::format("target '{}': rs485={}: expected kernel", uri_text_, *k));
+    if (auto r = u.param("rts"); r && *r != "up" && *r != "down")
+      throw std::invalid_argument(fmt::format("target '{}': rts={}: expected up or down", uri_text_, *r));
+    if (u.param("rts_delay") && !u.param("rts"))
+      throw std::invalid_argument(fmt::format("target '{}': rts_delay= needs rts=up or rts=down", uri_text_));
     int unit = int_param(u, uri_text_, "unit", 1, 1, 247);  // MB-SL v1.02 §2.2: slave addresses 1..247
     milliseconds timeout{int_param(u, uri_text_, "timeout", int(kDefaultTimeout.count()), 1, 60000)};
     std::optional<milliseconds> fixed;
@@ -188,6 +227,8 @@ class RtuTarget final : public Target {
         throw std::runtime_error(fmt::format("target '{}': cannot open {}: {}", uri_text_, u.path, why));
       }
       fd_ = modbus_get_socket(ctx_);
+      set_direction_control(u);
+      info_.notes = usb_latency_notes(u.path);
     } else {
       if (u.host.empty() || u.port == 0)
         throw std::invalid_argument(fmt::format("target '{}': needs HOST:PORT, e.g. rtu-tcp://192.168.1.20:4001", uri_text_));
@@ -328,6 +369,8 @@ class RtuTarget final : public Target {
     auto hard = first_by + window_.timeout() + 2 * wire;
     auto complete = [](std::span<const uint8_t> b) { return rtu_adu_complete(b, Direction::reply); };
     ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);
+    if (echo_ != Echo::off && !rr.closed && strip_echo(adu, r))
+      if (r.frame.empty()) rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);  // the reply follows
     // An earlier request's reply came after its window closed and after
     // this request went out: counted as late (as if drained before it), and
     // this request still waits for its own reply, now behind it on the line.
@@ -368,6 +411,39 @@ class RtuTarget final : public Target {
   }
 
   struct Unanswered;
+
+  // Strips the adapter's echo of `adu` from the front of the frame read;
+  // whether it did. A frame that is the request alone is the device's reply
+  // where a reply may equal its request (FC 05, 06, 08: MBAP v1.1b3 §6.5,
+  // §6.6, §6.8), unless an echo was seen before or echo=1.
+  bool strip_echo(const Bytes& adu, Reply& r) {
+    const bool starts = r.frame.size() >= adu.size() && std::equal(adu.begin(), adu.end(), r.frame.begin());
+    if (!starts) return false;
+    const uint8_t fc = adu.size() > 1 ? adu[1] : 0;
+    const bool may_equal = fc == 0x05 || fc == 0x06 || fc == 0x08;
+    if (r.frame.size() == adu.size() && may_equal && echo_ == Echo::automatic && !echo_seen_) return false;
+    echo_seen_ = true;
+    r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(adu.size()));
+    return true;
+  }
+
+  // rs485=kernel: the driver switches the transceiver (TIOCSRS485, through
+  // libmodbus); rts=up|down: libmodbus raises (or lowers) RTS to send,
+  // waiting rts_delay=US before and after. For adapters without automatic
+  // direction control (docs in conformance/targets/README.md).
+  void set_direction_control(const Uri& u) {
+    if (auto k = u.param("rs485")) {
+      if (modbus_rtu_set_serial_mode(ctx_, MODBUS_RTU_RS485) == -1)
+        throw std::runtime_error(fmt::format("target '{}': rs485=kernel: the driver of {} does not take TIOCSRS485 ({}); "
+                                             "use rts=up if the adapter's direction follows RTS",
+                                             uri_text_, u.path, modbus_strerror(errno)));
+    }
+    if (auto r = u.param("rts")) {
+      if (modbus_rtu_set_rts(ctx_, *r == "up" ? MODBUS_RTU_RTS_UP : MODBUS_RTU_RTS_DOWN) == -1)
+        throw std::runtime_error(fmt::format("target '{}': rts={}: {}", uri_text_, *r, modbus_strerror(errno)));
+      if (u.param("rts_delay")) modbus_rtu_set_rts_delay(ctx_, int_param(u, uri_text_, "rts_delay", 0, 0, 100000));
+    }
+  }
 
   // Whether `reply` (a whole ADU) answers the request `req` (as framed) as
   // the standard says (judge_reply): from the same slave id, or for a
@@ -491,6 +567,8 @@ class RtuTarget final : public Target {
   SilenceWindow window_;
   milliseconds timeout_{kDefaultTimeout};
   microseconds frame_gap_{0}, end_silence_{0}, split_gap_{0};
+  enum class Echo { off, on, automatic } echo_ = Echo::off;
+  bool echo_seen_ = false;
   bool gap_fixed_ = false;  // the user set `gap=`: kept as given
   std::optional<microseconds> split_set_;  // set_split_gap's
   microseconds last_line_{0};  // the line time the last window was computed for

@@ -35,6 +35,9 @@ struct TargetInfo {
   std::optional<int> baud;     // serial line rate, for the wire-time bound
   std::string device_id;       // the spec a ref: target carries, else empty
   std::string implementation;  // what answers, as it names itself (plugin: the stack's name)
+  // What the user should know of how this target was opened (a USB adapter's
+  // latency timer, ...), one line each; commands print them.
+  std::vector<std::string> notes;
 };
 
 // One exchange. `frame` is what came back, as received (RTU: slave..CRC;

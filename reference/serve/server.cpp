@@ -8,6 +8,7 @@
 
 #include <type_traits>
 #include <pty.h>
+#include <termios.h>
 #include <signal.h>
 #include <sys/epoll.h>
 #include <sys/prctl.h>
@@ -400,16 +401,48 @@ struct Server::Impl {
     }
   }
 
+  // The format the master set on a served pty (its baud rate, read from the
+  // pty's termios; the rest as the line's: a pty does not carry them), when
+  // the line is modelled and the master's rate differs from it.
+  std::optional<LineFormat> master_line(const Link& l) const {
+    if (!opt.line || l.transport != Transport::pty) return std::nullopt;
+    termios t{};
+    if (tcgetattr(l.fd, &t) != 0) return std::nullopt;
+    int baud = baud_of_speed(unsigned(cfgetispeed(&t)));
+    if (baud == 0 || baud == opt.line->baud) return std::nullopt;
+    LineFormat m = *opt.line;
+    m.baud = baud;
+    return m;
+  }
+
   void handle_rtu_frame(Link& l, Clock::time_point now) {
     if (l.overflow) {
       trace(l, "rx", l.in, [&] { return fmt::format("dropped: {} bytes, over the {}-byte RTU limit", l.in.size() + l.overflow, kMaxRtuAdu); });
     } else {
+      // A master at another baud rate than the served line's: what the
+      // line's UART makes of its characters (uart.h), both ways.
+      // A 2-wire adapter on the master's side hears its own request: the
+      // master reads it back first, as it went out (serve --echo).
+      if (opt.echo && l.transport == Transport::pty) l.out.insert(l.out.end(), l.in.begin(), l.in.end());
+      std::optional<LineFormat> master = master_line(l);
+      if (master) {
+        Bytes sent = l.in;
+        l.in = resample(sent, *master, *opt.line);
+        trace(l, "~~", {}, [&] {
+          return fmt::format("{} bytes sent at {} baud to a {} line, read as {} bytes", sent.size(), master->baud, opt.line->text(), l.in.size());
+        });
+      }
       trace(l, "rx", l.in, [&] { return describe_rtu(l.in, Direction::request); });
       auto reply = answer_into(l, [&](std::span<uint8_t> out) { return bus.handle_rtu_into(l.in, out); });
       if (reply) {
         trace(l, "tx", *reply, [&] { return describe_rtu(*reply, Direction::reply); });
         size_t begin = l.out.size();
-        l.out.insert(l.out.end(), reply->begin(), reply->end());
+        if (master) {
+          Bytes heard = resample(*reply, *opt.line, *master);
+          l.out.insert(l.out.end(), heard.begin(), heard.end());
+        } else {
+          l.out.insert(l.out.end(), reply->begin(), reply->end());
+        }
         pace_reply(l, l.in.size(), begin, now);
       } else {
         trace(l, "--", {}, "no reply");

@@ -15,6 +15,7 @@
 #include "engine/device.h"
 #include "faults/faults.h"
 #include "serve/tls_door.h"
+#include "serve/uart.h"
 
 namespace mbc::serve {
 
@@ -44,6 +45,13 @@ struct Options {
   std::string eeprom_dir;        // empty: no persistence across restarts
   int baud = 19200;              // the pty's nominal rate: sets the frame gap
   std::optional<int> line_rate;  // pace RTU replies at this rate's wire time
+  // The serial line a pty stands for (--line 19200-8E1): a master at another
+  // baud rate reads and sends what a UART at the wrong rate would (uart.h).
+  // Sets baud and line_rate to its rate.
+  std::optional<LineFormat> line;
+  // The master's adapter echoes its request back on the pty before the reply
+  // (2-wire RS-485 adapters without echo suppression).
+  bool echo = false;
   bool trace = false;            // every frame to stderr, timestamped (trace.h)
   std::string pcap;              // every frame to this pcapng file (trace.h: PcapTrace)
   faults::FaultSet faults;       // injected into every device served (empty: correct devices)

@@ -17,6 +17,8 @@ struct ServeArgs {
   std::vector<std::pair<mbc::Transport, std::string>> endpoints;  // in command-line order
   std::string eeprom_dir;
   std::optional<int> baud, line_rate;
+  std::string line;  // --line 19200-8E1
+  bool echo = false;
   bool trace = false;
   std::string pcap;
   std::vector<std::string> faults;  // --fault NAME[,NAME], repeatable
@@ -37,6 +39,7 @@ serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_
   o.eeprom_dir = a.eeprom_dir;
   o.trace = a.trace;
   o.pcap = a.pcap;
+  o.echo = a.echo;
   o.line_rate = a.line_rate;
   o.idle_timeout_s = a.idle_timeout_s;
   o.max_connections = a.max_connections;
@@ -50,6 +53,14 @@ serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_
   // The nominal pty rate: as given, else the first device's default (its
   // manual's), else the standard's required default 19200 (MB-SL v1.02 §3.2).
   o.baud = a.baud.value_or(first_device_baud.value_or(19200));
+  if (!a.line.empty()) {
+    o.line = serve::parse_line_format(a.line);
+    if (!o.line) throw CLI::ValidationError("--line", "'" + a.line + "': expected BAUD-FORMAT, as 19200-8E1 or 9600-8N2");
+    if (a.baud && *a.baud != o.line->baud) throw CLI::ValidationError("--line", "--baud says another rate than --line");
+    // The line's rate is the frame gap's and the replies' pace.
+    o.baud = o.line->baud;
+    if (!o.line_rate) o.line_rate = o.line->baud;
+  }
   return o;
 }
 
@@ -96,6 +107,11 @@ void add_serve_command(CLI::App& app, int& exit_code) {
       ->check(CLI::Range(300, 4000000));
   cmd->add_option("--line-rate", a.line_rate, "pace RTU replies at the wire time of this baud rate")
       ->check(CLI::Range(300, 4000000));
+  cmd->add_option("--line", a.line,
+                  "BAUD-FORMAT (19200-8E1): the serial line a --pty stands for; a master at another baud rate gets what a "
+                  "UART at the wrong rate makes of it (garbage or silence); replies paced at its rate");
+  cmd->add_flag("--echo", a.echo, "--pty: echo each request back before its reply, as a 2-wire RS-485 adapter without echo "
+                                  "suppression does to its master");
   cmd->add_flag("--trace", a.trace, "log every frame to stderr, timestamped (the serial log format check-capture reads)");
   cmd->add_option("--pcap", a.pcap, "FILE: also write every frame as pcapng (Wireshark; conformance/capture/README.md)");
   cmd->add_option("--fault", a.faults,

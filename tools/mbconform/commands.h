@@ -31,6 +31,9 @@ void add_replay_command(CLI::App& app, int& exit_code);
 // `check-capture`: a recorded capture judged against a spec (cmd_capture.cpp, conformance/capture/).
 void add_capture_command(CLI::App& app, int& exit_code);
 
+// `scan`: every drive on a line, read-only (cmd_scan.cpp, conformance/scan/).
+void add_scan_command(CLI::App& app, int& exit_code);
+
 // `restore`: a drive put back from a command's journal (cmd_restore.cpp).
 void add_restore_command(CLI::App& app, int& exit_code);
 

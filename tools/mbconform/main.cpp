@@ -18,6 +18,7 @@ int main(int argc, char** argv) {
   mbc::cli::add_replay_command(app, exit_code);
   mbc::cli::add_capture_command(app, exit_code);
   mbc::cli::add_restore_command(app, exit_code);
+  mbc::cli::add_scan_command(app, exit_code);
   mbc::cli::add_global_options(app);
   mbc::cli::add_conventions(app, exit_code);
   std::vector<std::string> args(argv + 1, argv + argc);

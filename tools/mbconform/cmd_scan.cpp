@@ -1,0 +1,107 @@
+// mbconform scan: every drive on a line, read-only (conformance/scan/scan.h).
+//
+//   mbconform scan rtu:///dev/ttyUSB0 [--units 1-247] [--budget 10m] [--timeout 100ms] [--out scan.json]
+//   mbconform scan tcp://10.0.0.5:502          (a gateway: units only)
+//
+// Exit codes: 0 the scan finished (whether or not it found a drive: the
+// table says); 1 it found nothing; 2 it could not run, or a stop signal or
+// the budget ended it before it was done (PARTIAL: the table shows what it found).
+#include <fmt/core.h>
+
+#include <fstream>
+#include <iostream>
+
+#include "commands.h"
+#include "conventions.h"
+#include "loader.h"
+#include "scan/scan.h"
+#include "session/progress.h"
+#include "session/signals.h"
+#include "spec_path.h"
+
+namespace mbc::cli {
+namespace {
+
+struct ScanArgs {
+  std::string uri, units = "1-247", budget = "10m", timeout = "100ms", out;
+  std::vector<std::string> devices;
+  bool all_settings = false, progress = false, quiet = false;
+};
+
+int run_scan(const ScanArgs& a) {
+  conf::scan::Options o;
+  o.uri = a.uri;
+  o.all_settings = a.all_settings;
+  auto budget = parse_duration_text(a.budget);
+  auto timeout = parse_duration_text(a.timeout);
+  if (!budget || budget->count() <= 0) throw CLI::ValidationError("--budget", "'" + a.budget + "': expected a duration (90s, 10m)");
+  if (!timeout || timeout->count() <= 0 || timeout->count() > 60000)
+    throw CLI::ValidationError("--timeout", "'" + a.timeout + "': expected a duration up to 60s (100ms)");
+  o.budget = *budget;
+  o.timeout = *timeout;
+  if (auto dash = a.units.find('-'); dash != std::string::npos) {
+    o.first_unit = std::atoi(a.units.substr(0, dash).c_str());
+    o.last_unit = std::atoi(a.units.substr(dash + 1).c_str());
+  } else {
+    o.first_unit = o.last_unit = std::atoi(a.units.c_str());
+  }
+  if (o.first_unit < 1 || o.last_unit > 247 || o.first_unit > o.last_unit)
+    throw CLI::ValidationError("--units", "'" + a.units + "': expected FIRST-LAST within 1-247");
+
+  std::vector<spec::Spec> loaded;
+  std::vector<std::string> ids = a.devices.empty() ? spec::spec_ids() : a.devices;
+  for (const auto& id : ids) loaded.push_back(spec::load_spec_by_id(id));
+  std::vector<const spec::Spec*> specs;
+  for (const auto& s : loaded) specs.push_back(&s);
+
+  conf::install_stop_signals();
+  conf::Progress progress("scan", a.progress, a.quiet);
+  o.on_probe = [&](uint64_t requests, const std::string& at) {
+    progress.update_timed(requests, fmt::format("requests, at {}", at).c_str(), o.budget);
+  };
+  conf::scan::Result r = conf::scan::scan(o, specs);
+  progress.clear();
+  std::cout << conf::scan::table(r);
+  for (const auto& t : r.tried) std::cout << "tried " << t << "\n";
+  for (const auto& n : r.notes) std::cout << "note: " << n << "\n";
+  if (!a.out.empty()) {
+    std::ofstream f(a.out);
+    f << conf::scan::to_json(r, a.uri);
+    if (!f) throw std::runtime_error("cannot write " + a.out);
+  }
+  std::cout << fmt::format("{}: {} unit(s) found, {} requests in {:.1f} s{}\n", r.partial ? "PARTIAL" : "DONE",
+                           r.units.size(), r.requests, r.seconds, r.partial ? " (" + r.partial_why + ")" : "");
+  if (r.partial) return kExitUsage;
+  return r.units.empty() ? kExitFailed : kExitOk;
+}
+
+}  // namespace
+
+void add_scan_command(CLI::App& app, int& exit_code) {
+  static ScanArgs a;
+  auto* cmd = app.add_subcommand("scan", "Find every drive on a line, read-only: its unit, line settings and identity, "
+                                         "and the run command for each");
+  cmd->add_option("target", a.uri, "rtu:///dev/ttyUSB0 (settings found; baud=/parity= narrow them), tcp://HOST:PORT or "
+                                   "rtu-tcp://HOST:PORT (a gateway: units only)")
+      ->required();
+  cmd->add_option("--units", a.units, "FIRST-LAST: the units to try")->capture_default_str();
+  cmd->add_option("--budget", a.budget, "DURATION: the longest the scan runs (then PARTIAL)")->capture_default_str();
+  cmd->add_option("--timeout", a.timeout, "DURATION: the wait for each probe's reply")->capture_default_str();
+  cmd->add_option("--device", a.devices, "ID: a spec to identify against (repeatable; default: every known spec)");
+  cmd->add_option("--out", a.out, "FILE: the scan as JSON (units, settings, identities, commands)");
+  cmd->add_flag("--all-settings", a.all_settings, "keep trying line settings after one answered (drives at several settings)");
+  cmd->add_flag("--progress", a.progress, "progress on stderr even when it is not a terminal");
+  cmd->add_flag("-q,--quiet", a.quiet, "no progress");
+  cmd->callback([&exit_code] {
+    try {
+      exit_code = run_scan(a);
+    } catch (const CLI::ValidationError&) {
+      throw;
+    } catch (const std::exception& e) {
+      fmt::print(stderr, "mbconform scan: error: {}\n", e.what());
+      exit_code = kExitUsage;
+    }
+  });
+}
+
+}  // namespace mbc::cli
