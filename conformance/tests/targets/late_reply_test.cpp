@@ -171,7 +171,7 @@ TEST(RtuLateReply, ALateReplyToABroadcastIsHandedOverAndIsAFinding) {
   st.expect = blackbox::expect_for(plan, st);
   auto f = blackbox::judge(plan, st, r);
   ASSERT_TRUE(f);
-  EXPECT_EQ(f->kind, "answered-broadcast") << f->message;
+  EXPECT_EQ(f->kind, blackbox::FindingKind::answered_broadcast) << f->message;
 }
 
 // The pause inside a split frame: 20 ms until a reply was timed, then the
