@@ -248,7 +248,8 @@ std::string errata_markdown(const nlohmann::json& r) {
   const json& s = r["summary"];
   o << "- " << s["frames"] << " printed frames, " << s["frames_bad_crc"] << " with a wrong CRC, " << s["frames_bad_length"]
     << " with a wrong length; " << s["errata"] << " errata (" << s.value("contradictions", 0) << " contradictions, "
-    << s.value("typos", 0) << " typos, " << s.value("nits", 0) << " nits); " << s["deviations"]
+    << s.value("typos", 0) << " typo" << (s.value("typos", 0) == 1 ? "" : "s") << ", " << s.value("nits", 0) << " nit"
+    << (s.value("nits", 0) == 1 ? "" : "s") << "); " << s["deviations"]
     << " deviations from modbus-standard\n\n";
 
   o << "## Printed frames, CRC checked\n\n| example | section | role | frame as printed | CRC | correct CRC |\n|---|---|---|---|---|---|\n";

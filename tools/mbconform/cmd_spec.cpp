@@ -112,8 +112,9 @@ int run_errata(std::vector<std::string> ids, const std::string& out_dir) {
         !write_file(base.string() + ".md", spec::errata_markdown(report)))
       throw std::runtime_error("cannot write " + base.string() + ".{json,md}");
     const auto& sum = report["summary"];
-    std::cout << fmt::format("{}.md: {} frames ({} bad CRC), {} errata, {} deviations\n", base.string(),
-                             sum["frames"].get<int>(), sum["frames_bad_crc"].get<int>(), sum["errata"].get<int>(),
+    std::cout << fmt::format("{}.md: {} frames ({} bad CRC), {} errata ({} contradictions, {} typos and nits), {} deviations\n",
+                             base.string(), sum["frames"].get<int>(), sum["frames_bad_crc"].get<int>(), sum["errata"].get<int>(),
+                             sum["contradictions"].get<int>(), sum["typos"].get<int>() + sum["nits"].get<int>(),
                              sum["deviations"].get<int>());
   }
   return kExitOk;
