@@ -1,5 +1,7 @@
 #include "cases/facts.h"
 
+#include "erratum_extra.h"
+
 #include <fmt/core.h>
 
 #include <algorithm>
@@ -359,7 +361,7 @@ void settle_level(Case& c) {
   if (c.requirement.find(" [relies on ") != std::string::npos) return;
   std::vector<std::string> inferred;
   for (const auto& r : all_relies(c))
-    if (r.basis.is_inferred()) inferred.push_back(describe(r));
+    if (spec::demotes(r.basis)) inferred.push_back(describe(r));  // inferred, or printed two ways in words
   if (inferred.empty()) return;
   if (c.level == Level::must || c.level == Level::should) {
     c.level_if_stated = c.level;

@@ -7,6 +7,8 @@
 #include <fmt/core.h>
 
 #include "cases/common.h"
+#include "cases/facts.h"
+#include "erratum_extra.h"
 #include "modbus/crc16.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
@@ -39,6 +41,7 @@ struct Gen {
     s.pdu = probe_pdu();
     s.note = fmt::format("read {} with a good frame ({})", hex16(probe->address), why);
     s.expect = cases::normal("a normal reply: the device still answers good frames");
+    facts::readable(s.expect.relies, *probe);  // a drive that reads the probe otherwise answers it otherwise
     return s;
   }
 
@@ -255,11 +258,16 @@ struct Gen {
   }
 
   void run() {
-    for (const auto& r : g.spec.registers)
-      if (r.table == spec::Table::holding && r.access != spec::Access::wo && r.access != spec::Access::command) {
-        probe = &r;
-        break;
-      }
+    // The first holding register stated readable, else the first readable at all.
+    for (bool stated_only : {true, false}) {
+      for (const auto& r : g.spec.registers)
+        if (r.table == spec::Table::holding && r.access != spec::Access::wo && r.access != spec::Access::command &&
+            (!stated_only || !spec::demotes(r.basis_of(spec::Fact::read)))) {
+          probe = &r;
+          break;
+        }
+      if (probe) break;
+    }
     if (!probe || !cases::has_fc(g.spec, 3)) return;
     addressing();
     rtu();

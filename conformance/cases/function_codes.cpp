@@ -9,6 +9,7 @@
 
 #include "cases/common.h"
 #include "cases/facts.h"
+#include "erratum_extra.h"
 #include "modbus/function_codes.h"
 #include "modbus/limits.h"
 #include "modbus/pdu.h"
@@ -67,7 +68,7 @@ struct Gen {
       std::optional<uint32_t> start;
       for (uint32_t a = 0; a <= *last; ++a) {
         const Register* r = g.spec.register_covering(uint16_t(a), t);
-        if (readable(r) && (!stated_only || !r->basis_of(spec::Fact::read).is_inferred())) {
+        if (readable(r) && (!stated_only || !spec::demotes(r->basis_of(spec::Fact::read)))) {
           if (run == 0) start = a;
           if (++run < n) continue;
           if (relies)

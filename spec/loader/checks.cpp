@@ -1,4 +1,5 @@
 #include "checks.h"
+#include "erratum_extra.h"
 
 #include <algorithm>
 #include <cmath>
@@ -383,6 +384,15 @@ struct Checker {
         else if (open(x->basis))
           error(p, "erratum-contested", "erratum '" + e.id + "' is settled by example '" + x->id + "', whose own frame is not stated (" + to_string(x->basis.basis) + ")");
       }
+      // Where a printed text (or table) and a printed frame disagree, a frame
+      // does not settle it alone: a drive that follows the text does what its
+      // manual prints too. Unless the standard decides (decided_by:) or the
+      // text is a misprint (class: typo), the facts are either.
+      bool text_against_frame = e.kind == "text_vs_frame" || e.kind == "table_vs_example" || e.kind == "table_vs_text";
+      ErratumExtra x = erratum_extra(s, e.id);
+      if (!e.settled_by.empty() && text_against_frame && x.cls != "typo" && x.decided_by.empty())
+        error("/errata/" + std::to_string(i) + "/settled_by", "erratum-contested",
+              "erratum '" + e.id + "' (" + e.kind + ") is a printed text against a printed frame: the frame does not settle it. Make the facts either, the text's reading beside the frame's, or name the standard's clause that decides (decided_by:)");
       if (e.settled()) continue;
       auto why = [&](const std::string& what) {
         return what + " is named by erratum '" + e.id + "': mark it either or inferred, or settle the erratum with a printed frame (settled_by:)";
@@ -443,8 +453,19 @@ struct Checker {
       }
     };
     walk(doc.root, true);
+    for (const auto& r : s.registers)
+      for (const auto& id : r.errata) cited.insert(id);  // area: citations
     for (size_t i = 0; i < s.errata.size(); ++i) {
       const Erratum& e = s.errata[i];
+      // contests: [] on an erratum that registers, examples, policy entries or
+      // function codes cite says what of them it concerns (about:): parts no
+      // case's expectation reads. The facts a case relies on are contested.
+      ErratumExtra x = erratum_extra(s, e.id);
+      if (cited.count(e.id) && e.contests_given && e.contests.empty() && x.about.empty())
+        error("/errata/" + std::to_string(i) + "/contests", "erratum-linked",
+              "erratum '" + e.id + "' is cited but contests nothing: say which facts it puts in doubt (contests: [read, ...]), or what of its citers it is about (about: [unit, name, note, ...])");
+      if (!x.about.empty() && !(e.contests_given && e.contests.empty()))
+        error("/errata/" + std::to_string(i) + "/about", "erratum-linked", "erratum '" + e.id + "': about: goes with contests: [] (an erratum that contests facts names them in contests:)");
       if (cited.count(e.id) || (e.contests_given && e.contests.empty())) continue;
       error("/errata/" + std::to_string(i) + "/id", "erratum-linked",
             "erratum '" + e.id + "' is cited by nothing: cite it from the registers, examples, policy entries or function codes it touches, or say contests: [] (it touches no fact a case relies on)");

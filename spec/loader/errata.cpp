@@ -1,5 +1,7 @@
 #include "errata.h"
 
+#include "erratum_extra.h"
+
 #include <algorithm>
 #include <map>
 #include <set>
@@ -135,14 +137,15 @@ json fact_bases(const Spec& d) {
   auto add = [&](const std::string& fact, const FactBasis& b) {
     count[to_string(b.basis)]++;
     json e{{"fact", fact}, {"basis", to_string(b.basis)}, {"section", b.section}};
-    if (b.is_inferred()) {
+    if (b.basis == Basis::either) {
+      e["readings"] = b.readings;
+      e["erratum"] = b.erratum;
+      if (words_only(b)) e["outcomes"] = true;  // no expectation holds both: its cases are OBSERVED
+      either.push_back(e);
+    } else if (b.is_inferred()) {
       e["why"] = b.why;
       if (!b.searched.empty()) e["searched"] = b.searched;
       inferred.push_back(e);
-    } else if (b.basis == Basis::either) {
-      e["readings"] = b.readings;
-      e["erratum"] = b.erratum;
-      either.push_back(e);
     }
   };
   for (const auto& r : d.registers) {
@@ -201,9 +204,12 @@ nlohmann::json errata_report(const Spec& d, const Spec& standard, const nlohmann
       if (p.erratum == e.id || p.basis.erratum == e.id) refs.push_back(std::string("exception_policy.") + to_string(v));
     for (const auto& f : d.profile.function_codes)
       if (f.erratum == e.id) refs.push_back("FC " + std::to_string(f.code));
-    json c{{"id", e.id}, {"section", e.section}, {"kind", e.kind}, {"printed", e.printed},
+    ErratumExtra x = erratum_extra(d, e.id);
+    json c{{"id", e.id}, {"section", e.section}, {"kind", e.kind}, {"class", x.cls}, {"printed", e.printed},
            {"resolved", e.resolved}, {"why", e.why}, {"affects", refs}};
     if (e.contests_given) c["contests"] = e.contests;
+    if (!x.about.empty()) c["about"] = x.about;
+    if (!x.decided_by.empty()) c["decided_by"] = x.decided_by;
     if (!e.settled_by.empty()) c["settled_by"] = e.settled_by;
     contradictions.push_back(std::move(c));
   }
@@ -211,9 +217,13 @@ nlohmann::json errata_report(const Spec& d, const Spec& standard, const nlohmann
   r["deviations"] = deviations(d, standard);
   r["facts"] = fact_bases(d);
   r["observed_cases"] = demoted;
+  auto of_class = [&](const char* k) {
+    return std::count_if(d.errata.begin(), d.errata.end(), [&](const Erratum& e) { return erratum_extra(d, e.id).cls == k; });
+  };
   size_t bad = std::count_if(frames.begin(), frames.end(), [](const json& f) { return !f["crc_ok"].get<bool>(); });
   size_t bad_len = std::count_if(frames.begin(), frames.end(), [](const json& f) { return !f.value("length_ok", true); });
   r["summary"] = {{"frames", frames.size()}, {"frames_bad_crc", bad}, {"frames_bad_length", bad_len}, {"errata", d.errata.size()},
+                  {"contradictions", of_class("contradiction")}, {"typos", of_class("typo")}, {"nits", of_class("nit")},
                   {"deviations", r["deviations"].size()}, {"registers", d.registers.size()}, {"examples", d.examples.size()},
                   {"facts_stated", r["facts"]["stated"]}, {"facts_inferred", r["facts"]["inferred"].get<int>() + r["facts"]["observed"].get<int>()},
                   {"facts_either", r["facts"]["either"]}, {"cases_observed_by_inference", demoted.size()}};
@@ -237,8 +247,10 @@ std::string errata_markdown(const nlohmann::json& r) {
     o << "- Addressing: " << r["manual"]["addressing_note"].get<std::string>() << "\n";
   const json& s = r["summary"];
   o << "- " << s["frames"] << " printed frames, " << s["frames_bad_crc"] << " with a wrong CRC, " << s["frames_bad_length"]
-    << " with a wrong length; " << s["errata"]
-    << " errata; " << s["deviations"] << " deviations from modbus-standard\n\n";
+    << " with a wrong length; " << s["errata"] << " errata (" << s.value("contradictions", 0) << " contradictions, "
+    << s.value("typos", 0) << " typo" << (s.value("typos", 0) == 1 ? "" : "s") << ", " << s.value("nits", 0) << " nit"
+    << (s.value("nits", 0) == 1 ? "" : "s") << "); " << s["deviations"]
+    << " deviations from modbus-standard\n\n";
 
   o << "## Printed frames, CRC checked\n\n| example | section | role | frame as printed | CRC | correct CRC |\n|---|---|---|---|---|---|\n";
   for (const auto& f : r["frames"]) {
@@ -249,21 +261,30 @@ std::string errata_markdown(const nlohmann::json& r) {
     if (f.contains("problem")) o << " " << f["problem"].get<std::string>();
     o << " |\n";
   }
-  o << "\n## Contradictions and their resolution\n\n";
-  if (r["errata"].empty()) o << "None recorded.\n";
-  for (const auto& e : r["errata"]) {
+  // Contradictions first, then typos and nits in a class of their own, so
+  // the contradiction count means what it says.
+  auto erratum = [&](const json& e) {
     o << "### " << e["id"].get<std::string>() << " (§" << e["section"].get<std::string>() << ", " << e["kind"].get<std::string>()
       << ")\n\n";
     o << "- **Printed:** " << e["printed"].get<std::string>() << "\n";
+    if (e.value("class", std::string("contradiction")) != "contradiction") o << "- **Class:** " << e["class"].get<std::string>() << "\n";
     o << "- **Resolved:** " << e["resolved"].get<std::string>() << "\n";
     o << "- **Why:** " << e["why"].get<std::string>() << "\n";
     if (e.contains("settled_by")) {
       o << "- **Settled by the printed frame" << (e["settled_by"].size() > 1 ? "s" : "") << ":** ";
       bool first = true;
       for (const auto& a : e["settled_by"]) o << (first ? "" : ", ") << "`" << a.get<std::string>() << "`", first = false;
-      o << " (a fact it names may support a MUST case)\n";
+      o << " (a fact it names may support a MUST case)";
+      if (e.contains("decided_by")) o << "; the standard decides: " << e["decided_by"].get<std::string>();
+      o << "\n";
     } else if (e.contains("contests") && e["contests"].empty()) {
-      o << "- **Contests:** nothing a case relies on (recorded only)\n";
+      o << "- **Contests:** nothing a case relies on (recorded only)";
+      if (e.contains("about")) {
+        o << "; about the citers' ";
+        bool first = true;
+        for (const auto& a : e["about"]) o << (first ? "" : ", ") << a.get<std::string>(), first = false;
+      }
+      o << "\n";
     } else if (e.contains("contests")) {
       o << "- **Contests:** ";
       bool first = true;
@@ -280,7 +301,16 @@ std::string errata_markdown(const nlohmann::json& r) {
       o << "\n";
     }
     o << "\n";
-  }
+  };
+  auto section = [&](const char* title, auto keep) {
+    o << "\n## " << title << "\n\n";
+    size_t n = 0;
+    for (const auto& e : r["errata"])
+      if (keep(e.value("class", std::string("contradiction")))) erratum(e), ++n;
+    if (!n) o << "None recorded.\n";
+  };
+  section("Contradictions and their resolution", [](const std::string& c) { return c == "contradiction"; });
+  section("Typos and nits (not contradictions)", [](const std::string& c) { return c != "contradiction"; });
   const json& fb = r["facts"];
   o << "## Where the facts come from\n\n" << fb["stated"] << " stated, " << fb["inferred"] << " inferred, " << fb["observed"]
     << " observed, " << fb["either"] << " printed two ways (spec/README.md, \"Where each fact comes from\"). A case relying on an "
@@ -297,7 +327,8 @@ std::string errata_markdown(const nlohmann::json& r) {
     for (const auto& f : fb["either_facts"]) {
       std::string rs;
       for (const auto& x : f["readings"]) rs += (rs.empty() ? "" : " / ") + x.get<std::string>();
-      o << "| " << cell(f["fact"]) << " | " << cell(f["section"]) << " | " << cell(rs) << " | " << cell(f["erratum"]) << " |\n";
+      o << "| " << cell(f["fact"]) << (f.value("outcomes", false) ? " (OBSERVED: no one expectation holds both)" : "") << " | "
+        << cell(f["section"]) << " | " << cell(rs) << " | " << cell(f["erratum"]) << " |\n";
     }
     o << "\n";
   }

@@ -14,6 +14,7 @@
 #include <valijson/validator.hpp>
 
 #include "checks.h"
+#include "erratum_extra.h"
 #include "modbus/crc16.h"
 #include "modbus/hex.h"
 #include "yaml_json.h"
@@ -290,8 +291,13 @@ struct Builder {
       fc.loc = at("/profile/function_codes/" + std::to_string(i));
       if (f.contains("basis"))
         for (const auto& [k, v] : f["basis"].items()) {
-          auto b = fact_basis(v, "/profile/function_codes/" + std::to_string(i) + "/basis/" + k, "FC " + std::to_string(fc.code) + " " + k);
+          std::string bp = "/profile/function_codes/" + std::to_string(i) + "/basis/" + k;
+          auto b = fact_basis(v, bp, "FC " + std::to_string(fc.code) + " " + k);
           if (b.section.empty()) b.section = fc.section;
+          // A function code accepted or refused: two outcomes, in words.
+          // A limit printed two ways as numbers stays typed (the cases stay inside both).
+          bool numbers = k != "supported" && std::all_of(v["either"].begin(), v["either"].end(), [](const json& x) { return x.is_number_integer(); });
+          if (b.basis == Basis::either && !numbers && words_readings(v["either"], bp + "/either")) b.why = "printed two ways in words: no one expectation holds both readings";
           fc.basis[k] = b;
         }
       if (s.device.manual.source == "discover")
@@ -418,6 +424,7 @@ struct Builder {
       }
       s.examples.push_back(x);
     }
+    std::map<std::string, ErratumExtra> extras;
     for (size_t i = 0; i < r["errata"].size(); ++i) {
       const json& e = r["errata"][i];
       Erratum x;
@@ -434,8 +441,16 @@ struct Builder {
       }
       if (e.contains("settled_by"))
         for (const auto& c : e["settled_by"]) x.settled_by.push_back(c.get<std::string>());
+      ErratumExtra& xx = extras[x.id];
+      xx.cls = str(e, "class", "contradiction");
+      if (e.contains("about"))
+        for (const auto& c : e["about"]) xx.about.push_back(c.get<std::string>());
+      if (e.contains("area")) xx.area = std::pair(e["area"]["from"].get<uint16_t>(), e["area"]["to"].get<uint16_t>());
+      xx.decided_by = str(e, "decided_by");
       s.errata.push_back(std::move(x));
     }
+    record_erratum_extras(s.path, extras);
+    apply_errata_areas(s, extras);
     if (r.contains("operations")) build_operations(s, r["operations"]);
     if (r.contains("timing")) {
       const json& t = r["timing"];
@@ -447,6 +462,58 @@ struct Builder {
     }
     check_basis_errata(s);
     return s;
+  }
+
+  // `area:` makes every holding register of the area cite the erratum. An
+  // unsettled erratum that contests `address` puts where each register it
+  // names sits in doubt: the register's read and write are printed two ways
+  // (at the printed address, or one above it), unless the spec gives them.
+  void apply_errata_areas(Spec& s, const std::map<std::string, ErratumExtra>& extras) {
+    for (const auto& e : s.errata) {
+      auto area = extras.count(e.id) ? extras.at(e.id).area : std::nullopt;
+      if (area)
+        for (auto& r : s.registers)
+          if (r.table == Table::holding && r.address >= area->first && r.last_address() <= area->second &&
+              std::find(r.errata.begin(), r.errata.end(), e.id) == r.errata.end())
+            r.errata.push_back(e.id);
+      if (!e.contests_given || !e.contests_fact("address") || e.settled()) continue;
+      // A read answers on either reading wherever the address below holds a
+      // register the erratum names too (one above, that register sits here):
+      // only the first of a run is read in doubt. Every write lands on another
+      // register (its own range and access) on the other reading.
+      std::set<uint32_t> named;
+      for (const auto& r : s.registers)
+        if (r.table == Table::holding && std::find(r.errata.begin(), r.errata.end(), e.id) != r.errata.end())
+          for (uint32_t a = r.address; a <= r.last_address(); ++a) named.insert(a);
+      for (auto& r : s.registers) {
+        if (std::find(r.errata.begin(), r.errata.end(), e.id) == r.errata.end()) continue;
+        for (Fact f : {Fact::read, Fact::write}) {
+          if (r.basis.count(f)) continue;
+          if (f == Fact::read && r.address > 0 && named.count(uint32_t(r.address) - 1)) continue;
+          FactBasis b;
+          b.basis = Basis::either;
+          b.why = "printed two ways in words: no one expectation holds both readings";
+          b.erratum = e.id;
+          b.section = e.section;
+          b.readings = {"\"at the printed address\"", "\"at the printed address + 1\""};
+          b.loc = r.loc;
+          r.basis[f] = b;
+        }
+      }
+    }
+  }
+
+  // Readings of a fact printed two ways that no expectation can hold both
+  // of: each says in words what the device does (`["readable (6.1: RW)",
+  // "refused (6.2.4)"]`). True when every reading is such words.
+  bool words_readings(const json& arr, const std::string& p) {
+    bool ok = arr.is_array() && !arr.empty();
+    for (size_t i = 0; ok && i < arr.size(); ++i)
+      if (!arr[i].is_string() || arr[i].get<std::string>().empty()) {
+        error(p + "/" + std::to_string(i), "either-readings", "this fact's readings are words: what the device does on each side (\"readable (6.1: RW)\")");
+        ok = false;
+      }
+    return ok;
   }
 
   // The kind of violation a printed frame provokes, when the frame says so
@@ -562,7 +629,10 @@ struct Builder {
       std::string fp = p + "/" + key;
       FactBasis b = fact_basis(j[key], fp, std::string(key) + " of register " + std::to_string(r.address));
       if (b.section.empty()) b.section = r.section;
-      if (b.basis == Basis::either) either_readings(r, f, j[key]["either"], fp + "/either");
+      if (b.basis == Basis::either) {
+        if (f == Fact::range || f == Fact::default_value || f == Fact::word_order) either_readings(r, f, j[key]["either"], fp + "/either");
+        else if (words_readings(j[key]["either"], fp + "/either")) b.why = "printed two ways in words: no one expectation holds both readings";
+      }
       r.basis[f] = b;
     }
   }
@@ -579,11 +649,9 @@ struct Builder {
         r.default_readings.push_back(x.get<double>());
       else if (f == Fact::word_order && x.is_string() && (x == "high_first" || x == "low_first"))
         r.word_order_readings.push_back(x == "high_first" ? WordOrder::high_first : WordOrder::low_first);
-      else if (f == Fact::range || f == Fact::default_value || f == Fact::word_order)
+      else
         error(xp, "either-readings", std::string(to_string(f)) + " reading " + x.dump() + " is not " +
                   (f == Fact::range ? "a {min, max} with min <= max" : f == Fact::default_value ? "a number" : "high_first or low_first"));
-      else
-        error(xp, "either-readings", std::string(to_string(f)) + " cannot be printed two ways here; mark it inferred, or use an erratum");
     }
   }
 

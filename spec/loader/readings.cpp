@@ -1,5 +1,8 @@
 #include "readings.h"
 
+#include "erratum_extra.h"
+
+#include <algorithm>
 #include <cstdio>
 #include <stdexcept>
 
@@ -33,6 +36,10 @@ std::pair<double, double> type_bounds(DataType t, int words) {
 std::optional<std::string> flip(Register& r, Fact f, const FactBasis& b) {
   switch (f) {
     case Fact::read:
+      if (r.access == Access::wo) {
+        r.access = Access::rw;  // a read answers the value
+        return "readable (reads answered)";
+      }
       if (r.access != Access::rw && r.access != Access::ro) return std::nullopt;
       r.access = Access::wo;  // a read gets the policy's read_write_only answer
       return "not readable (reads refused)";
@@ -50,10 +57,17 @@ std::optional<std::string> flip(Register& r, Fact f, const FactBasis& b) {
           }
         return std::nullopt;
       }
-      // An inferred range read the other way: no range check at all. A range
-      // that is already the type's has no other reading a table can state.
+      // An inferred range read the other way: no range check at all; or, for a
+      // range that is already the type's, the range as printed ("-32767~32768").
       auto [lo, hi] = type_bounds(r.type, r.words);
-      if (r.range->min == lo && r.range->max == hi) return std::nullopt;
+      if (r.range->min == lo && r.range->max == hi) {
+        auto printed = r.printed.find("range");
+        double a = 0, b = 0;
+        if (printed == r.printed.end() || std::sscanf(printed->second.c_str(), "%lf~%lf", &a, &b) != 2 || a > b || a < lo || b > hi)
+          return std::nullopt;
+        r.range = Range{a, b};
+        return "range " + std::to_string(int64_t(a)) + ".." + std::to_string(int64_t(b)) + " (as printed)";
+      }
       r.range = Range{lo, hi};
       return "no range check (the type's bounds)";
     }
@@ -165,41 +179,73 @@ std::optional<std::pair<Bytes, std::optional<Bytes>>> other_answer(const Spec& s
   return std::pair{*req, std::optional<Bytes>(Bytes{uint8_t((*req)[0] | 0x80), code})};
 }
 
+// A register whose read or write is printed two ways in words, one way being
+// that it is not there at all ("no register (4.2.2: only X0-X3)"): the
+// variant leaves it out of the map. A write-only register read the other way
+// is readable instead (flip).
+bool absent(const Register& r, Fact f, const FactBasis& b) {
+  return (f == Fact::read || f == Fact::write) && words_only(b) && r.access != Access::wo;
+}
+
+// The errata a fact's doubt comes from: the basis's own, and those its owner
+// cites that contest `what`.
+std::vector<std::string> doubt_from(const Spec& s, const FactBasis& b, const std::vector<std::string>& cited, const std::string& what) {
+  std::vector<std::string> out;
+  if (!b.erratum.empty()) out.push_back(b.erratum);
+  for (const auto& id : cited)
+    if (const Erratum* e = s.find_erratum(id); e && e->contests_fact(what) && std::find(out.begin(), out.end(), id) == out.end())
+      out.push_back(id);
+  return out;
+}
+
+// Errata that contest where the registers they name sit.
+bool contests_address(const Erratum& e) { return e.contests_given && e.contests_fact("address") && !e.settled(); }
+
 }  // namespace
 
 std::vector<Reading> contested_readings(const Spec& s) {
   std::vector<Reading> out;
-  std::string seen;
   for (const auto& r : s.registers) {
     if (r.block_index > 0) continue;
     for (Fact f : kRegisterFacts) {
       FactBasis b = r.basis_of(f);
       if (b.basis == Basis::stated) continue;
+      // Read and write at a contested address: the address variant covers them.
+      if (const Erratum* e = s.find_erratum(b.erratum); e && contests_address(*e)) continue;
       Register probe = r;
-      auto words = flip(probe, f, b);
+      auto words = absent(r, f, b) ? std::optional<std::string>("no register there (absent)") : flip(probe, f, b);
       if (!words) continue;
-      out.push_back({reg_key(r) + "." + to_string(f), "register " + hex4(r.address) + " " + to_string(f), b.basis, *words});
+      out.push_back({reg_key(r) + "." + to_string(f), "register " + hex4(r.address) + " " + to_string(f), b.basis, *words,
+                     doubt_from(s, b, r.errata, to_string(f))});
     }
   }
+  for (const auto& e : s.errata)
+    if (contests_address(e))
+      out.push_back({"address." + e.id, "the addresses erratum " + e.id + " names", Basis::either,
+                     "every register it names sits one above its printed address", {e.id}});
+  std::vector<std::string> none;
   for (const auto& f : s.profile.function_codes) {
+    std::vector<std::string> cites = f.erratum.empty() ? none : std::vector<std::string>{f.erratum};
     FactBasis sup = f.basis_of("supported");
     if (sup.basis != Basis::stated)
       out.push_back({"fc" + std::to_string(f.code) + ".supported", "FC " + std::to_string(f.code) + " supported", sup.basis,
-                     "not supported"});
+                     "not supported", doubt_from(s, sup, cites, "supported")});
     FactBasis mq = f.basis_of("max_quantity");
     if (f.max_quantity && mq.basis != Basis::stated)
       out.push_back({"fc" + std::to_string(f.code) + ".max_quantity", "FC " + std::to_string(f.code) + " max_quantity", mq.basis,
-                     "the standard's limit"});
+                     "the standard's limit", doubt_from(s, mq, cites, "max_quantity")});
   }
   for (Violation v : kAllViolations) {
     PolicyEntry p = s.profile.policy(v);
+    std::vector<std::string> cites = p.erratum.empty() ? none : std::vector<std::string>{p.erratum};
     if (auto o = other_policy(p))
       out.push_back({std::string("policy.") + to_string(v), std::string("exception_policy.") + to_string(v), p.basis.basis,
-                     policy_words(*o)});
+                     policy_words(*o), doubt_from(s, p.basis, cites, "policy")});
   }
   for (const auto& x : s.examples) {
     std::string words;
-    if (other_answer(s, x, words)) out.push_back({"example." + x.id, "example " + x.id, x.basis.basis, words});
+    if (other_answer(s, x, words))
+      out.push_back({"example." + x.id, "example " + x.id, x.basis.basis, words, doubt_from(s, x.basis, x.errata, "example")});
   }
   return out;
 }
@@ -211,11 +257,24 @@ Variant other_reading(const Spec& s, const std::string& key) {
     v.describe = rd.fact + ": " + rd.other;
     auto dot = key.rfind('.');
     std::string head = key.substr(0, dot), tail = key.substr(dot + 1);
-    if (head.rfind("0x", 0) == 0 || head.find(':') != std::string::npos) {
+    if (head == "address") {
+      // Every register the erratum names sits one above its printed address.
+      for (auto& r : v.spec.registers)
+        if (std::find(r.errata.begin(), r.errata.end(), tail) != r.errata.end()) r.address = uint16_t(r.address + 1);
+      std::stable_sort(v.spec.registers.begin(), v.spec.registers.end(), [](const Register& a, const Register& b) {
+        return std::pair(int(a.table), a.address) < std::pair(int(b.table), b.address);
+      });
+    } else if (head.rfind("0x", 0) == 0 || head.find(':') != std::string::npos) {
       // Every register of the declaration (a block) takes the other reading.
       const Register* first = nullptr;
       for (const auto& r : s.registers)
         if (r.block_index <= 0 && reg_key(r) == head) first = &r;
+      for (Fact f : kRegisterFacts)
+        if (first && to_string(f) == tail && absent(*first, f, first->basis_of(f))) {
+          std::string origin = first->origin;
+          std::erase_if(v.spec.registers, [&](const Register& r) { return r.origin == origin; });
+          first = nullptr;
+        }
       for (auto& r : v.spec.registers)
         if (first && r.origin == first->origin)
           for (Fact f : kRegisterFacts)

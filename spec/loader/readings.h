@@ -18,12 +18,17 @@ namespace mbc::spec {
 
 // One contested fact and its variant's key: "0x0024.range",
 // "0x00E0.persistence_unless", "fc16.supported", "fc16.max_quantity",
-// "policy.crc_error", "example.start-homing".
+// "policy.crc_error", "example.start-homing", "address.plus-one-parameters"
+// (every register an erratum contesting `address` names sits one above its
+// printed address).
 struct Reading {
   std::string key;
   std::string fact;   // as cases name it ("register 0x0024 range", "FC 16 supported", ...)
   Basis basis = Basis::stated;
   std::string other;  // the other reading, in words
+  // The errata the fact's doubt comes from: its `either`'s erratum, or those
+  // its owner cites that contest it (every behavioural erratum has a variant).
+  std::vector<std::string> errata;
 };
 
 // Every inferred, observed or either fact of `s` that a device can read

@@ -9,6 +9,7 @@
 #include <regex>
 #include <sstream>
 
+#include "erratum_extra.h"
 #include "loader.h"
 
 namespace fs = std::filesystem;
@@ -145,4 +146,61 @@ TEST(Loader, FrameFormatsAreStringsNotFloats) {
   ASSERT_TRUE(r.spec);
   ASSERT_FALSE(r.spec->serial.frame_formats.empty());
   EXPECT_EQ(r.spec->serial.frame_formats[0], "8E1");
+}
+
+// Issue 37: a fact printed two ways as outcomes (readable or not) gives its
+// readings in words and counts as inferred for a case's level; an erratum
+// that contests `address` makes the read and write of every register it names
+// (here through `area:`) printed two ways; `class:` is kept.
+TEST(Loader, ReadingsInWordsAndContestedAddresses) {
+  std::ifstream in(fs::path(MBCONFORM_TEST_DIR) / "valid" / "minimal.yaml");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::string text = ss.str();
+  auto replace = [&](const std::string& from, const std::string& to) {
+    auto at = text.find(from);
+    ASSERT_NE(at, std::string::npos) << from;
+    text.replace(at, from.size(), to);
+  };
+  replace("registers:\n", R"YAML(registers:
+  - address: 0x0040
+    name: {en: filter}
+    access: rw
+    type: u16
+    erratum: no-such-input
+    section: "2"
+    basis:
+      read: {either: ["a register (the table)", "no register (the port list)"], erratum: no-such-input}
+)YAML");
+  replace("errata: []", R"YAML(errata:
+  - {id: no-such-input, section: "2", kind: table_vs_text, printed: "t", resolved: "r", why: "w", contests: [read]}
+  - {id: offset, section: "2", kind: other, class: nit, printed: "+1", resolved: "r", why: "w", contests: [address], area: {from: 0x0010, to: 0x001F}}
+)YAML");
+  auto r = load_spec_text(text, "minimal.yaml");
+  std::string all;
+  for (const auto& d : r.diagnostics) all += "\n  " + d.str();
+  ASSERT_TRUE(r.ok()) << all;
+  const auto* filter = r.spec->find_register(0x0040);
+  ASSERT_TRUE(filter);
+  auto b = filter->basis_of(mbc::spec::Fact::read);
+  EXPECT_EQ(b.basis, mbc::spec::Basis::either);
+  EXPECT_TRUE(mbc::spec::words_only(b));
+  EXPECT_TRUE(mbc::spec::demotes(b));  // its cases are OBSERVED
+  EXPECT_FALSE(mbc::spec::demotes(filter->basis_of(mbc::spec::Fact::write)));
+  for (uint16_t a = 0x0010; a < 0x0014; ++a) {
+    const auto* seg = r.spec->find_register(a);
+    ASSERT_TRUE(seg);
+    EXPECT_NE(std::find(seg->errata.begin(), seg->errata.end(), "offset"), seg->errata.end());
+    // Every write lands elsewhere one above; a read answers there too, except
+    // at the first address of the run (nothing of the area sits below it).
+    auto wb = seg->basis_of(mbc::spec::Fact::write);
+    EXPECT_EQ(wb.basis, mbc::spec::Basis::either);
+    EXPECT_TRUE(mbc::spec::words_only(wb));
+    EXPECT_EQ(wb.erratum, "offset");
+    EXPECT_EQ(mbc::spec::words_only(seg->basis_of(mbc::spec::Fact::read)), a == 0x0010) << a;
+  }
+  EXPECT_EQ(r.spec->find_register(0x0000)->basis_of(mbc::spec::Fact::read).basis, mbc::spec::Basis::stated);  // outside the area
+  EXPECT_EQ(mbc::spec::erratum_extra(*r.spec, "offset").cls, "nit");
+  EXPECT_EQ(mbc::spec::erratum_extra(*r.spec, "offset").area, std::pair(uint16_t(0x0010), uint16_t(0x001F)));
+  EXPECT_EQ(mbc::spec::erratum_extra(*r.spec, "no-such-input").cls, "contradiction");
 }

@@ -12,6 +12,7 @@
 #include "errata.h"
 #include "cases/case.h"
 #include "cases/facts.h"
+#include "erratum_extra.h"
 #include "exchange.h"
 #include "loader.h"
 #include "conventions.h"
@@ -87,7 +88,7 @@ nlohmann::json observed_by_inference(const spec::Spec& s, const spec::Spec& stan
     if (!c.level_if_stated) continue;
     nlohmann::json facts = nlohmann::json::array();
     for (const auto& r : conf::facts::all_relies(c)) {
-      if (!r.basis.is_inferred()) continue;
+      if (!spec::demotes(r.basis)) continue;
       nlohmann::json f{{"fact", r.fact}, {"basis", spec::to_string(r.basis.basis)}, {"why", r.basis.why}, {"section", r.basis.section}};
       if (!r.basis.searched.empty()) f["searched"] = r.basis.searched;
       facts.push_back(std::move(f));
@@ -111,8 +112,9 @@ int run_errata(std::vector<std::string> ids, const std::string& out_dir) {
         !write_file(base.string() + ".md", spec::errata_markdown(report)))
       throw std::runtime_error("cannot write " + base.string() + ".{json,md}");
     const auto& sum = report["summary"];
-    std::cout << fmt::format("{}.md: {} frames ({} bad CRC), {} errata, {} deviations\n", base.string(),
-                             sum["frames"].get<int>(), sum["frames_bad_crc"].get<int>(), sum["errata"].get<int>(),
+    std::cout << fmt::format("{}.md: {} frames ({} bad CRC), {} errata ({} contradictions, {} typos and nits), {} deviations\n",
+                             base.string(), sum["frames"].get<int>(), sum["frames_bad_crc"].get<int>(), sum["errata"].get<int>(),
+                             sum["contradictions"].get<int>(), sum["typos"].get<int>() + sum["nits"].get<int>(),
                              sum["deviations"].get<int>());
   }
   return kExitOk;

@@ -191,7 +191,8 @@ INSTANTIATE_TEST_SUITE_P(
         FaultCase{"sihong-57hs-r", "wrong-exception-code", "sihong-57hs-r/registers/0x0026/above-max"},
         FaultCase{"sihong-57hs-r", "off-by-one-limit", "sihong-57hs-r/function-codes/fc03/quantity-limit+1"},
         FaultCase{"rieding-dhe", "refuse-limit", "rieding-dhe/function-codes/fc03/quantity-limit"},
-        FaultCase{"sihong-57hs-r", "swapped-words", "sihong-57hs-r/examples/6.2.3/write-total-pulses"},
+        // (57HS-R's FC 16 is printed two ways since issue 37, so its FC 16 cases are OBSERVED.)
+        FaultCase{"modbus-standard", "swapped-words", "modbus-standard/registers/0x0200/word-order"},
         FaultCase{"hsc60", "swapped-words", "hsc60/examples/四_1.2.3/fc16-write-travel"},
         FaultCase{"sihong-57hs-r", "accept-out-of-range", "sihong-57hs-r/registers/0x0020/above-max"},
         FaultCase{"sihong-57hs-r", "accept-read-only", "sihong-57hs-r/registers/0x0000/read-only"},
