@@ -1,5 +1,6 @@
 #include "csv.h"
 
+#include <cstdlib>
 #include <stdexcept>
 
 namespace mbc::exchange {
@@ -58,7 +59,37 @@ std::vector<CsvRecord> parse_csv(std::string_view text) {
   return out;
 }
 
+namespace {
+bool formula_start(char c) { return c == '=' || c == '+' || c == '-' || c == '@' || c == '\t' || c == '\r'; }
+
+// A plain decimal number ("-10", "-0.5", "-1e-05"): a spreadsheet reads it
+// as a number, not a formula, so it stays as it is.
+bool plain_number(std::string_view s) {
+  std::string t(s);
+  char* end = nullptr;
+  std::strtod(t.c_str(), &end);
+  return !t.empty() && end == t.c_str() + t.size() && t.find_first_of("xXnNiI \t") == std::string::npos;
+}
+
+// "'=x", "''=x": apostrophes, then a formula character.
+bool escaped_formula(std::string_view s) {
+  size_t i = s.find_first_not_of('\'');
+  return i != 0 && i != std::string_view::npos && formula_start(s[i]);
+}
+}  // namespace
+
+std::string csv_text(std::string_view s) { return std::string(escaped_formula(s) ? s.substr(1) : s); }
+
 std::string csv_field(std::string_view s) {
+  bool formula = !s.empty() && ((formula_start(s[0]) && !plain_number(s)) || escaped_formula(s));
+  if (formula) {
+    std::string q = "\"'";
+    for (char c : s) {
+      if (c == '"') q += '"';
+      q += c;
+    }
+    return q + "\"";
+  }
   if (s.find_first_of(",;\"\r\n") == std::string_view::npos) return std::string(s);
   std::string q = "\"";
   for (char c : s) {

@@ -19,7 +19,15 @@ struct CsvRecord {
 // Throws std::runtime_error("LINE: what") on an unterminated quote.
 std::vector<CsvRecord> parse_csv(std::string_view text);
 
-// One field, quoted when it holds a separator, a quote or a line break.
+// One field, quoted when it holds a separator, a quote or a line break. A
+// field a spreadsheet would run as a formula (it starts with '=', '+', '-',
+// '@', a tab or a carriage return, and is not a number: CSV injection,
+// OWASP) is written as text: quoted, behind an apostrophe ("'=1+2"), which
+// csv_text reads back.
 std::string csv_field(std::string_view s);
+
+// A field as csv_field wrote it: an apostrophe before a formula character
+// is dropped ("'=1+2" -> "=1+2", "''=x" -> "'=x").
+std::string csv_text(std::string_view s);
 
 }  // namespace mbc::exchange

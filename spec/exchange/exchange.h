@@ -9,17 +9,46 @@
 #include <string>
 #include <vector>
 
+#include "roles/roles.h"
 #include "spec.h"
 
 namespace mbc::exchange {
+
+// What an import made of one register's role (spec/roles/roles.h): from
+// its name through the lexicon, or from the sheet's `role` column.
+struct Classified {
+  spec::Table table = spec::Table::holding;
+  uint32_t address = 0;
+  std::string name;
+  spec::Role role = spec::Role::none;
+  std::string word;  // the lexicon's word that matched, "role column", or empty
+  spec::Access access = spec::Access::ro;  // as written into the spec
+};
 
 struct ImportResult {
   std::string yaml;                 // the spec skeleton, when errors is empty
   std::vector<std::string> errors;  // "file:line: error: what", in file order; at most 20, then "N more errors"
   size_t registers = 0;
-  std::vector<std::string> warnings;  // "file:line: warning: what" (a column that is ignored, a GBK file converted)
-  size_t error_count = 0;             // every error, shown or not
+  // "file:line: warning: what" (a column that is ignored, a GBK file
+  // converted); at most 20, then "N more warnings not shown (M in all)".
+  std::vector<std::string> warnings;
+  size_t error_count = 0;  // every error, shown or not
+  std::vector<Classified> classified;  // every register, in the spec's order
 };
+
+// At most this many errors or warnings are kept in an ImportResult; the
+// rest are counted in one line (a bad file of 100,000 rows must not print
+// 100,000 lines).
+inline constexpr size_t kShownLines = 20;
+// The largest sheet or template an import reads (a register map of every
+// address of the four tables is a few MiB; the spec it makes must stay under
+// the loader's 4 MiB).
+inline constexpr size_t kMaxImportBytes = 4u << 20;
+
+// The table of what an import classified: every register with a role, or a
+// role column's word, one line each (register, name, role, the word that
+// matched or "role column"), then how many have no role.
+std::string classification_table(const ImportResult& r);
 
 // Turns CSV text (the register map of one device) into the YAML of a spec
 // with id `id`. `file` names the CSV in errors and in every register's

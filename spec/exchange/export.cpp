@@ -56,6 +56,21 @@ const char* csv_table_name(Table t) {
   return "?";
 }
 
+// The role the spec gives a register (spec/roles/roles.h), for the `role`
+// column: a line setting it lists, a command that moves or writes the
+// EEPROM (the factory reset when operations names it so), else none. An
+// import reads it back as it is, whatever the register's name says.
+static spec::Role spec_role(const spec::Spec& s, const Register& r) {
+  if (r.table == Table::holding)
+    for (const auto& st : s.serial.settings)
+      if (st.register_address == r.address)
+        return st.setting == "slave_id" ? spec::Role::slave_address : st.setting == "baud_rate" ? spec::Role::baud : spec::Role::frame_format;
+  if (r.command && r.command->motion) return spec::Role::motion;
+  if (s.operations.factory_reset && !r.key.empty() && s.operations.factory_reset->key == r.key) return spec::Role::factory_reset;
+  if ((r.command && r.command->eeprom) || (s.operations.save && !r.key.empty() && s.operations.save->key == r.key)) return spec::Role::save;
+  return spec::Role::none;
+}
+
 std::string export_csv(const spec::Spec& s) {
   std::string out;
   for (size_t i = 0; i < kCsvColumns.size(); ++i) out += (i ? "," : "") + kCsvColumns[i];
@@ -66,6 +81,7 @@ std::string export_csv(const spec::Spec& s) {
         fmt::format("0x{:04X}", r.address),
         r.name.en,
         spec::to_string(r.access),
+        spec::to_string(spec_role(s, r)),
         spec::to_string(wire_type(r)),
         std::to_string(r.words),
         r.word_order == WordOrder::none ? "" : spec::to_string(r.word_order),

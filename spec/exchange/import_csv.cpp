@@ -20,8 +20,8 @@
 
 namespace mbc::exchange {
 
-const std::vector<std::string> kCsvColumns = {"table", "address", "name", "access", "type",  "words",      "word_order",
-                                              "min",   "max",     "default", "unit", "scale", "description"};
+const std::vector<std::string> kCsvColumns = {"table", "address", "name", "access",  "role",  "type", "words",
+                                              "word_order", "min", "max", "default", "unit", "scale", "description"};
 
 namespace {
 
@@ -72,6 +72,7 @@ const std::map<std::string, std::vector<std::string>>& column_aliases() {
                 "参数名", "参数", "变量名", "变量名称", "功能", "功能名称"}},
       {"access", {"access", "rw", "readwrite", "mode", "permission", "permissions", "attribute", "property", "读写",
                   "读写属性", "属性", "访问", "访问权限", "权限", "操作"}},
+      {"role", {"role", "registerrole", "角色", "用途"}},
       {"type", {"type", "datatype", "format", "valuetype", "dtype", "数据类型", "类型", "数据格式", "格式"}},
       {"words", {"words", "wordcount", "registers", "length", "len", "size", "count", "quantity",
                  "numberofregisters", "registercount", "长度", "字数", "寄存器数", "寄存器个数", "数据长度"}},
@@ -121,11 +122,12 @@ std::optional<Access> parse_access(const std::string& v) {
 
 std::optional<DataType> parse_type(const std::string& v) {
   static const std::vector<std::pair<std::vector<const char*>, DataType>> t = {
-      {{"u16", "uint16", "uint", "unsigned", "word", "ushort", "unsigned16", "uint16t"}, DataType::u16},
-      {{"s16", "int16", "int", "signed", "short", "i16", "sint16", "signed16", "int16t"}, DataType::s16},
-      {{"u32", "uint32", "udint", "dword", "ulong", "unsigned32", "uint32t"}, DataType::u32},
-      {{"s32", "int32", "dint", "long", "i32", "sint32", "signed32", "int32t"}, DataType::s32},
-      {{"f32", "float", "float32", "real", "single", "ieee754"}, DataType::f32},
+      {{"u16", "uint16", "uint", "unsigned", "word", "ushort", "unsigned16", "uint16t", "无符号16位", "16位无符号"}, DataType::u16},
+      {{"s16", "int16", "int", "signed", "short", "i16", "sint16", "signed16", "int16t", "integer", "整数", "整型", "有符号16位",
+        "16位有符号"}, DataType::s16},
+      {{"u32", "uint32", "udint", "dword", "ulong", "unsigned32", "uint32t", "无符号32位", "32位无符号"}, DataType::u32},
+      {{"s32", "int32", "dint", "long", "i32", "sint32", "signed32", "int32t", "有符号32位", "32位有符号", "长整型"}, DataType::s32},
+      {{"f32", "float", "float32", "real", "single", "ieee754", "浮点", "浮点数", "浮点型", "单精度"}, DataType::f32},
       {{"bit", "bool", "boolean", "coil"}, DataType::bit}};
   return lookup(t, v);
 }
@@ -194,7 +196,20 @@ struct Row {
   std::optional<double> min, max, def;
   double scale = 1;
   bool hex = false;  // the address was written 0x...
+  bool byte_swapped = false;  // BADC / DCBA: imported without values
+  spec::Role role = spec::Role::none;
+  std::string role_word;  // the lexicon's word, or "role column"
 };
+
+// "int", "uint", "integer": 16 bits to a PLC (IEC 61131-3), 32 to C.
+bool ambiguous_width(const std::string& t) {
+  std::string n = norm(t);
+  return n == "int" || n == "uint" || n == "integer" || n == "signed" || n == "unsigned" || n == "整数" || n == "整型";
+}
+
+// A write to a register of this role is an action, not a setting: the spec
+// says `access: command` with what it does.
+bool command_role(spec::Role r) { return r == spec::Role::motion || r == spec::Role::save || r == spec::Role::factory_reset; }
 
 // A 1-based reference in the 0x/1x/3x/4x convention: 5 digits (00001..09999,
 // 10001.., 30001.., 40001..) or 6 (000001..065536, ...). The first digit
@@ -247,17 +262,23 @@ class Importer {
     try {
       records = parse_csv(text);
     } catch (const std::runtime_error& e) {
-      return {"", {file_ + ":" + e.what()}, 0, {}, 1};
+      return {"", {file_ + ":" + e.what()}, 0, {}, 1, {}};
     }
-    if (records.empty()) return {"", {file_ + ":1: error: the file has no header row"}, 0, {}, 1};
+    if (records.empty()) return {"", {file_ + ":1: error: the file has no header row"}, 0, {}, 1, {}};
     header(records[0]);
     if (!failed())
       for (size_t i = 1; i < records.size(); ++i) row(records[i]);
     if (!failed() && rows_.empty()) error(records[0].line, "the file has a header but no registers");
-    if (failed()) return {"", errors(), 0, warnings_, error_count_};
+    if (failed()) return {"", errors(), 0, warnings(), error_count_, {}};
     overlaps();
-    if (failed()) return {"", errors(), 0, warnings_, error_count_};
-    std::string yaml = emit();
+    if (failed()) return {"", errors(), 0, warnings(), error_count_, {}};
+    auto lines = settings();
+    if (lines.size() > 64) {
+      error(rows_.front().line, fmt::format("{} line-setting registers (slave address, baud, parity, frame format): the "
+                                            "spec language lists at most 64", lines.size()));
+      return {"", errors(), 0, warnings(), error_count_, {}};
+    }
+    std::string yaml = emit(lines);
     // The skeleton must pass `spec check`; anything the rows did not catch
     // is reported here, against the generated text.
     auto r = spec::load_spec_text(yaml, id_ + ".yaml");
@@ -265,16 +286,21 @@ class Importer {
       ++error_count_;
       errors_.push_back(file_ + ": error: the skeleton does not pass spec check: " + d.str());
     }
-    if (failed()) return {"", errors(), 0, warnings_, error_count_};
-    return {yaml, {}, rows_.size(), warnings_, 0};
+    if (failed()) return {"", errors(), 0, warnings(), error_count_, {}};
+    return {yaml, {}, rows_.size(), warnings(), 0, classified()};
   }
 
  private:
-  // At most kShownErrors errors are kept; the rest are counted (a bad file
-  // of 100,000 rows must not print 100,000 lines).
-  static constexpr size_t kShownErrors = 20;
+  // At most kShownLines errors and warnings are kept; the rest are counted.
+  static constexpr size_t kShownErrors = kShownLines;
   void error(int line, const std::string& what) {
     if (++error_count_ <= kShownErrors) errors_.push_back(fmt::format("{}:{}: error: {}", file_, line, what));
+  }
+  std::vector<std::string> warnings() const {
+    std::vector<std::string> out = warnings_;
+    if (warning_count_ > kShownLines)
+      out.push_back(fmt::format("{}: {} more warnings not shown ({} in all)", file_, warning_count_ - kShownLines, warning_count_));
+    return out;
   }
   bool failed() const { return error_count_ > 0; }
   std::vector<std::string> errors() const {
@@ -283,7 +309,9 @@ class Importer {
       out.push_back(fmt::format("{}: {} more errors not shown ({} in all)", file_, error_count_ - kShownErrors, error_count_));
     return out;
   }
-  void warning(int line, const std::string& what) { warnings_.push_back(fmt::format("{}:{}: warning: {}", file_, line, what)); }
+  void warning(int line, const std::string& what) {
+    if (++warning_count_ <= kShownLines) warnings_.push_back(fmt::format("{}:{}: warning: {}", file_, line, what));
+  }
 
   void header(const CsvRecord& h) {
     width_ = h.fields.size();
@@ -309,9 +337,28 @@ class Importer {
       if (!col_.count(required)) error(h.line, fmt::format("the header names no '{}' column", required));
   }
 
+  // A cell, trimmed, as text (an export's "'=..." escape undone: csv.h).
   std::string cell(const CsvRecord& r, const std::string& c) const {
     auto it = col_.find(c);
-    return it == col_.end() || it->second >= r.fields.size() ? "" : trim(r.fields[it->second]);
+    return it == col_.end() || it->second >= r.fields.size() ? "" : csv_text(trim(r.fields[it->second]));
+  }
+
+  // The register's role: the `role` column's, else its name's through the
+  // lexicon (spec/roles/roles.h).
+  void classify(const CsvRecord& rec, Row& r) {
+    if (std::string v = cell(rec, "role"); !v.empty()) {
+      if (auto role = spec::role_from_string(v)) {
+        r.role = *role;
+        r.role_word = "role column";
+      } else {
+        error(rec.line, fmt::format("role '{}' is not none, slave-address, baud, parity, frame-format, motion, save or "
+                                    "factory-reset", v));
+      }
+      return;
+    }
+    auto m = spec::role_of_name(r.name);
+    r.role = m.role;
+    r.role_word = m.word;
   }
 
   void row(const CsvRecord& rec) {
@@ -354,53 +401,7 @@ class Importer {
     bool bits = r.table == Table::coil || r.table == Table::discrete_input;
     bool read_only_table = r.table == Table::input || r.table == Table::discrete_input;
 
-    std::string t = cell(rec, "type");
-    if (t.empty()) r.type = bits ? DataType::bit : DataType::u16;
-    else if (auto ty = parse_type(t)) r.type = *ty;
-    else if (norm(t) == "enum" || norm(t) == "bitfield")
-      error(line, fmt::format("type '{}': the CSV carries no value list; write the integer type (u16) and describe the "
-                              "values, then declare the {} in the spec", t, norm(t)));
-    else error(line, fmt::format("type '{}' is not u16, s16, u32, s32, f32 or bit", t));
-    if (bits != (r.type == DataType::bit))
-      error(line, fmt::format("a {} has type {}: coils and discrete inputs are bits, registers are not",
-                              csv_table_name(r.table), spec::to_string(r.type)));
-
-    std::string acc = cell(rec, "access");
-    if (acc.empty()) {
-      if (read_only_table) r.access = Access::ro;
-      else error(line, fmt::format("no access for a {} (ro, rw, wo or command)", csv_table_name(r.table)));
-    } else if (auto a = parse_access(acc)) {
-      r.access = *a;
-      if (read_only_table && r.access != Access::ro)
-        error(line, fmt::format("access '{}': {} {} is read-only", acc, r.table == Table::input ? "an" : "a", csv_table_name(r.table)));
-    } else {
-      error(line, fmt::format("access '{}' is not ro, rw, wo or command", acc));
-    }
-
-    bool wide = r.type == DataType::u32 || r.type == DataType::s32 || r.type == DataType::f32;
-    r.words = wide ? 2 : 1;
-    std::string w = cell(rec, "words");
-    if (!w.empty()) {
-      auto n = parse_number(w);
-      if (!n || (*n != 1 && *n != 2)) error(line, fmt::format("words '{}' is not 1 or 2", w));
-      else if (int(*n) != r.words) error(line, fmt::format("{} words, but type {} takes {}", w, spec::to_string(r.type), r.words));
-    }
-    std::string wo = cell(rec, "word_order");
-    if (!wo.empty() && swaps_bytes(wo)) {
-      error(line, fmt::format("byte order '{}' swaps the bytes inside each word; Modbus sends every register high byte "
-                              "first (MBAP v1.1b3 §4.2) and the spec language states word order only (ABCD, CDAB)", wo));
-    } else if (!wo.empty() && r.words == 1) {
-      // A sheet's byte-order column is filled for every row; a 1-word
-      // register has no word order, and AB (high byte first) is the wire's.
-      if (!parse_word_order(wo)) error(line, fmt::format("word order '{}' is not high_first or low_first (ABCD, CDAB)", wo));
-    } else if (!wo.empty()) {
-      if (auto o = parse_word_order(wo)) r.word_order = *o;
-      else error(line, fmt::format("word order '{}' is not high_first or low_first (ABCD, CDAB)", wo));
-    } else if (r.words == 2) {
-      error(line, "a 2-word register needs a word order (high_first: the high word at the lower address, or low_first)");
-    }
-    if (r.address + uint32_t(r.words * r.count) - 1 > 65535) error(line, "the register runs past address 0xFFFF");
-
+    // The range first: with no type column, it and the byte order give the width.
     auto number = [&](const char* c, std::optional<double>& out) {
       std::string v = cell(rec, c);
       if (v.empty()) return;
@@ -420,6 +421,84 @@ class Importer {
       }
     }
     number("default", r.def);
+    const bool negative = (r.min && *r.min < 0) || (r.def && *r.def < 0);
+    const bool beyond_16 = (r.min && *r.min < -32768) || (r.max && *r.max > 65535) || (r.def && (*r.def < -32768 || *r.def > 65535));
+    std::string wo = cell(rec, "word_order");
+    const std::string wo_n = norm(wo);
+    const bool four_bytes = wo_n == "abcd" || wo_n == "cdab" || wo_n == "badc" || wo_n == "dcba";
+    std::string w = cell(rec, "words");
+    const bool two_words_given = !w.empty() && parse_number(w) == 2.0;
+
+    std::string t = cell(rec, "type");
+    if (t.empty() && !bits) {
+      // No type: a 4-byte order (ABCD, CDAB), a word count of 2 or a range
+      // beyond 16 bits makes a 32-bit row; a negative bound a signed one.
+      bool wide = four_bytes || two_words_given || beyond_16;
+      r.type = wide ? (negative ? DataType::s32 : DataType::u32) : (negative ? DataType::s16 : DataType::u16);
+    } else if (t.empty()) {
+      r.type = DataType::bit;
+    } else if (auto ty = parse_type(t)) {
+      r.type = *ty;
+      // "int", "uint": 16 bits to a PLC, 32 to C; a range beyond 16 bits settles it.
+      if (beyond_16 && (r.type == DataType::u16 || r.type == DataType::s16) && ambiguous_width(t)) {
+        r.type = r.type == DataType::s16 ? DataType::s32 : DataType::u32;
+        warning(line, fmt::format("type '{}' with range {}..{}: read as {} (the range needs 32 bits)", t, num(r.min.value_or(0)),
+                                  num(r.max.value_or(0)), spec::to_string(r.type)));
+      }
+    } else if (norm(t) == "enum" || norm(t) == "bitfield") {
+      error(line, fmt::format("type '{}': the CSV carries no value list; write the integer type (u16) and describe the "
+                              "values, then declare the {} in the spec", t, norm(t)));
+    } else {
+      error(line, fmt::format("type '{}' is not u16, s16, u32, s32, f32 or bit", t));
+    }
+    if (bits != (r.type == DataType::bit))
+      error(line, fmt::format("a {} has type {}: coils and discrete inputs are bits, registers are not",
+                              csv_table_name(r.table), spec::to_string(r.type)));
+
+    std::string acc = cell(rec, "access");
+    if (acc.empty()) {
+      if (read_only_table) r.access = Access::ro;
+      else error(line, fmt::format("no access for a {} (ro, rw, wo or command)", csv_table_name(r.table)));
+    } else if (auto a = parse_access(acc)) {
+      r.access = *a;
+      if (read_only_table && r.access != Access::ro)
+        error(line, fmt::format("access '{}': {} {} is read-only", acc, r.table == Table::input ? "an" : "a", csv_table_name(r.table)));
+    } else {
+      error(line, fmt::format("access '{}' is not ro, rw, wo or command", acc));
+    }
+
+    bool wide = r.type == DataType::u32 || r.type == DataType::s32 || r.type == DataType::f32;
+    r.words = wide ? 2 : 1;
+    if (!w.empty()) {
+      auto n = parse_number(w);
+      if (!n || (*n != 1 && *n != 2)) error(line, fmt::format("words '{}' is not 1 or 2", w));
+      else if (int(*n) != r.words) error(line, fmt::format("{} words, but type {} takes {}", w, spec::to_string(r.type), r.words));
+    }
+    if (!wo.empty() && swaps_bytes(wo)) {
+      // Bytes swapped inside each word: Modbus sends every register high byte
+      // first (MBAP v1.1b3 §4.2) and the spec language states word order
+      // only. The registers are imported, their values are not.
+      r.byte_swapped = true;
+      if (r.words == 2) r.word_order = wo_n == "dcba" ? WordOrder::low_first : WordOrder::high_first;
+      warning(line, fmt::format("byte order '{}' swaps the bytes inside each word, which the spec language cannot state "
+                                "(Modbus sends each register high byte first, MBAP v1.1b3 §4.2): imported as {} {}-word "
+                                "register{} with no range or default", wo, r.words == 2 ? "a" : "a", r.words,
+                                r.words == 2 ? fmt::format(" ({})", spec::to_string(r.word_order)) : ""));
+      r.min.reset();
+      r.max.reset();
+      r.def.reset();
+    } else if (!wo.empty() && r.words == 1) {
+      // A sheet's byte-order column is filled for every row; a 1-word
+      // register has no word order, and AB (high byte first) is the wire's.
+      if (!parse_word_order(wo)) error(line, fmt::format("word order '{}' is not high_first or low_first (ABCD, CDAB)", wo));
+    } else if (!wo.empty()) {
+      if (auto o = parse_word_order(wo)) r.word_order = *o;
+      else error(line, fmt::format("word order '{}' is not high_first or low_first (ABCD, CDAB)", wo));
+    } else if (r.words == 2) {
+      error(line, "a 2-word register needs a word order (high_first: the high word at the lower address, or low_first)");
+    }
+    if (r.address + uint32_t(r.words * r.count) - 1 > 65535) error(line, "the register runs past address 0xFFFF");
+
     std::optional<double> scale;
     number("scale", scale);
     if (scale) {
@@ -441,6 +520,7 @@ class Importer {
     }
     r.unit = cell(rec, "unit");
     r.description = cell(rec, "description");
+    classify(rec, r);
     if (error_count_ == before) rows_.push_back(r);
   }
 
@@ -454,14 +534,55 @@ class Importer {
       }
   }
 
-  std::string emit() const {
+  // The access the spec states: a read-write register of a motion, save or
+  // factory-reset role is a command (a write is an action); a write-only one
+  // stays write-only, with the same `command:` (what a write does).
+  static Access access_of(const Row& r) { return r.access == Access::rw && command_role(r.role) ? Access::command : r.access; }
+  static bool has_command(const Row& r) { return access_of(r) == Access::command || (r.access == Access::wo && command_role(r.role)); }
+
+  // What the import made of each register's role, in the spec's order.
+  std::vector<Classified> classified() const {
+    std::vector<Classified> out;
+    for (const auto& r : rows_) out.push_back({r.table, r.address, r.name, r.role, r.role_word, access_of(r)});
+    return out;
+  }
+
+  // The line settings (serial.settings): a holding register whose role is
+  // the slave address, the baud rate, the parity or the frame format.
+  std::vector<std::string> settings() {
+    std::vector<std::string> out;
+    for (const auto& r : rows_) {
+      if (!spec::is_line_setting(r.role)) continue;
+      if (r.table != Table::holding) {
+        if (r.table == Table::coil)
+          warning(r.line, fmt::format("a coil of role {}: serial.settings names holding registers only; the coil is "
+                                      "imported as it is", spec::to_string(r.role)));
+        continue;
+      }
+      const char* setting = r.role == spec::Role::slave_address ? "slave_id"
+                            : r.role == spec::Role::baud        ? "baud_rate"
+                                                                : "frame_format";  // parity is part of the frame format (8E1)
+      for (int k = 0; k < r.count; ++k)
+        out.push_back(fmt::format("{{register: 0x{:04X}, setting: {}, section: {}, note: {}}}", r.address + uint32_t(k), setting,
+                                  yaml_str(fmt::format("{}:{}", name_, r.line)),
+                                  yaml_str(fmt::format("role {} ({}); the encoding is not stated in {}", spec::to_string(r.role),
+                                                       why(r), name_))));
+    }
+    return out;
+  }
+
+  std::string why(const Row& r) const {
+    return r.role_word == "role column" ? "the role column" : fmt::format("the name's word '{}'", r.role_word);
+  }
+
+  std::string emit(const std::vector<std::string>& settings) const {
     bool hex = true;
     std::set<Table> tables;
     bool writable_holding = false, writable_coil = false;
     for (const auto& r : rows_) {
       tables.insert(r.table);
       hex = hex && r.hex;
-      if (r.access != Access::ro) (r.table == Table::coil ? writable_coil : writable_holding) = true;
+      if (access_of(r) != Access::ro) (r.table == Table::coil ? writable_coil : writable_holding) = true;
     }
     std::string y;
     y += fmt::format("# {}: a spec skeleton imported from {} by `mbconform spec import`.\n", id_, name_);
@@ -472,7 +593,8 @@ class Importer {
     y += "mbconform_spec: 1\n\ndevice:\n";
     y += fmt::format("  id: {}\n  vendor: {}\n  title: {}\n  models: [{}]\n", id_,
                      yaml_str("not stated in " + name_), yaml_str(id_ + " register map (from " + name_ + ")"), yaml_str(id_));
-    // source: csv: the CSV is the register table, its facts are stated by it (spec/README.md).
+    // source: csv: the facts are the sheet's, the user's claim and not a
+    // manual's: each is inferred, so a live run writes only with --allow-writes (spec/README.md).
     y += fmt::format("  manual:\n    file: {}\n    source: csv\n    address_notation: {}\n", yaml_str(name_),
                      hex ? "hex" : "decimal");
     y += fmt::format("    addressing_note: {}\n", yaml_str("Imported from " + name_ + ": addresses are wire (PDU) addresses; "
@@ -485,7 +607,11 @@ class Importer {
     y += "  slave_id: {min: 1, max: 247, section: \"MB-SL 2.2\"}\n";
     y += "  broadcast: {writes: unspecified, reply: unspecified}\n";
     y += "  baud_rates: {values: [9600, 19200], default: 19200, section: \"MB-SL 3.2\"}\n";
-    y += "  frame_formats: {values: [8E1], default: 8E1, section: \"MB-SL 2.5.1\"}\n\n";
+    y += "  frame_formats: {values: [8E1], default: 8E1, section: \"MB-SL 2.5.1\"}\n";
+    // The registers that set the line: never written by a run (conformance/policy/).
+    if (!settings.empty()) y += "  settings:\n";
+    for (const auto& st : settings) y += "    - " + st + "\n";
+    y += "\n";
 
     y += "profile:\n";
     y += fmt::format("  note: {}\n", yaml_str("placeholder: the function codes of the tables " + name_ +
@@ -511,15 +637,28 @@ class Importer {
       // A name in Chinese is the manual's (zh); `en` is required, and stays the same until someone translates it.
       bool ascii = std::all_of(r.name.begin(), r.name.end(), [](char c) { return static_cast<unsigned char>(c) < 0x80; });
       m += fmt::format(", name: {{{}en: {}}}, access: {}, type: {}", ascii ? "" : "zh: " + yaml_str(r.name) + ", ", yaml_str(r.name),
-                       spec::to_string(r.access), spec::to_string(r.type));
+                       spec::to_string(access_of(r)), spec::to_string(r.type));
       if (r.words == 2) m += fmt::format(", words: 2, word_order: {}", spec::to_string(r.word_order));
       if (r.min) m += fmt::format(", range: {{min: {}, max: {}}}", num(*r.min), num(*r.max));
       if (r.def) m += fmt::format(", default: {}", num(*r.def));
       if (!r.unit.empty()) m += fmt::format(", unit: {}", yaml_str(r.unit));
       if (r.scale != 1) m += fmt::format(", scale: {}", num(r.scale));
-      if (r.access == Access::command)
-        m += fmt::format(", command: {{effect: {}}}", yaml_str(r.description.empty() ? "as stated in " + name_ : r.description));
-      if (!r.description.empty()) m += fmt::format(", note: {}", yaml_str(r.description));
+      if (has_command(r)) {
+        std::string effect = !r.description.empty() ? r.description
+                             : command_role(r.role) ? fmt::format("{} (role {}, from {})", r.name, spec::to_string(r.role), why(r))
+                                                    : "as stated in " + name_;
+        // motion: a write may move the drive (--allow-motion); eeprom: a
+        // write stores or resets the parameters (the EEPROM opt-in).
+        m += fmt::format(", command: {{effect: {}{}}}", yaml_str(effect),
+                         r.role == spec::Role::motion                                       ? ", motion: true"
+                         : r.role == spec::Role::save || r.role == spec::Role::factory_reset ? ", eeprom: true"
+                                                                                              : "");
+      }
+      std::string note = r.description;
+      if (r.byte_swapped)
+        note += std::string(note.empty() ? "" : "; ") + "the sheet's byte order swaps the bytes inside each word: "
+                "the spec states no range or default for it";
+      if (!note.empty()) m += fmt::format(", note: {}", yaml_str(note));
       m += fmt::format(", section: {}", yaml_str(fmt::format("{}:{}", name_, r.line)));
       y += "  - {" + m + "}\n";
     }
@@ -532,7 +671,7 @@ class Importer {
   size_t width_ = 0;
   std::vector<Row> rows_;
   std::vector<std::string> errors_, warnings_;
-  size_t error_count_ = 0;
+  size_t error_count_ = 0, warning_count_ = 0;
 };
 
 }  // namespace
@@ -572,6 +711,9 @@ std::optional<std::string> to_utf8(const std::string& text, int& line) {
 }
 
 ImportResult import_csv(const std::string& text, const std::string& file, const std::string& id) {
+  if (text.size() > kMaxImportBytes)
+    return {"", {fmt::format("{}:1: error: {} bytes: a register sheet is read up to {} MiB (every address of the four tables "
+                             "fits in less); split the sheet", file, text.size(), kMaxImportBytes >> 20)}, 0, {}, 1, {}};
   int line = 0;
   auto utf8 = to_utf8(text, line);
   if (!utf8) {
@@ -581,13 +723,45 @@ ImportResult import_csv(const std::string& text, const std::string& file, const 
                          line, static_cast<unsigned char>(text[bad]))},
             0,
             {},
-            1};
+            1,
+            {}};
   }
   ImportResult r = Importer(file, id).run(*utf8);
   if (utf8->size() != text.size() || *utf8 != text)
     r.warnings.insert(r.warnings.begin(), fmt::format("{}:{}: warning: not UTF-8: read as GB18030 (GBK, the default of "
                                                       "Chinese Excel) and converted", file, line));
   return r;
+}
+
+}  // namespace mbc::exchange
+
+namespace mbc::exchange {
+
+std::string classification_table(const ImportResult& r) {
+  std::string out = fmt::format("{:<22} {:<30} {:<14} {:<26} {}\n", "register", "name", "role", "written as", "from");
+  size_t with_role = 0, by_column = 0;
+  for (const auto& c : r.classified) {
+    with_role += c.role != spec::Role::none;
+    by_column += c.word == "role column";
+    if (c.role == spec::Role::none && c.word.empty()) continue;
+    std::string as = spec::is_line_setting(c.role) && c.table == spec::Table::holding ? "serial.settings"
+                     : c.access == spec::Access::ro && command_role(c.role)              ? "ro: never written"
+                     : c.role == spec::Role::motion                                       ? std::string(spec::to_string(c.access)) + ", motion"
+                     : command_role(c.role)                                               ? std::string(spec::to_string(c.access)) + ", eeprom"
+                                                                                          : spec::to_string(c.access);
+    std::string name = c.name;
+    if (name.size() > 60) {  // cut at a character boundary
+      size_t cut = 57;
+      while (cut > 0 && (static_cast<unsigned char>(name[cut]) & 0xC0) == 0x80) --cut;
+      name = name.substr(0, cut) + "...";
+    }
+    out += fmt::format("{:<22} {:<30} {:<14} {:<26} {}\n", fmt::format("{} 0x{:04X}", csv_table_name(c.table), c.address), name,
+                       spec::to_string(c.role), as, c.word == "role column" ? c.word : "'" + c.word + "'");
+  }
+  out += fmt::format("{} of {} registers have a role ({} from the role column); {} have none (no word of spec/README.md "
+                     "\"Roles\" in their name)\n",
+                     with_role, r.classified.size(), by_column, r.classified.size() - with_role);
+  return out;
 }
 
 }  // namespace mbc::exchange

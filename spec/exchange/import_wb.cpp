@@ -16,7 +16,6 @@
 #include <filesystem>
 #include <map>
 #include <optional>
-#include <regex>
 #include <set>
 
 #include <fmt/core.h>
@@ -49,7 +48,8 @@ struct Reg {
   int words = 1;
   bool low_first = false;
   bool writable = false;
-  bool motion = false;      // a channel of it starts or stops the drive
+  spec::Role role = spec::Role::none;  // from its channels' names (spec/roles/roles.h)
+  std::string role_word;
   double scale = 1;
   std::optional<double> min, max;  // raw
   std::vector<std::pair<int64_t, std::string>> enum_values;
@@ -65,11 +65,38 @@ std::string english(const json& device, const std::string& s) {
   return s;
 }
 
-// Drive words that start, stop or reverse motion: a write to such a
-// register is a motion command, which a live run makes only with --allow-motion.
-bool moves(const std::string& name) {
-  static const std::regex words("start|stop|run|revers|forward|jog|command|control word|move|home", std::regex::icase);
-  return std::regex_search(name, words);
+// Of two roles that a register's channels give it, the one a live run
+// guards most: a line setting, then a factory reset, a save, motion.
+int rank(spec::Role r) {
+  switch (r) {
+    case spec::Role::slave_address:
+    case spec::Role::baud:
+    case spec::Role::parity:
+    case spec::Role::frame_format: return 0;
+    case spec::Role::factory_reset: return 1;
+    case spec::Role::save: return 2;
+    case spec::Role::motion: return 3;
+    case spec::Role::none: break;
+  }
+  return 4;
+}
+
+bool command_role(spec::Role r) { return r == spec::Role::motion || r == spec::Role::save || r == spec::Role::factory_reset; }
+
+// The deepest nesting a template is read with: wb-mqtt-serial's own
+// templates nest a handful of levels; 150,000 levels would exhaust the stack
+// of anything that walks the tree.
+constexpr int kMaxJsonDepth = 64;
+struct TooDeep {};
+
+// The template as JSON, with comments (wb-mqtt-serial allows them), refusing
+// nesting deeper than kMaxJsonDepth while it parses.
+json parse_template(const std::string& text) {
+  json::parser_callback_t bound = [](int depth, json::parse_event_t, json&) {
+    if (depth > kMaxJsonDepth) throw TooDeep{};
+    return true;
+  };
+  return json::parse(text, bound, true, /*ignore_comments=*/true);
 }
 
 class WbImporter {
@@ -79,11 +106,16 @@ class WbImporter {
   }
 
   ImportResult run(const std::string& text) {
+    if (text.size() > kMaxImportBytes)
+      return fail(fmt::format("{}: error: {} bytes: a template is read up to {} MiB (wb-mqtt-serial's largest are a few "
+                              "hundred KiB)", file_, text.size(), kMaxImportBytes >> 20));
     json t;
     try {
-      t = json::parse(text, nullptr, true, /*ignore_comments=*/true);
+      t = parse_template(text);
     } catch (const json::parse_error& e) {
       return fail(fmt::format("{}: error: not JSON: {}", file_, e.what()));
+    } catch (const TooDeep&) {
+      return fail(fmt::format("{}: error: nesting deeper than {} levels: not a device template", file_, kMaxJsonDepth));
     }
     if (!t.is_object() || !t.contains("device") || !t["device"].is_object())
       return fail(file_ + ": error: not a wb-mqtt-serial device template (no \"device\" object)");
@@ -109,19 +141,60 @@ class WbImporter {
     for (size_t i = 0; i < params.size(); ++i) channel(params[i], fmt::format("parameters[{}]", i), true);
     auto setups = list("setup");
     for (size_t i = 0; i < setups.size(); ++i) setup(setups[i], fmt::format("setup[{}]", i));
-    if (regs_.empty() && errors_.empty()) errors_.push_back(file_ + ": error: the template has no channel this import can map");
-    if (!errors_.empty()) return {"", errors_, 0, warnings_, errors_.size()};
+    if (regs_.empty() && errors_.empty()) error("", "the template has no channel this import can map");
+    if (!errors_.empty()) return {"", errors(), 0, warnings(), error_count_, {}};
+    std::vector<std::string> lines;
+    for (const auto& r : regs_)
+      if (spec::is_line_setting(r.role) && r.table == Table::holding) lines.push_back(r.key);
+    if (lines.size() > 64) {
+      error("", fmt::format("{} line-setting registers (slave address, baud, parity, frame format): the spec language lists at most 64",
+                            lines.size()));
+      return {"", errors(), 0, warnings(), error_count_, {}};
+    }
     std::string yaml = emit(d);
     auto r = spec::load_spec_text(yaml, id_ + ".yaml");
-    for (const auto& e : r.diagnostics) errors_.push_back(file_ + ": error: the imported spec does not pass spec check: " + e.str());
-    if (!errors_.empty()) return {"", errors_, 0, warnings_, errors_.size()};
-    return {yaml, {}, regs_.size(), warnings_, 0};
+    for (const auto& e : r.diagnostics) error("", "the imported spec does not pass spec check: " + e.str());
+    if (!errors_.empty()) return {"", errors(), 0, warnings(), error_count_, {}};
+    std::vector<Classified> classified;
+    for (const auto& g : regs_) classified.push_back({g.table, g.address, g.name, g.role, g.role_word, access_of(g)});
+    return {yaml, {}, regs_.size(), warnings(), 0, classified};
   }
 
  private:
-  ImportResult fail(const std::string& e) { return {"", {e}, 0, {}, 1}; }
-  void warn(const std::string& where, const std::string& what) { warnings_.push_back(fmt::format("{}: {}: warning: {}", file_, where, what)); }
-  void error(const std::string& where, const std::string& what) { errors_.push_back(fmt::format("{}: {}: error: {}", file_, where, what)); }
+  ImportResult fail(const std::string& e) { return {"", {e}, 0, {}, 1, {}}; }
+  // At most kShownLines of each are kept, then a count (a 16 MiB template
+  // of one repeated channel must not print 144,000 lines).
+  void warn(const std::string& where, const std::string& what) {
+    if (++warning_count_ <= kShownLines) warnings_.push_back(fmt::format("{}: {}: warning: {}", file_, where, what));
+  }
+  void error(const std::string& where, const std::string& what) {
+    if (++error_count_ <= kShownLines)
+      errors_.push_back(where.empty() ? fmt::format("{}: error: {}", file_, what) : fmt::format("{}: {}: error: {}", file_, where, what));
+  }
+  std::vector<std::string> warnings() const {
+    std::vector<std::string> out = warnings_;
+    if (warning_count_ > kShownLines)
+      out.push_back(fmt::format("{}: {} more warnings not shown ({} in all)", file_, warning_count_ - kShownLines, warning_count_));
+    return out;
+  }
+  std::vector<std::string> errors() const {
+    std::vector<std::string> out = errors_;
+    if (error_count_ > kShownLines)
+      out.push_back(fmt::format("{}: {} more errors not shown ({} in all)", file_, error_count_ - kShownLines, error_count_));
+    return out;
+  }
+
+  // A register's role from one of its channels' (or setup items') names.
+  void take_role(Reg& r, const std::string& name) {
+    auto m = spec::role_of_name(name);
+    if (rank(m.role) < rank(r.role)) {
+      r.role = m.role;
+      r.role_word = m.word;
+    }
+  }
+  // The access the spec states: a writable register of a motion, save or
+  // factory-reset role is a command.
+  static Access access_of(const Reg& r) { return r.writable ? (command_role(r.role) ? Access::command : Access::rw) : Access::ro; }
 
   std::optional<Table> table_of(const json& c, const std::string& where) {
     std::string rt = c.value("reg_type", "holding");
@@ -196,17 +269,16 @@ class WbImporter {
   }
 
   Reg& at(Table t, uint32_t a) {
-    for (auto& r : regs_)
-      if (r.table == t && r.address == a) return r;
+    if (Reg* r = find(t, a)) return *r;
+    index_[{int(t), a}] = regs_.size();
     regs_.push_back({});
     regs_.back().table = t;
     regs_.back().address = a;
     return regs_.back();
   }
   Reg* find(Table t, uint32_t a) {
-    for (auto& r : regs_)
-      if (r.table == t && r.address == a) return &r;
-    return nullptr;
+    auto it = index_.find({int(t), a});
+    return it == index_.end() ? nullptr : &regs_[it->second];
   }
 
   std::string key_for(const std::string& id, const std::string& name) {
@@ -216,7 +288,13 @@ class WbImporter {
     if (base.empty() || !std::isalnum(static_cast<unsigned char>(base[0]))) base = "r" + base;
     if (base.size() > 60) base.resize(60);  // an id is at most 80 characters, and a bitfield's is the key + "-bits"
     std::string k = base;
-    for (int n = 2; keys_.count(k); ++n) k = fmt::format("{}_{}", base, n);
+    // The next free suffix per base: 100,000 channels of one name stay linear.
+    if (keys_.count(k)) {
+      int& n = next_suffix_[base];
+      if (n < 2) n = 2;
+      do k = fmt::format("{}_{}", base, n++);
+      while (keys_.count(k));
+    }
     keys_.insert(k);
     return k;
   }
@@ -242,7 +320,7 @@ class WbImporter {
           return warn(at_, fmt::format("bits {}..{} overlap '{}': left out", *addr->bit, *addr->bit + *addr->width - 1, f.name));
       r.fields.push_back({*addr->bit, *addr->bit + *addr->width - 1, name});
       r.writable |= writable;
-      r.motion |= writable && moves(name);
+      take_role(r, name);
       if (r.origin.empty()) r.origin = where;
       return;
     }
@@ -263,7 +341,7 @@ class WbImporter {
     r.words = fmt_->second;
     r.low_first = c.value("word_order", "big_endian") == "little_endian";
     r.writable |= writable;
-    r.motion |= writable && moves(name);
+    take_role(r, name);
     r.unit = c.value("units", "");
     if (c.contains("scale") && c["scale"].is_number() && c["scale"].get<double>() > 0) r.scale = c["scale"].get<double>();
     // min/max are of the value wb-mqtt-serial publishes (raw x scale): the spec's range is raw.
@@ -312,6 +390,7 @@ class WbImporter {
       r = &n;
     }
     r->writable = true;
+    take_role(*r, title);
     setups_.push_back({r->key, s["value"].get<int64_t>(), where, title});
   }
 
@@ -335,14 +414,27 @@ class WbImporter {
     y += "mbconform_spec: 1\n\ndevice:\n";
     y += fmt::format("  id: {}\n  vendor: {}\n  title: {}\n  models: [{}]\n", id_, yaml_str("from the wb-mqtt-serial template " + name_),
                      yaml_str(title_), yaml_str(d.value("name", id_)));
-    y += fmt::format("  manual: {{file: {}, address_notation: decimal, addressing_note: {}}}\n", yaml_str(name_),
+    // source: wb-mqtt-serial: the facts are the template's, not a manual's: each is inferred (spec/README.md).
+    y += fmt::format("  manual: {{file: {}, source: wb-mqtt-serial, address_notation: decimal, addressing_note: {}}}\n", yaml_str(name_),
                      yaml_str("wb-mqtt-serial addresses are wire (PDU) addresses, decimal unless written 0x...; A:B:W is bit B, W bits wide, of register A"));
     y += fmt::format("  section: {}\n\n", yaml_str(cite));
     y += "serial:\n  note: \"placeholder: the template leaves the line to the port's configuration; the standard's values\"\n"
          "  slave_id: {min: 1, max: 247, section: \"MB-SL 2.2\"}\n"
          "  broadcast: {writes: unspecified, reply: unspecified}\n"
          "  baud_rates: {values: [9600, 19200], default: 9600, section: \"MB-SL 3.2\"}\n"
-         "  frame_formats: {values: [8N1, 8N2, 8E1], default: 8N2, section: \"MB-SL 2.5.1\"}\n\n";
+         "  frame_formats: {values: [8N1, 8N2, 8E1], default: 8N2, section: \"MB-SL 2.5.1\"}\n";
+    // The registers that set the line: never written by a run (conformance/policy/).
+    std::string settings;
+    for (const auto& r : regs_)
+      if (spec::is_line_setting(r.role) && r.table == Table::holding)
+        settings += fmt::format("    - {{register: {}, setting: {}, section: {}, note: {}}}\n", r.address,
+                                r.role == spec::Role::slave_address ? "slave_id"
+                                : r.role == spec::Role::baud        ? "baud_rate"
+                                                                    : "frame_format",
+                                yaml_str(cite + " " + r.origin),
+                                yaml_str(fmt::format("role {} (the name's word '{}')", spec::to_string(r.role), r.role_word)));
+    if (!settings.empty()) y += "  settings:\n" + settings;
+    y += "\n";
     int max_read = d.value("max_read_registers", 0);
     y += "profile:\n  note: \"the function codes of the tables the template reads and writes (MBAP 6); the exception policy is not in a template\"\n";
     y += "  function_codes:\n";
@@ -377,7 +469,7 @@ class WbImporter {
     y += "\nregisters:\n";
     for (const auto& r : regs_) {
       bool bits = r.table == Table::coil || r.table == Table::discrete_input;
-      Access access = r.writable ? (r.motion ? Access::command : Access::rw) : Access::ro;
+      Access access = access_of(r);
       std::string m = fmt::format("address: {}", r.address);
       if (r.table != Table::holding) m += fmt::format(", table: {}", spec::to_string(r.table));
       m += fmt::format(", key: {}, name: {{en: {}}}, access: {}", r.key, yaml_str(r.name), spec::to_string(access));
@@ -398,9 +490,14 @@ class WbImporter {
                          yaml_str(name_));
       if (!r.unit.empty()) m += fmt::format(", unit: {}", yaml_str(r.unit));
       if (r.scale != 1) m += fmt::format(", scale: {}", num(r.scale));
-      if (access == Access::command)
+      if (access == Access::command && r.role == spec::Role::motion)
         m += fmt::format(", command: {{effect: {}, motion: true}}",
-                         yaml_str("a channel of the template starts, stops or reverses the drive: written only with --allow-motion"));
+                         yaml_str(fmt::format("a channel of the template starts, stops or reverses the drive (the name's word '{}'): "
+                                              "written only with --allow-motion", r.role_word)));
+      else if (access == Access::command)
+        m += fmt::format(", command: {{effect: {}, eeprom: true}}",
+                         yaml_str(fmt::format("the template names it a {} (the word '{}'): written only with the EEPROM opt-in",
+                                              r.role == spec::Role::save ? "save" : "factory reset", r.role_word)));
       if (!r.note.empty()) m += fmt::format(", note: {}", yaml_str(r.note));
       m += fmt::format(", section: {}", yaml_str(cite + " " + r.origin));
       y += "  - {" + m + "}\n";
@@ -428,7 +525,10 @@ class WbImporter {
   std::vector<Reg> regs_;
   std::vector<Setup> setups_;
   std::set<std::string> keys_;
+  std::map<std::string, int> next_suffix_;
   std::vector<std::string> errors_, warnings_;
+  size_t error_count_ = 0, warning_count_ = 0;
+  std::map<std::pair<int, uint32_t>, size_t> index_;  // (table, address) -> regs_ index, until emit sorts regs_
 };
 
 }  // namespace
@@ -439,7 +539,8 @@ ImportResult import_wb_template(const std::string& text, const std::string& file
 
 std::string wb_template_id(const std::string& text) {
   try {
-    json t = json::parse(text, nullptr, true, true);
+    if (text.size() > kMaxImportBytes) return "";
+    json t = parse_template(text);
     std::string id = t.at("device").value("id", t.value("device_type", ""));
     std::string out;
     for (char c : id) out += std::isalnum(static_cast<unsigned char>(c)) ? char(std::tolower(static_cast<unsigned char>(c))) : '-';

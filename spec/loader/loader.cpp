@@ -300,7 +300,7 @@ struct Builder {
           if (b.basis == Basis::either && !numbers && words_readings(v["either"], bp + "/either")) b.why = "printed two ways in words: no one expectation holds both readings";
           fc.basis[k] = b;
         }
-      if (s.device.manual.source == "discover")
+      if (s.device.manual.source != "manual")
         for (const char* k : {"supported", "max_quantity", "max_read_quantity", "max_write_quantity"})
           if ((f.contains(k) || std::string(k) == "supported") && !fc.basis.count(k)) fc.basis[k] = discovered(s, fc.section, fc.loc);
       s.profile.function_codes.push_back(fc);
@@ -315,7 +315,7 @@ struct Builder {
       if (s.device.manual.source == "manual" && e.kind != PolicyEntry::Kind::unspecified &&
           e.basis.basis == Basis::stated && e.basis.quote.empty())
         error(p, "stated-needs-quote", std::string(key) + ": a stated exception policy quotes the manual (quote: \"...\"), or says why it is inferred (inferred:, searched:)");
-      if (s.device.manual.source == "discover" && e.kind != PolicyEntry::Kind::unspecified && e.basis.basis == Basis::stated)
+      if (s.device.manual.source != "manual" && e.kind != PolicyEntry::Kind::unspecified && e.basis.basis == Basis::stated)
         e.basis = discovered(s, e.section, e.loc);
       s.profile.exception_policy[v] = e;
     }
@@ -612,11 +612,15 @@ struct Builder {
     s.operations.motion = mo;
   }
 
-  // `device.manual.source: discover`: a fact with no basis of its own was probed.
+  // A fact with no basis of its own in a spec no manual states:
+  // `source: discover` was probed (observed); `csv` and `wb-mqtt-serial` are
+  // an imported map, the user's claim (inferred).
   static FactBasis discovered(const Spec& s, const std::string& section, SourceLoc loc) {
     FactBasis b;
-    b.basis = Basis::observed;
-    b.why = "found by probing the target (" + s.device.manual.file + ")";
+    const std::string& src = s.device.manual.source;
+    b.basis = src == "discover" ? Basis::observed : Basis::inferred;
+    b.why = src == "discover" ? "found by probing the target (" + s.device.manual.file + ")"
+                              : "claimed by " + s.device.manual.file + " (an imported " + src + " map, not a manual)";
     b.section = section;
     b.loc = loc;
     return b;
@@ -716,7 +720,7 @@ struct Builder {
     base.note = str(j, "note");
     base.section = str(j, "section");
     if (j.contains("basis")) register_basis(base, j["basis"], p + "/basis");
-    if (s.device.manual.source == "discover")
+    if (s.device.manual.source != "manual")
       for (Fact f : kRegisterFacts)
         if (!base.basis.count(f)) base.basis[f] = discovered(s, base.section, base.loc);
     int count = j.value("count", 1);

@@ -318,7 +318,9 @@ struct Erratum {
 
 struct Manual {
   std::string file;
-  std::string source = "manual";  // manual | csv | discover (every unmarked fact observed)
+  // manual | csv | wb-mqtt-serial (an imported map: every unmarked fact
+  // inferred) | discover (every unmarked fact observed)
+  std::string source = "manual";
   std::string address_notation;  // hex | decimal
   std::string addressing_note;
   std::string erratum;  // the erratum recording how the addressing note is read (every register's address rests on it)

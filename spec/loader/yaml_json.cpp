@@ -25,71 +25,6 @@ std::string escape_pointer_token(const std::string& s) {
   return r;
 }
 
-// yaml-cpp's parser recurses once per nesting level; a few kilobytes of
-// "[[[[" or of ever-deeper indentation would overflow the stack before we
-// ever saw a node. So estimate the nesting from the raw text first, erring
-// on the side of rejecting: flow brackets outside quotes and comments, plus
-// the block indentation levels, plus inline "- " sequence markers.
-std::optional<Diagnostic> check_nesting(std::string_view text, const std::string& file,
-                                        int max_depth) {
-  std::vector<size_t> indents;
-  int flow = 0;
-  int line_no = 0;
-  size_t pos = 0;
-  while (pos <= text.size()) {
-    size_t end = text.find('\n', pos);
-    if (end == std::string_view::npos) end = text.size();
-    std::string_view line = text.substr(pos, end - pos);
-    ++line_no;
-    size_t indent = 0;
-    while (indent < line.size() && line[indent] == ' ') ++indent;
-    bool blank = indent == line.size() || line[indent] == '#' || line[indent] == '\r';
-    int depth = flow;
-    if (!blank && flow == 0) {
-      while (!indents.empty() && indents.back() >= indent) indents.pop_back();
-      indents.push_back(indent);
-      depth = int(indents.size());
-      // "- - - x" nests one level per marker.
-      size_t i = indent;
-      while (i + 1 < line.size() && (line[i] == '-' || line[i] == '?') && line[i + 1] == ' ') {
-        ++depth;
-        i += 2;
-        while (i < line.size() && line[i] == ' ') ++i;
-      }
-    }
-    bool dq = false, sq = false;
-    for (size_t i = indent; i < line.size(); ++i) {
-      char c = line[i];
-      char prev = i == 0 ? ' ' : line[i - 1];
-      if (dq) {
-        if (c == '\\') ++i;
-        else if (c == '"') dq = false;
-        continue;
-      }
-      if (sq) {
-        if (c == '\'') sq = false;
-        continue;
-      }
-      bool token_start = prev == ' ' || prev == '[' || prev == '{' || prev == ',' || prev == ':' || i == indent;
-      if (c == '#' && (prev == ' ' || i == indent)) break;
-      if (c == '"' && token_start) dq = true;
-      else if (c == '\'' && token_start) sq = true;
-      else if (c == '[' || c == '{') ++flow;
-      else if ((c == ']' || c == '}') && flow > 0) --flow;
-      if (depth + flow > max_depth) {
-        return Diagnostic{file, line_no, int(i) + 1, "yaml",
-                          "nesting deeper than " + std::to_string(max_depth) + " levels"};
-      }
-    }
-    if (depth > max_depth) {
-      return Diagnostic{file, line_no, int(indent) + 1, "yaml",
-                        "nesting deeper than " + std::to_string(max_depth) + " levels"};
-    }
-    pos = end + 1;
-  }
-  return std::nullopt;
-}
-
 // Plain YAML scalars get the YAML 1.2 core schema's types; quoted ones stay strings.
 json plain_scalar(const std::string& s) {
   if (s.empty() || s == "~" || s == "null" || s == "Null" || s == "NULL") return nullptr;
@@ -210,16 +145,27 @@ SourceLoc JsonDocument::where(const std::string& pointer) const {
 // UTF-8 text (YAML 1.2 §5.2); bytes that are not would reach the JSON Schema
 // validator's string functions, which assume valid UTF-8 (fuzz/README.md).
 // Counts documents without building them (the event handler ignores events).
+// Counts the documents of a stream, and bounds its nesting as it is parsed.
+// yaml-cpp's parser recurses once per nesting level, and announces each
+// collection (OnSequenceStart, OnMapStart) before it descends into it: so
+// throwing there stops the parse max_depth levels down, whatever the text
+// hides its brackets behind (multi-line strings, plain scalars holding
+// quotes). A guess from the raw text could be fooled; the parser cannot.
 struct DocumentCounter final : YAML::EventHandler {
-  void OnDocumentStart(const YAML::Mark&) override {}
+  explicit DocumentCounter(int max) : max_depth(max) {}
+  int max_depth, depth = 0;
+  void enter(const YAML::Mark& at) {
+    if (++depth > max_depth) throw YAML::ParserException(at, "nesting deeper than " + std::to_string(max_depth) + " levels");
+  }
+  void OnDocumentStart(const YAML::Mark&) override { depth = 0; }
   void OnDocumentEnd() override {}
   void OnNull(const YAML::Mark&, YAML::anchor_t) override {}
   void OnAlias(const YAML::Mark&, YAML::anchor_t) override {}
   void OnScalar(const YAML::Mark&, const std::string&, YAML::anchor_t, const std::string&) override {}
-  void OnSequenceStart(const YAML::Mark&, const std::string&, YAML::anchor_t, YAML::EmitterStyle::value) override {}
-  void OnSequenceEnd() override {}
-  void OnMapStart(const YAML::Mark&, const std::string&, YAML::anchor_t, YAML::EmitterStyle::value) override {}
-  void OnMapEnd() override {}
+  void OnSequenceStart(const YAML::Mark& at, const std::string&, YAML::anchor_t, YAML::EmitterStyle::value) override { enter(at); }
+  void OnSequenceEnd() override { --depth; }
+  void OnMapStart(const YAML::Mark& at, const std::string&, YAML::anchor_t, YAML::EmitterStyle::value) override { enter(at); }
+  void OnMapEnd() override { --depth; }
 };
 
 static size_t first_invalid_utf8(std::string_view t) {
@@ -259,10 +205,6 @@ std::optional<JsonDocument> yaml_to_json(std::string_view text, const std::strin
     out.push_back({file, line, col, "yaml", "not UTF-8 text (YAML 1.2 §5.2): invalid byte sequence"});
     return std::nullopt;
   }
-  if (auto d = check_nesting(text, file, limits.max_depth)) {
-    out.push_back(*d);
-    return std::nullopt;
-  }
   YAML::Node root;
   try {
     // Documents are counted with a bounded loop, not YAML::LoadAll: yaml-cpp
@@ -271,7 +213,7 @@ std::optional<JsonDocument> yaml_to_json(std::string_view text, const std::strin
     // document per turn (found by spec_loader_fuzzer: ", a" hung the loader).
     std::istringstream stream{std::string(text)};
     YAML::Parser parser(stream);
-    DocumentCounter counter;
+    DocumentCounter counter(limits.max_depth);
     int docs = 0;
     while (docs < 2 && parser.HandleNextDocument(counter)) ++docs;
     if (docs == 0) {

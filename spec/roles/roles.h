@@ -16,6 +16,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <vector>
 
 namespace mbc::spec {
 
@@ -23,7 +24,8 @@ enum class Role { none, slave_address, baud, parity, frame_format, motion, save,
 
 const char* to_string(Role);  // "slave-address", "baud", ..., "none"
 // The role named by `text` as a `role` column or key would name it
-// ("slave-address", "baud", "motion", "none", ...); nullopt if none.
+// ("slave-address", "baud", "motion", "none", ...; case, '_' and ' ' for
+// '-' do not matter); nullopt if it names none.
 std::optional<Role> role_from_string(std::string_view text);
 
 struct RoleMatch {
@@ -35,6 +37,14 @@ struct RoleMatch {
 // wins: a line setting before a command ("通讯地址" is an address, not a
 // command), factory reset before save.
 RoleMatch role_of_name(std::string_view en, std::string_view zh = {});
+
+// The lexicon, in match order (spec/README.md "Roles" lists every word; a
+// test holds the two together).
+struct RoleWord {
+  Role role;
+  std::string_view word;
+};
+std::vector<RoleWord> role_lexicon();
 
 // Whether writing a register of this role can cut the drive off the line.
 inline bool is_line_setting(Role r) {

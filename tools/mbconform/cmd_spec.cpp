@@ -134,11 +134,26 @@ int run_import(const std::string& csv_file, const std::string& wb_file, std::str
   std::ifstream in(csv, std::ios::binary);
   if (!in) throw std::runtime_error("cannot open " + csv);
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  // `spec check` wants the file named after the id (id-matches-file): with
+  // --out and no --id, the id is the file's name; a different --id is said.
+  const std::string out_stem = out.empty() || out == "-" ? "" : fs::path(out).stem().string();
+  const bool out_yaml = !out_stem.empty() && fs::path(out).extension() == ".yaml";
+  if (id.empty() && out_yaml) {
+    if (!valid_id(out_stem))
+      throw std::runtime_error(fmt::format("--out {}: a spec's file is ID.yaml with ID [a-z0-9][a-z0-9-]*; name it so, or give --id", out));
+    id = out_stem;
+  }
   if (id.empty() && !wb_file.empty()) id = exchange::wb_template_id(text);
   if (id.empty()) throw std::runtime_error("--id ID is needed (the new spec's id, [a-z0-9][a-z0-9-]*)");
   if (!valid_id(id)) throw std::runtime_error("--id '" + id + "': a spec id is [a-z0-9][a-z0-9-]*");
+  if (!out_stem.empty() && (out_stem != id || !out_yaml))
+    std::cerr << fmt::format("{}: warning: the spec's id is {}, so `spec check` wants the file named {}.yaml (id-matches-file); "
+                             "rename it, or import with --id {}\n",
+                             out, id, id, valid_id(out_stem) ? out_stem : "ID");
   auto r = wb_file.empty() ? exchange::import_csv(text, csv, id) : exchange::import_wb_template(text, csv, id);
   for (const auto& w : r.warnings) std::cerr << w << "\n";
+  // What each register's name made of it: the roles a live run guards.
+  if (r.errors.empty()) std::cerr << exchange::classification_table(r);
   for (const auto& e : r.errors) std::cerr << e << "\n";
   if (!r.errors.empty()) {
     std::cerr << fmt::format("{}: {} error{}; nothing written\n", csv, r.error_count, r.error_count == 1 ? "" : "s");

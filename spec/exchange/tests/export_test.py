@@ -221,6 +221,57 @@ def test_import():
     check(f"{bad}:3: error: holding register 0x0010 is also on line 2" in p.stderr, f"bad CSV: stderr {p.stderr!r}")
     check(not os.path.exists(out), "bad CSV: a spec was written")
 
+    # A vendor's sheet in GBK Chinese: the roles printed (read from the rows'
+    # names by hand), the spec they make passes spec check, and with --out and
+    # no --id the id is the file's name.
+    here = os.path.dirname(os.path.abspath(__file__))
+    out = os.path.join(WORK, "vfd-zh.yaml")
+    p = run("spec", "import", "--csv", os.path.join(here, "vendor-vfd-gbk.csv"), "--out", out)
+    table = {}
+    for line in p.stderr.splitlines():
+        if line.startswith("holding register 0x"):
+            f = line.split()
+            table[f[2]] = f[4]
+    check(table == {"0x1000": "slave-address", "0x1001": "baud", "0x1002": "parity", "0x1003": "frame-format",
+                    "0x2000": "motion", "0x2001": "motion", "0x2003": "none", "0x3001": "motion", "0x4000": "save",
+                    "0x4001": "factory-reset", "0x4002": "motion"}, f"GBK sheet: roles {table}")
+    p = run("spec", "check", out, ok=False)
+    check(p.returncode == 0, f"the GBK sheet's spec fails spec check: {p.stderr}")
+    dump = json.loads(run("spec", "dump", out, "--json").stdout)
+    check(dump["device"]["manual"]["source"] == "csv", "GBK sheet: source")
+    check(sorted(st["register"] for st in dump["serial"]["settings"]) == [0x1000, 0x1001, 0x1002, 0x1003],
+          f"GBK sheet: serial.settings {dump['serial']['settings']}")
+
+    # A wb-mqtt-serial template written under another name (issue 40): the id follows --out.
+    template = os.path.join(here, "wb-mqtt-serial", "config-mst-24.json")
+    out = os.path.join(WORK, "my-stepper.yaml")
+    p = run("spec", "import", "--wb-template", template, "--out", out)
+    p = run("spec", "check", out, ok=False)
+    check(p.returncode == 0, f"--out my-stepper.yaml: spec check fails: {p.stderr}")
+    out = os.path.join(WORK, "other.yaml")
+    p = run("spec", "import", "--wb-template", template, "--id", "mst", "--out", out)
+    check("warning: the spec's id is mst, so `spec check` wants the file named mst.yaml" in p.stderr,
+          f"--id mst --out other.yaml: no warning: {p.stderr!r}")
+
+    # CSV formula injection: an exported cell that starts with = + - @ is text
+    # to Python's csv module and a spreadsheet ('=...), and imports back.
+    sheet = os.path.join(WORK, "formula.csv")
+    with open(sheet, "w") as f:
+        f.write('address,name,access,unit,description\n0x10,"=HYPERLINK(""http://x"")",rw,@u,-2+3\n0x11,Speed,rw,,\n')
+    out = os.path.join(WORK, "formula.yaml")
+    run("spec", "import", "--csv", sheet, "--out", out)
+    exported = run("spec", "export", out, "--format", "csv").stdout
+    rows = list(csv.DictReader(io.StringIO(exported)))
+    check(rows[0]["name"] == "'=HYPERLINK(\"http://x\")", f"formula name exported as {rows[0]['name']!r}")
+    check(rows[0]["unit"] == "'@u" and rows[0]["description"] == "'-2+3", f"formula cells exported as {rows[0]!r}")
+    back = os.path.join(WORK, "formula-back.csv")
+    with open(back, "w") as f:
+        f.write(exported)
+    run("spec", "import", "--csv", back, "--out", os.path.join(WORK, "formula-back.yaml"))
+    again = json.loads(run("spec", "dump", os.path.join(WORK, "formula-back.yaml"), "--json").stdout)
+    check(again["registers"][0]["name"] == '=HYPERLINK("http://x")' and again["registers"][0]["unit"] == "@u",
+          f"formula cells read back as {again['registers'][0]!r}")
+
 
 if FORMAT == "import":
     test_import()
