@@ -204,7 +204,6 @@ int run(RunArgs& a) {
       if (!dry || (uri.rfind("ref:", 0) == 0 && !named)) {
         auto so = session_options(a.t, "run", out);
         so.stop_mid_exchange = false;  // the runner stops between cases
-        if (!a.map.empty()) so.rules.access_unstated = !(given_map && given_map->access_known());
         session = std::make_unique<conf::Session>(uri, &s, std::move(so));
         if (!session->journal_path().empty())
           fmt::print(stderr, "journal: {} (if this command is killed: mbconform restore {})\n", session->journal_path(),
@@ -238,7 +237,7 @@ int run(RunArgs& a) {
     if (map && (a.map != "auto" || target)) s = conf::map::apply(s, *map);
 
     conf::GenContext g{s, info, a.t.policy, standard ? &*standard : nullptr, std::nullopt};
-    if (map) g.map = conf::map::terms(*map, a.t.allow_writes);
+    if (map) g.map = conf::map::terms(*map);
     std::vector<conf::Case> cases;
     cases = conf::select_cases(conf::all_cases(g), a.filter, pattern_for(a.filter));
     bool security_kept = false;  // an mbtls:// target also runs conformance/security/'s checks
