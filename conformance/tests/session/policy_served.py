@@ -87,7 +87,9 @@ def mbc(*args, timeout=300):
 
 
 def writes_in(pdus):
-    return [(p[0], int.from_bytes(p[1:3], "big") if len(p) >= 3 else None) for p in pdus if p and p[0] in WRITES]
+    """(FC, address) of every request that writes: a PDU too short to carry its
+    address and value writes nothing (the server answers exception 03)."""
+    return [(p[0], int.from_bytes(p[1:3], "big")) for p in pdus if len(p) >= 5 and p[0] in WRITES]
 
 
 def sheets():
@@ -130,13 +132,15 @@ def commands(uri, spec, optins, d):
 
 
 def plan_writes(text):
-    """Write frames `run --plan` lists to be sent (skipped cases' lines are comments)."""
+    """Write frames `run --plan` lists to be sent (a skipped case's frames are comments)."""
     n = 0
     for line in text.splitlines():
-        if line.startswith("#") or not line.strip():
+        t = line.split("#")[0].split("->")[0].split()
+        if not t or t[0] not in ("mbap", "rtu"):
             continue
-        m = re.match(r"\s*(?:send\s+)?([0-9A-Fa-f]{2})\s+([0-9A-Fa-f]{2})\b", line)
-        if m and int(m.group(2), 16) in WRITES:
+        b = [x for x in (t[2:] if t[0] == "mbap" else t[1:]) if re.fullmatch(r"[0-9A-Fa-f]{2}", x)]
+        pdu = b[5:] if t[0] == "mbap" else b[1:-2]
+        if len(pdu) >= 5 and int(pdu[0], 16) in WRITES:
             n += 1
     return n
 
@@ -152,6 +156,17 @@ def sources_on_hsc60():
         else:
             fail(f"spec discover: {p.stderr[-300:]}")
         specs["map-auto"] = ["--map", "auto", "--map-budget", "300", "--device", "modbus-standard"]
+        # The registers with a role: the sheets' own rows; a template's command channels.
+        roles = {key: ROLE_ADDRESSES for key in specs}
+        claims = {key: True for key in specs}
+        if "wb-mqtt-serial" in specs:
+            text = open(specs["wb-mqtt-serial"][1], encoding="utf-8").read()
+            roles["wb-mqtt-serial"] = {int(m.group(1), 0) for m in re.finditer(r"address: (\w+),[^\n]*access: command", text)}
+            # Until the importer marks its spec's source (device.manual.source), the
+            # template reads as a manual: only its roles are held back.
+            claims["wb-mqtt-serial"] = "source:" in text.split("serial:")[0]
+            if not claims["wb-mqtt-serial"]:
+                print("wb-mqtt-serial: the importer does not mark the source here; checking its role registers only")
         for key, spec in specs.items():
             for optins in ([], ["--allow-writes"]):
                 d = os.path.join(WORK, key + ("-writes" if optins else ""))
@@ -166,10 +181,10 @@ def sources_on_hsc60():
                     w = writes_in(served.requests_since(mark))
                     tag = f"{key} {name} {' '.join(optins) or '(no opt-in)'}"
                     print(f"{tag}: exit {p.returncode}, {len(w)} write(s) reached the line")
-                    if not optins and w:
+                    if not optins and w and claims[key]:
                         fail(f"{tag}: writes reached the line without an opt-in: {w[:5]}")
-                    if optins and key != "discovered" and key != "map-auto":
-                        bad = [x for x in w if x[1] in ROLE_ADDRESSES]
+                    if key != "discovered" and key != "map-auto":
+                        bad = [x for x in w if x[1] in roles[key]]
                         if bad:
                             fail(f"{tag}: writes reached role registers with --allow-writes alone: {bad[:5]}")
                     if name == "run":
@@ -183,7 +198,7 @@ def sources_on_hsc60():
                 if not optins:
                     n = plan_writes(open(os.path.join(d, "plan.txt")).read())
                     print(f"{key} run --plan (no opt-in): {n} write frame(s) listed")
-                    if n:
+                    if n and claims[key]:
                         fail(f"{key}: run --plan lists {n} write(s) without an opt-in")
         # The hand-written spec: plain registers are written, never its roles.
         mark = served.mark()
