@@ -231,6 +231,9 @@ int run(RunArgs& a) {
     } else if (a.map == "auto" && a.plan) {
       fmt::print("# --map auto: the probe sends at most {} reads (FC 01/02/03/04, --map-budget) before the cases; "
                  "the cases below are the spec's own map's\n", conf::map::planned_requests(a.map_budget));
+      // The cases will run on a probed map, whose facts the frame policy
+      // takes as observed: the plan's writes are skipped as the run's will be.
+      if (info.live) s.device.manual.source = "probe";
     } else if (map) {
       notes.push_back(fmt::format("map from {}: {}", map->source, map->describe()));
     }
