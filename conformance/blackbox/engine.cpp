@@ -18,6 +18,7 @@
 #include "modbus/limits.h"
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
+#include "policy/policy.h"
 
 namespace mbc::conf::blackbox {
 
@@ -60,56 +61,34 @@ std::optional<FindingKind> finding_kind(std::string_view name) {
   return std::nullopt;
 }
 
-// ---- what the spec and the safety rules allow ----
+// ---- what the spec and the frame policy allow ----
+
+// A line setting written would take even an in-process device off the line:
+// every later frame would go unanswered, a finding of the fuzzer, not of the
+// device. The fuzzer leaves them alone on every target (on a live one the
+// frame policy never sends them anyway).
+bool Plan::line_setting(const spec::Register& r) const { return spec::is_line_setting(role_of(*spec, r)); }
 
 bool Plan::writable_register(const spec::Register& r) const {
   if (r.access == spec::Access::ro || r.table == spec::Table::input || r.table == spec::Table::discrete_input) return false;
-  for (const auto& st : spec->serial.settings)
-    if (st.register_address >= r.address && st.register_address <= r.last_address()) return false;
-  if (forbidden.count(r.address)) return false;
-  return may_write(*spec, r, info, policy).allowed;  // a simulation (not live) allows everything
+  return !line_setting(r) && allowed_write(facts(), r);  // a simulation (not live) allows everything
 }
 
-// Whether a request PDU may be sent to unit `unit` (0 = broadcast).
-bool Plan::safe(std::span<const uint8_t> pdu, bool foreign_or_broadcast) const {
+bool Plan::safe(uint8_t unit, std::span<const uint8_t> pdu) const {
   if (pdu.empty()) return true;
-  uint8_t fc = pdu[0];
   // MB-SL v1.02 §6.1.2 (FC 08/04): Listen Only Mode is a legal way to stop
   // answering; the liveness probe would call it a finding.
-  if (fc == 8 && pdu.size() >= 3 && be16(pdu, 1) == 4) return false;
-  bool write = is_write_function(fc);
-  if (info.live) {
-    // Only function codes the spec lists or the standard defines as reads:
-    // a vendor may put anything behind an undocumented code.
-    static const std::set<uint8_t> standard_reads{1, 2, 3, 4, 7, 11, 12, 17, 20, 24, 43};
-    if (!standard_reads.count(fc) && !spec->profile.function(fc) && !(fc & 0x80)) return false;
-    if (fc == 8 && (pdu.size() < 3 || be16(pdu, 1) != 0)) return false;  // only Return Query Data
-    if (write && foreign_or_broadcast) return false;  // other drives on the bus have other maps
-  }
-  if (!write || pdu.size() < 5) return true;
-  uint32_t start = be16(pdu, 1), count = 1;
-  if (fc == 15 || fc == 16) count = be16(pdu, 3);
-  if (fc == 23) {
-    if (pdu.size() < 9) return true;
-    start = be16(pdu, 5);
-    count = be16(pdu, 7);
-  }
-  spec::Table t = fc == 5 || fc == 15 ? spec::Table::coil : spec::Table::holding;
-  if (count == 0) return true;
-  if (!info.live) {
-    if (t != spec::Table::holding) return true;
-    for (uint32_t a = start; a < start + count && a <= 0xFFFF; ++a)
-      if (forbidden.count(uint16_t(a))) return false;
-    return true;
-  }
-  // Live: every word written must belong to a register the rules allow.
-  if (count > 125) return false;  // beyond the standard's limits: only a malformed request is safe to leave out
-  for (uint32_t a = start; a < start + count; ++a) {
-    if (a > 0xFFFF) return false;
-    const spec::Register* r = spec->register_covering(uint16_t(a), t);
-    if (!r || !writable_register(*r)) return false;
-  }
-  return true;
+  if (pdu[0] == 8 && pdu.size() >= 3 && be16(pdu, 1) == 4) return false;
+  if (auto w = writes_of(pdu); w && w->table == spec::Table::holding)
+    for (uint32_t a = w->address; a < uint32_t(w->address) + uint32_t(w->count) && a <= 0xFFFF; ++a)
+      if (const auto* r = spec->register_covering(uint16_t(a)); r && line_setting(*r)) return false;
+  return bool(allowed(facts(), unit, pdu));
+}
+
+bool Plan::safe_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap) const {
+  for (const auto& [unit, pdu] : frames_in(info.framing, bytes, gap))
+    if (!safe(unit, pdu)) return false;
+  return bool(allowed_raw(facts(), bytes, gap));
 }
 
 Plan make_plan(const spec::Spec& s, const TargetInfo& info, const WritePolicy& policy) {
@@ -117,10 +96,6 @@ Plan make_plan(const spec::Spec& s, const TargetInfo& info, const WritePolicy& p
   p.spec = &s;
   p.info = info;
   p.policy = policy;
-  for (const auto& st : s.serial.settings) p.forbidden.insert(st.register_address);
-  // The "do not persist" switch (57HS-R 0x0016) stays as Snapshot::take set it.
-  for (const auto& r : s.registers)
-    if (r.persistence.unless_register) p.forbidden.insert(*r.persistence.unless_register);
   for (const spec::Register* r : representative_registers(s)) {
     if (r->access != spec::Access::wo && s.profile.function(read_function(r->table))) p.readable.push_back(r);
     if (p.writable_register(*r)) p.writable.push_back(r);
@@ -130,7 +105,7 @@ Plan make_plan(const spec::Spec& s, const TargetInfo& info, const WritePolicy& p
     auto adu = parse_hex(ex.resolved_request ? *ex.resolved_request : ex.request);
     if (!adu || adu->size() < 4) continue;
     Bytes pdu = rtu_unframe(*adu).pdu;
-    if (p.safe(pdu, false)) p.examples.push_back(pdu);
+    if (p.safe(info.unit, pdu)) p.examples.push_back(pdu);
   }
   // The probe: a read of the first holding register (else any register) the
   // spec maps and the profile can read: a known-good request.
@@ -332,7 +307,7 @@ Step Generator::next() {
           continue;
         }
       }
-      if (pdu.empty() || pdu.size() > kMaxPdu || !p_.safe(pdu, false)) continue;
+      if (pdu.empty() || pdu.size() > kMaxPdu || !p_.safe(info.unit, pdu)) continue;
       return check::frame(info.framing, info.unit, pdu);
     }
     return check::frame(info.framing, info.unit, valid_read());
@@ -450,12 +425,12 @@ std::optional<Step> Generator::malformed(const Bytes& pdu) {
     case 3: {  // another slave id, CRC right: must be silent
       uint8_t other = uint8_t(1 + pick(247));
       if (other == unit) other = uint8_t(unit % 247 + 1);
-      if (!p_.safe(pdu, true)) return std::nullopt;
+      if (!p_.safe(other, pdu)) return std::nullopt;
       a = rtu_frame(other, pdu);
       break;
     }
     case 4: {  // broadcast, CRC right: executed (writes) but never answered
-      if (!p_.safe(pdu, true) || !p_.spec->serial.broadcast_address) return std::nullopt;
+      if (!p_.spec->serial.broadcast_address || !p_.safe(uint8_t(*p_.spec->serial.broadcast_address), pdu)) return std::nullopt;
       a = rtu_frame(uint8_t(*p_.spec->serial.broadcast_address), pdu);
       break;
     }
@@ -464,7 +439,7 @@ std::optional<Step> Generator::malformed(const Bytes& pdu) {
       s.gap = 1 + pick(a.size() - 1);
       break;
   }
-  if (!p_.safe(pdu, false)) return std::nullopt;
+  if (!p_.safe(unit, pdu) || !p_.safe_raw(s.bytes, s.gap)) return std::nullopt;
   return s;
 }
 

@@ -21,10 +21,10 @@
 // throws and cannot be opened again is lost (Outcome::target_lost), which is
 // no finding: `fuzz` says INCOMPLETE and exits 2.
 //
-// Safety with live drives (conformance/safety/safety.h): writes only to
-// registers may_write() allows, never to the serial settings or the "do not
-// persist" switch; on live targets writes go only to registers the spec
-// maps, never to mutated addresses, and broadcast / other-slave frames only read.
+// Safety with live drives: every frame the fuzzer makes is one the frame
+// policy (policy/policy.h) lets out to this target, raw bytes judged by every
+// frame a receiver could take from them; the session asks again before
+// sending. The line settings are never written, even in-process.
 #pragma once
 
 #include <chrono>
@@ -38,7 +38,7 @@
 #include <string_view>
 #include <vector>
 
-#include "safety/safety.h"
+#include "policy/policy.h"
 #include "check/judge.h"
 #include "check/text.h"
 #include "spec.h"
@@ -76,20 +76,25 @@ struct Finding {
   std::string message;  // what was sent, what came, why it is wrong
 };
 
-// What the spec and the safety rules allow on one target.
+// What the spec and the frame policy allow on one target.
 struct Plan {
   const spec::Spec* spec = nullptr;
   TargetInfo info;
   WritePolicy policy;
   std::vector<const spec::Register*> readable, writable;
-  std::set<uint16_t> forbidden;  // holding addresses no write may touch
-  std::vector<Bytes> examples;   // example request PDUs that pass the safety rules
+  std::vector<Bytes> examples;   // example request PDUs the policy lets out
   std::vector<uint8_t> functions;
   Bytes probe;                   // the liveness probe's PDU
 
+  PolicyFacts facts() const { return PolicyFacts{spec, info, policy}; }
+  bool line_setting(const spec::Register& r) const;
   bool writable_register(const spec::Register& r) const;
-  // Whether a request PDU may be sent (to another unit or broadcast when `foreign_or_broadcast`).
-  bool safe(std::span<const uint8_t> pdu, bool foreign_or_broadcast) const;
+  // Whether a request PDU may be sent to `unit` (0 = broadcast): the frame
+  // policy, and never FC 08/04 (Listen Only is a legal way to stop answering)
+  // nor a write of a line setting.
+  bool safe(uint8_t unit, std::span<const uint8_t> pdu) const;
+  // The same for raw bytes, for every frame a receiver could take from them.
+  bool safe_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap) const;
 };
 // Throws std::runtime_error when the spec maps no register to probe.
 Plan make_plan(const spec::Spec& s, const TargetInfo& info, const WritePolicy& policy);

@@ -28,11 +28,10 @@ using check::Reliance;
 using check::Step;
 
 // Cases generated on a server's probed or given data map (`run --map`,
-// conformance/map/) rather than on a spec of its own device.
-struct OnMap {
-  bool access_known = false;  // the map states every block's access (a probe cannot tell what is writable)
-  bool allow_writes = false;  // --allow-writes: write all the same
-};
+// conformance/map/) rather than on a spec of its own device. What a map
+// cannot tell (writability) is in the spec map::apply() makes of it, which
+// the frame policy reads (policy/policy.h).
+struct OnMap {};
 
 // What a generator knows about where the cases will run.
 struct GenContext {
@@ -40,8 +39,7 @@ struct GenContext {
   TargetInfo target;        // unit, framing, raw/power/clock capabilities, live
   WritePolicy policy;
   const spec::Spec* standard = nullptr;  // modbus-standard, for the deviations family
-  // Set: the spec is a map's. Every function is optional (MBAP v1.1b3 §5.1),
-  // and a case that writes on a map of unknown access needs --allow-writes.
+  // Set: the spec is a map's. Every function is optional (MBAP v1.1b3 §5.1).
   std::optional<OnMap> map;
 };
 

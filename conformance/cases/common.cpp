@@ -7,6 +7,7 @@
 #include <limits>
 
 #include "cases/facts.h"
+#include "policy/policy.h"
 #include "modbus/pdu.h"
 #include "modbus/words.h"
 
@@ -176,10 +177,8 @@ std::string write_forbidden(const GenContext& g, const Register& r) {
         r.takes_effect == spec::TakesEffect::immediate)
       return fmt::format("{} sets the {} at once; writing it would lose the device for the rest of the run",
                          hex16(r.address), st.setting);
-  if (g.target.live) {
-    WriteDecision d = may_write(g.spec, r, g.target, g.policy);
-    if (!d.allowed) return d.reason;
-  }
+  // What may go out to this target: the frame policy's to say.
+  if (Decision d = allowed_write(PolicyFacts{&g.spec, g.target, g.policy}, r); !d) return d.refused->reason;
   return "";
 }
 

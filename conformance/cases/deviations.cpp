@@ -11,6 +11,7 @@
 
 #include "cases/common.h"
 #include "cases/facts.h"
+#include "policy/policy.h"
 #include "modbus/function_codes.h"
 #include "errata.h"
 #include "modbus/crc16.h"
@@ -178,14 +179,22 @@ namespace {
 // A case on a map (GenContext::map): which public function codes the server
 // implements is its own choice (MBAP v1.1b3 §5.1), so an exception 01 to a
 // code the case did not mean to refuse makes it not apply (function-codes
-// sets this itself for the codes the map's spec leaves out); and a probe
-// cannot tell what is writable.
-void on_map(Case& c, const OnMap& m) {
+// sets this itself for the codes the map's spec leaves out).
+void on_map(Case& c, const OnMap&) {
   if (c.family != "function-codes") c.functions_optional = true;
-  bool writing = std::any_of(c.steps.begin(), c.steps.end(),
-                             [](const Step& st) { return !st.pdu.empty() && is_write_function(st.pdu[0]); });
-  if (writing && !m.allow_writes && !m.access_known && c.skip_reason.empty())
-    c.skip_reason = "writes on a map whose access is not stated (a probe cannot tell what is writable): needs --allow-writes";
+}
+
+// Why one of the case's frames may not go out to this target (the frame
+// policy, policy/policy.h), or nullopt: a case that cannot go out whole is
+// a skip naming the opt-in, and `run --plan` prints only what will be sent.
+std::optional<std::string> refused_step(const PolicyFacts& p, const Case& c) {
+  for (const auto& st : c.steps) {
+    Decision d = st.kind == Step::Kind::frame ? allowed(p, st.unit, st.pdu)
+                 : st.kind == Step::Kind::raw ? allowed_raw(p, st.bytes, st.gap)
+                                              : Decision{};
+    if (!d) return d.refused->reason;
+  }
+  return std::nullopt;
 }
 
 }  // namespace
@@ -208,6 +217,8 @@ std::vector<Case> all_cases(const GenContext& g) {
         if (const auto* f = st.pdu.empty() ? nullptr : g.spec.profile.function(st.pdu[0])) facts::supported(c.relies, *f);
     facts::settle_level(c);
     if (g.map) on_map(c, *g.map);
+    if (c.skip_reason.empty())
+      if (auto why = refused_step(PolicyFacts{&g.spec, g.target, g.policy}, c)) c.skip_reason = *why;
   }
   return out;
 }

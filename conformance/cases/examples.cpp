@@ -98,7 +98,6 @@ void add_example(const GenContext& g, const spec::Example& ex, Built& b, std::ve
       b.skip = tcp;
       return;
     }
-    if (auto bw = broadcast_forbidden(g.target, g.policy, (*req)[1]); !bw.empty() && b.skip.empty()) b.skip = bw;
     if (crc_valid && cases::has_fc(g.spec, 3))
       for (auto range : written_by(rtu_unframe(*req).pdu)) {
         held.push_back({b.steps.size(), range});

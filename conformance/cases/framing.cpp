@@ -125,8 +125,6 @@ struct Gen {
         c.skip_reason = tcp;
       } else if (auto why = cases::write_forbidden(g, *r); !why.empty()) {
         c.skip_reason = why;
-      } else if (auto bw = broadcast_forbidden(g.target, g.policy, 6); !bw.empty()) {
-        c.skip_reason = bw;
       } else if (!cases::has_fc(g.spec, 3)) {
         c.skip_reason = "the profile has no FC 03 to read the value the target holds";
       } else {

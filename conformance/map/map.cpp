@@ -558,14 +558,15 @@ std::string skeleton_yaml(const Map& m, const std::string& id, uint8_t unit) {
     bool bits = b.table == Table::coil || b.table == Table::discrete_input;
     const char* table = b.table == Table::holding ? "holding" : b.table == Table::input ? "input" : b.table == Table::coil ? "coil" : "discrete_input";
     y += fmt::format("  - {{address: 0x{:04X}, count: {}, table: {}, name: {{en: \"{} 0x{:04X}-0x{:04X}\"}}, access: ro, type: {}, "
-                     "section: \"observed\", note: \"observed: reads answered; writability was not probed (probing never writes)\"}}\n",
+                     "section: \"observed\", basis: {{read: {{observed: \"reads answered\"}}, write: {{observed: \"not probed: probing never "
+                     "writes\"}}}}, note: \"observed: reads answered; writability was not probed (probing never writes)\"}}\n",
                      b.first, b.last - b.first + 1, table, table_name(b.table), b.first, b.last, bits ? "bit" : "u16");
   }
   y += "examples: []\nerrata: []\n";
   return y;
 }
 
-OnMap terms(const Map& map, bool allow_writes) { return OnMap{map.access_known(), allow_writes}; }
+OnMap terms(const Map&) { return OnMap{}; }
 
 namespace {
 
@@ -626,6 +627,13 @@ spec::FactBasis basis(spec::Basis kind, const std::string& why) {
 spec::Spec apply(const spec::Spec& base, const Map& m) {
   spec::Spec s = base;
   s.registers.clear();
+  // The facts are now the map's, not the base spec's manual's: a probe's
+  // (observed), or a map's that leaves some access unstated. The frame
+  // policy then lets no write out to a live target without --allow-writes,
+  // wherever it goes (a probe does not see a write-only register).
+  const bool probed = m.source.rfind("probe of ", 0) == 0;
+  if (probed) s.device.manual.source = "probe";
+  else if (!m.access_known()) s.device.manual.source = "map";
   for (const auto& b : m.blocks) {
     bool bits = b.table == Table::coil || b.table == Table::discrete_input;
     bool writable_table = b.table == Table::holding || b.table == Table::coil;

@@ -4,7 +4,8 @@
 // coils=0-199'`). apply() puts a map in place of a spec's registers, so the
 // standard's cases (modbus-standard) run wherever the server's map allows.
 // A probed fact is observed, never stated: a probe only reads, so it cannot
-// tell whether an address is writable (write cases then need --allow-writes).
+// tell whether an address is writable (apply() says so in the spec it makes,
+// and the frame policy then needs --allow-writes for a write on a live target).
 #pragma once
 
 #include <chrono>
@@ -118,8 +119,7 @@ const char* table_name(spec::Table);
 // unspecified or marked as a placeholder to state from the manual.
 std::string skeleton_yaml(const Map& map, const std::string& device_id, uint8_t unit);
 
-// What a map cannot tell is an input to generating the cases on it
-// (GenContext::map, cases/case.h): the terms for this map.
-OnMap terms(const Map& map, bool allow_writes);
+// The terms of generating cases on a map (GenContext::map, cases/case.h).
+OnMap terms(const Map& map);
 
 }  // namespace mbc::conf::map

@@ -53,12 +53,6 @@ bool is_serial_setting(const spec::Spec& s, uint16_t address) {
   return false;
 }
 
-bool is_persist_switch(const spec::Spec& s, uint16_t address) {
-  for (const auto& r : s.registers)
-    if (r.persistence.unless_register == address) return true;
-  return false;
-}
-
 double type_min(const Register& r) {
   switch (r.type) {
     case DataType::s16: return -32768;
@@ -85,8 +79,13 @@ uint32_t to_raw(const Register& r, double v) {
 }  // namespace
 
 SpecView::SpecView(const spec::Spec& s, const TargetInfo& target, const WritePolicy& policy) : spec_(&s) {
+  const PolicyFacts facts{&s, target, policy};
   broadcast_unavailable_ = broadcast_not_applicable(target);
-  if (broadcast_unavailable_.empty()) broadcast_unavailable_ = broadcast_forbidden(target, policy, 6);
+  // A broadcast write of a register that may be written: what the frame
+  // policy says of unit 0 (policy/policy.h).
+  if (broadcast_unavailable_.empty())
+    if (Decision d = allowed(facts, 0, write_single_register(0, 0)); !d && d.refused->opt_in == "--allow-broadcast")
+      broadcast_unavailable_ = d.refused->reason;
   auto note = [&](const std::string& fact, const spec::FactBasis& b) {
     if (b.basis == spec::Basis::stated) return;
     std::string why = b.basis == spec::Basis::either ? "printed two ways (erratum " + b.erratum + ")" : std::string(to_string(b.basis)) + " (" + b.why + ")";
@@ -104,15 +103,14 @@ SpecView::SpecView(const spec::Spec& s, const TargetInfo& target, const WritePol
     // A property never fails on an inferred fact (spec/README.md): registers
     // whose readability or writability is only inferred stay out of it.
     if (r.basis_of(spec::Fact::read).is_inferred() || r.basis_of(spec::Fact::write).is_inferred()) continue;
-    // The safety rules (safety.h) decide on live targets; a live run also
-    // leaves the do-not-persist switch as Snapshot::take set it.
-    // A write whose value or words rest on an inferred range, type or word
-    // order is not held against the device either: such registers are read,
-    // not written.
+    // What may be written on this target is the frame policy's to say
+    // (policy/policy.h). A line setting is never written, even in-process:
+    // the properties would lose the device. A write whose value or words
+    // rest on an inferred range, type or word order is not held against the
+    // device either: such registers are read, not written.
     bool inferred_value = r.basis_of(spec::Fact::range).is_inferred() || r.basis_of(spec::Fact::type).is_inferred() ||
                           r.basis_of(spec::Fact::word_order).is_inferred();
-    if (r.access == Access::rw && !inferred_value && !is_serial_setting(s, r.address) &&
-        may_write(s, r, target, policy).allowed && !(target.live && is_persist_switch(s, r.address)))
+    if (r.access == Access::rw && !inferred_value && !is_serial_setting(s, r.address) && allowed_write(facts, r))
       writable_.push_back(&r);
     if (r.access == Access::ro) read_only_.push_back(&r);
     if (r.access == Access::wo) continue;

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "modbus/hex.h"
+#include "policy/policy.h"
 #include "safety/safety.h"
 #include "spec.h"
 #include "targets/target.h"
@@ -41,7 +42,7 @@ class SpecView {
 
   // Holding registers a property may write and read back: access rw, not a
   // serial setting (baud, slave id: writing one can cut the master off),
-  // allowed by the safety rules on this target.
+  // allowed by the frame policy on this target.
   const std::vector<const spec::Register*>& writable() const { return writable_; }
   // Holding registers with access ro (for "write to read-only").
   const std::vector<const spec::Register*>& read_only() const { return read_only_; }
@@ -59,7 +60,7 @@ class SpecView {
     return f && !f->basis_of("supported").is_inferred();
   }
   // Why broadcast writes may not be sent on this target (Modbus TCP, or a
-  // live target without --allow-broadcast: safety.h), or empty.
+  // live target without --allow-broadcast: the frame policy), or empty.
   const std::string& broadcast_unavailable() const { return broadcast_unavailable_; }
   // The quantity limit of FC 03/04/16: the spec's max_quantity capped by the
   // standard's (MBAP v1.1b3 §6.3: 125, §6.12: 123).

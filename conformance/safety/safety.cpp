@@ -191,45 +191,6 @@ std::string ranges_line(std::vector<std::tuple<Table, std::string, uint16_t, int
 
 }  // namespace
 
-WriteDecision may_write(const spec::Spec& s, const Register& r, const TargetInfo& target, const WritePolicy& p) {
-  if (!target.live) return {};
-  if (r.table == Table::holding) {
-    // A line setting cuts the command off from the drive (at once or at the
-    // next power-on, when the journal's restore could no longer reach it).
-    for (const auto& st : s.serial.settings)
-      if (st.register_address == r.address)
-        return {false, fmt::format("{}: sets the {}: never written on a live line", reg_name(r), st.setting)};
-    // The "do not persist" switch is held on by the session while it writes
-    // (session/session.h); turned off, every later write would wear EEPROM.
-    if (auto sw = persist_switch_of(s); sw && sw->first == r.address && !p.allow_eeprom_writes)
-      return {false, fmt::format("{}: the \"do not persist\" switch, held on while the command writes: needs "
-                                 "--allow-eeprom-writes", reg_name(r))};
-  }
-  if (r.access == Access::command || r.command) {
-    // A command starts motion, homes, resets or saves: never on a live drive by default.
-    if (r.command && r.command->motion && !p.allow_motion)
-      return {false, fmt::format("{}: motion command register: needs --allow-motion", reg_name(r))};
-    if (!p.allow_motion)
-      return {false, fmt::format("{}: command register: needs --allow-motion", reg_name(r))};
-    if (r.command && r.command->eeprom && !p.allow_eeprom_writes)
-      return {false, fmt::format("{}: command stores to EEPROM: needs --allow-eeprom-writes", reg_name(r))};
-    return {};
-  }
-  const auto& ps = r.persistence;
-  if (ps.store != spec::Store::none && ps.by == spec::PersistBy::on_write && !p.allow_eeprom_writes) {
-    if (ps.unless_register) return {};  // the run turns the "do not persist" switch on first (Snapshot::take)
-    return {false, fmt::format("{}: stored to {} on every write: needs --allow-eeprom-writes", reg_name(r),
-                               ps.store == spec::Store::flash ? "flash" : "EEPROM")};
-  }
-  return {};
-}
-
-std::string broadcast_forbidden(const TargetInfo& target, const WritePolicy& p, int fc) {
-  if (!target.live || p.allow_broadcast || (fc >= 1 && fc <= 4)) return "";
-  return "a broadcast (unit 0) reaches every drive on the line, and only the addressed one can be restored: needs "
-         "--allow-broadcast";
-}
-
 std::string broadcast_not_applicable(const TargetInfo& target) {
   if (target.framing == &mbc::kRtu) return "";
   return "Modbus TCP: unit 0 addresses a server reached directly, not a broadcast (TCP Implementation Guide "
@@ -244,7 +205,7 @@ Snapshot Snapshot::take(Target& t, const spec::Spec& s, const WritePolicy& polic
   for (const auto& r : s.registers) {
     if (r.access != Access::rw || r.command) continue;
     if (sw && r.table == Table::holding && r.address == sw->first) continue;  // kept apart, restored last
-    if (!may_write(s, r, t.info(), policy).allowed) continue;
+    if (!allowed_write(PolicyFacts{&s, t.info(), policy}, r)) continue;
     wanted.push_back({r.table, r.address, r.words, {0, 0}, reg_name(r)});
   }
   std::stable_sort(wanted.begin(), wanted.end(),

@@ -5,6 +5,7 @@
 // registers are never written without --allow-motion; persistent registers
 // are not written without --allow-eeprom-writes unless the spec names a
 // "do not persist" switch (57HS-R 0x0016) that the run turns on first.
+// What may be written is the frame policy's to say (policy/policy.h).
 #pragma once
 
 #include <cstdint>
@@ -13,38 +14,11 @@
 #include <string>
 #include <vector>
 
+#include "policy/policy.h"
 #include "spec.h"
 #include "targets/target.h"
 
 namespace mbc::conf {
-
-struct WritePolicy {
-  bool allow_motion = false;
-  bool allow_eeprom_writes = false;
-  bool allow_broadcast = false;  // live targets: requests to unit 0 (every drive on the line acts on them)
-};
-
-struct WriteDecision {
-  bool allowed = true;
-  std::string reason;  // why not ("command register: needs --allow-motion")
-};
-
-// Whether a case may write `r` on `target`. Reference targets (not live)
-// allow everything: they are simulations and power-cycle on demand. On a live
-// target: command registers need allow_motion (and allow_eeprom_writes when
-// the command stores to EEPROM); registers stored on write need
-// allow_eeprom_writes unless the spec names a "do not persist" switch, which
-// Snapshot::take turns on before the run writes anything.
-WriteDecision may_write(const spec::Spec&, const spec::Register& r, const TargetInfo& target, const WritePolicy&);
-
-// Why a request with function code `fc` may not go to unit 0 on `target`, or
-// empty. On a serial line unit 0 is the broadcast address: every drive acts
-// on the request and none answers (MB-SL v1.02 §2.1), so a snapshot of the
-// addressed drive cannot put the others back. A tcp:// target may be a
-// gateway that forwards unit 0 to its RS-485 line as a broadcast, so the rule
-// holds on every transport. Reads (FC 01-04) are not executed in broadcast
-// (MB-SL v1.02 §6.1.2: "function code prohibited in broadcasts") and pass.
-std::string broadcast_forbidden(const TargetInfo& target, const WritePolicy&, int fc);
 
 // Modbus TCP addresses a server by its IP address; the unit identifier
 // reaches a device behind a gateway. A server reached directly takes 0xFF,

@@ -3,15 +3,15 @@
 //
 //   check/ (one Step, one Expect, one judge, one exchange)
 //      |  hands every frame to a Link
-//   session/ (the gate, the journal, restore, signals, deadlines, progress)
+//   session/ (the frame policy, the journal, restore, signals, deadlines, progress)
 //      |  owns the Target
 //   targets/ (ref, tcp, rtu-tcp, rtu, plugin, tls)
 //
 // Every command that touches a target (run, props, fuzz, replay, spec
 // discover, the --map auto probe) reaches it through a Link and never through
-// a Target directly. The session's Link checks each frame at the gate before
+// a Target directly. The session's Link asks the frame policy (policy/policy.h) about each frame before
 // it goes out and journals the original value of anything it writes; a frame
-// the gate refuses is not sent and comes back as a Reply with `refused` set
+// the policy refuses is not sent and comes back as a Reply with `refused` set
 // (the check records it as skipped with that reason, never as a verdict).
 // DirectLink passes frames straight to a Target: for in-process reference
 // targets in unit tests only.
@@ -23,15 +23,10 @@
 #include <span>
 #include <string>
 
+#include "policy/policy.h"
 #include "targets/target.h"
 
 namespace mbc::conf {
-
-// Why the gate held a frame back; empty when it went out.
-struct Refusal {
-  std::string reason;  // one line: "write to unit 2 (not the target's unit 1): needs --allow-units 2"
-  std::string opt_in;  // the flag that would let it go ("--allow-motion"), empty when none does
-};
 
 struct Sent {
   Reply reply;                   // what came back (empty frame on silence or refusal)
@@ -47,7 +42,7 @@ class Link {
   // A well-formed request `pdu` to `unit` (0 = broadcast).
   virtual Sent transact(uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait) = 0;
   // Bytes exactly as given (a whole ADU in the target's framing, possibly
-  // malformed); the gate judges what a receiver could take from them.
+  // malformed); the policy judges what a receiver could take from them.
   virtual Sent send_raw(std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait) = 0;
 
   // Pass-throughs to the Target (see targets/target.h).
@@ -60,7 +55,7 @@ class Link {
   virtual void power_cycle() = 0;
 };
 
-// No gate, no journal: a Target as a Link (reference targets in tests).
+// No policy, no journal: a Target as a Link (reference targets in tests).
 class DirectLink final : public Link {
  public:
   explicit DirectLink(Target& t) : t_(t) {}

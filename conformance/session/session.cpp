@@ -217,7 +217,7 @@ class Session::View final : public Target {
     return take(s_.send_raw_on(*inner_, bytes, gap_after, wait_));
   }
   // Pipelined where the target pipelines (Modbus TCP): every request of the
-  // batch passes the gate (and the journal) before the batch goes out; a
+  // batch passes the policy (and the journal) before the batch goes out; a
   // batch with a refused request goes one by one, so the refusal is that
   // request's.
   bool pipelines() const override { return inner_->pipelines(); }
@@ -267,7 +267,7 @@ Session::Session(const std::string& uri, const spec::Spec* spec, SessionOptions 
     : spec_(spec), opt_(std::move(options)) {
   line_ = line_settings(uri, spec);
   inner_ = opt_.wrap ? opt_.wrap(open_target(line_.uri)) : open_target(line_.uri);
-  gate_ = std::make_unique<Gate>(spec_, inner_->info(), opt_.rules);
+  facts_ = PolicyFacts{spec_, inner_->info(), opt_.policy};
   if (inner_->info().live && !opt_.out_dir.empty()) {
     journal_ = Journal::create(opt_.out_dir, {{"target", inner_->info().uri},
                                               {"device", spec_ ? spec_->device.id : ""},
@@ -378,7 +378,11 @@ std::optional<Refusal> Session::journal_range(Target& t, const WriteRange& w) {
 }
 
 std::optional<Refusal> Session::before_write(Target& t, uint8_t unit, std::span<const uint8_t> pdu) {
-  if (auto r = gate_->check(unit, pdu)) return r;
+  if (Decision d = allowed(facts_, unit, pdu); !d) return d.refused;
+  return journal_write(t, unit, pdu);
+}
+
+std::optional<Refusal> Session::journal_write(Target& t, uint8_t unit, std::span<const uint8_t> pdu) {
   if (!t.info().live) return std::nullopt;
   auto w = writes_of(pdu);
   if (!w || (unit != 0 && unit != t.info().unit)) return std::nullopt;
@@ -405,10 +409,13 @@ Sent Session::send_raw_on(Target& t, std::span<const uint8_t> adu, std::optional
     ++refused_;
     return Sent{{}, Refusal{*why, ""}, false};
   }
+  if (Decision d = allowed_raw(facts_, adu, gap_after); !d) {
+    ++refused_;
+    return Sent{{}, std::move(d.refused), false};
+  }
   for (const auto& [unit, pdu] : frames_in(t.info().framing, adu, gap_after))
-    if (auto r = before_write(t, unit, pdu)) {
+    if (auto r = journal_write(t, unit, pdu)) {
       ++refused_;
-      r->reason = "raw bytes a receiver takes as a frame: " + r->reason;
       return Sent{{}, std::move(r), false};
     }
   t.set_wait(wait);
@@ -471,13 +478,24 @@ std::string Session::preflight(std::string& identity) {
                          spec_->device.id, inner_->info().unit, objects[0], objects[1], id.vendor_name, id.product_code);
     return "";
   }
-  // No identity objects: reads spread over the spec's readable map.
+  // No identity objects: reads spread over the registers the spec states
+  // are readable. A reading that is only inferred, observed or printed two
+  // ways identifies nothing (a Hanstar answers FC 03 only where its table 12
+  // prints it, not at 3000-3016, documented for FC 06/16), and one
+  // declaration is one sample (a reserved block of 39 registers is one).
   std::vector<const spec::Register*> readable;
+  std::set<std::string> declarations;
   for (const auto& r : spec_->registers)
     if ((r.table == spec::Table::holding || r.table == spec::Table::input) && r.access != spec::Access::wo &&
-        r.access != spec::Access::command && spec_->profile.function(r.table == spec::Table::holding ? 3 : 4))
+        r.access != spec::Access::command && r.basis_of(spec::Fact::read).basis == spec::Basis::stated &&
+        spec_->profile.function(r.table == spec::Table::holding ? 3 : 4) &&
+        !spec_->profile.function(r.table == spec::Table::holding ? 3 : 4)->basis_of("supported").is_inferred() &&
+        (r.origin.empty() || declarations.insert(r.origin).second))
       readable.push_back(&r);
-  if (readable.empty()) return "";
+  if (readable.empty()) {
+    identity = fmt::format("not identified: the spec {} states no FC 43/14 identity and no register as readable", spec_->device.id);
+    return "";
+  }
   const size_t samples = std::min<size_t>(8, readable.size());
   size_t refused = 0;
   std::vector<std::string> seen, refusals;
@@ -528,7 +546,7 @@ void Session::keep() {
     if (auto v = read_table(*inner_, spec::Table::holding, sw->first, 1, why))
       journal_.keep({{spec::Table::holding, sw->first, *v, true, ""}});
   }
-  Snapshot snap = Snapshot::take(*inner_, *spec_, opt_.rules.policy);
+  Snapshot snap = Snapshot::take(*inner_, *spec_, opt_.policy);
   std::vector<JournalEntry> kept;
   for (const auto& k : snap.kept())
     kept.push_back({k.table, k.address, std::vector<uint16_t>(k.value, k.value + k.words), false, k.name});

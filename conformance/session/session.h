@@ -5,7 +5,7 @@
 //     spec's (baud, parity, data and stop bits, the default unit), else the
 //     standard's (MB-SL v1.02 §2.5.1: 19200 8E1), and says in one line what
 //     it tried when the drive does not answer.
-//   - Every frame passes the gate (session/gate.h) before it goes out.
+//   - Every frame passes the frame policy (policy/policy.h) before it goes out.
 //   - On a live target, before the first write to any address, the value it
 //     held is appended to the journal (session/journal.h) and flushed to
 //     disk; keep() journals every register the command may write at once and
@@ -19,7 +19,7 @@
 //   - A stop signal (session/signals.h) or the deadline ends the sending.
 //
 // Code that still takes a Target& (runner, properties, fuzzer, replay, map
-// probe) gets one from target(): the same gate and journal behind the
+// probe) gets one from target(): the same policy and journal behind the
 // Target interface (a refused frame throws Refused).
 #pragma once
 
@@ -31,18 +31,18 @@
 #include <string>
 #include <vector>
 
-#include "session/gate.h"
+#include "policy/policy.h"
 #include "session/journal.h"
 #include "session/link.h"
 #include "spec.h"
 
 namespace mbc::conf {
 
-// A frame the gate held back, thrown by the target() view. A logic_error:
+// A frame the policy held back, thrown by the target() view. A logic_error:
 // the frame cannot be sent with these opt-ins (replay reports "cannot run").
 struct Refused : std::logic_error {
   Refusal refusal;
-  explicit Refused(Refusal r) : std::logic_error("refused by the gate: " + r.reason), refusal(std::move(r)) {}
+  explicit Refused(Refusal r) : std::logic_error("refused by the frame policy: " + r.reason), refusal(std::move(r)) {}
 };
 // Sending stopped: a stop signal, or the command's deadline ran out.
 struct Stopped : std::runtime_error {
@@ -51,7 +51,7 @@ struct Stopped : std::runtime_error {
 
 struct SessionOptions {
   std::string command = "run";  // for messages ("mbconform run: ...") and the journal
-  GateRules rules;
+  WritePolicy policy;  // the opt-ins (policy/policy.h)
   // Where the journal goes (the command's output directory); a live target
   // without one cannot be written (every write is refused).
   std::string out_dir;
@@ -145,13 +145,16 @@ class Session final : public Link {
   RestoreReport restore();
   bool restored() const { return restored_; }
 
-  // The target behind the gate and journal, as a Target (see above).
+  // The target behind the policy and journal, as a Target (see above).
   Target& target() { return *view_; }
-  // Another Target through the same gate and journal: a fresh in-process
+  // Another Target through the same policy and journal: a fresh in-process
   // target for ref: (power-on state), the same connection reopened for a
   // live one. Throws Stopped after a stop or the deadline, std::runtime_error
   // when the target cannot be reopened.
   std::unique_ptr<Target> open_another(bool reopen = true);
+  // What the frame policy judges this session's frames by (its makers ask
+  // the same before they make a check).
+  const PolicyFacts& policy_facts() const { return facts_; }
   // Frames sent and refused so far (progress, reports).
   uint64_t frames() const { return frames_; }
   uint64_t refused() const { return refused_; }
@@ -165,7 +168,10 @@ class Session final : public Link {
  private:
   Sent send_on(Target& t, uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait);
   Sent send_raw_on(Target& t, std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait);
+  // The policy, then the journal: why the frame may not go out, or nullopt.
   std::optional<Refusal> before_write(Target& t, uint8_t unit, std::span<const uint8_t> pdu);
+  // Journals what a write to `unit` is about to change (live targets).
+  std::optional<Refusal> journal_write(Target& t, uint8_t unit, std::span<const uint8_t> pdu);
   std::optional<Refusal> journal_range(Target& t, const WriteRange& w);
   void count_frame() {
     ++frames_;
@@ -176,7 +182,7 @@ class Session final : public Link {
   SessionOptions opt_;
   LineSettings line_;
   std::unique_ptr<Target> inner_;
-  std::unique_ptr<Gate> gate_;
+  PolicyFacts facts_;  // what the frame policy judges by
   Journal journal_;
   std::unique_ptr<Target> view_;
   std::vector<std::string> notes_;

@@ -50,6 +50,12 @@ const std::vector<FaultInfo>& all_faults() {
        "7TRSM5740Q: a position command (position_command) moves the axis before a homing"},
       {Fault::slow_estop, "slow-estop", "an emergency stop decelerates over 0.5 s instead of stopping at once"},
       {Fault::creep, "creep", "after a move ends the position creeps on by 1 pulse per clock step, 5 times, while the status says stopped"},
+      {Fault::silent_unstated_reads, "silent-unstated-reads",
+       "answers no FC 03/04 read of a register whose readability the spec only infers (a Hanstar that answers FC 03 "
+       "only where its table 12 prints it); within what the manual states"},
+      {Fault::refuse_reserved, "refuse-reserved",
+       "answers exception 02 to FC 03/04 reads of registers named reserved (an HSC60 whose reserved 92-150 is not "
+       "implemented)"},
   };
   return list;
 }
@@ -109,7 +115,7 @@ bool device_level(const FaultSet& f) {
 bool pdu_level(const FaultSet& f) {
   for (Fault x : {Fault::wrong_exception_code, Fault::off_by_one_limit, Fault::refuse_limit, Fault::swapped_words,
                   Fault::accept_out_of_range, Fault::accept_read_only, Fault::lost_write, Fault::wrong_byte_count,
-                  Fault::read_before_write})
+                  Fault::read_before_write, Fault::silent_unstated_reads, Fault::refuse_reserved})
     if (f.has(x)) return true;
   return false;
 }
@@ -240,6 +246,18 @@ std::optional<Bytes> FaultyBus::device_pdu(ref::Device& d, std::span<const uint8
   if (!pdu_level(faults_) || pdu_in.empty()) return d.handle_pdu(pdu_in, broadcast);
   Bytes pdu(pdu_in.begin(), pdu_in.end());
   const uint8_t fc = pdu[0];
+  // silent-unstated-reads, refuse-reserved: reads a drive leaves unanswered
+  // or refuses where the manual does not say it answers them.
+  if ((faults_.has(Fault::silent_unstated_reads) || faults_.has(Fault::refuse_reserved)) && (fc == 3 || fc == 4) &&
+      pdu.size() == 5) {
+    const Table t = fc == 4 ? Table::input : Table::holding;
+    for (uint32_t a = be16(pdu, 1); a < uint32_t(be16(pdu, 1)) + be16(pdu, 3) && a <= 0xFFFF; ++a)
+      if (const spec::Register* r = d.spec().register_covering(uint16_t(a), t)) {
+        if (faults_.has(Fault::silent_unstated_reads) && r->basis_of(spec::Fact::read).basis != spec::Basis::stated)
+          return std::nullopt;
+        if (faults_.has(Fault::refuse_reserved) && r->name.en == "reserved") return Bytes{uint8_t(fc | 0x80), 0x02};
+      }
+  }
   // read-before-write: the FC 23 reply carries the read range as it was
   // before the write (the register image taken first), not after it.
   if (faults_.has(Fault::read_before_write) && fc == 23 && pdu.size() >= 5) {

@@ -44,6 +44,8 @@ enum class Fault {
   homing_gate_open,
   slow_estop,
   creep,
+  silent_unstated_reads,
+  refuse_reserved,
 };
 
 struct FaultInfo {

@@ -204,7 +204,6 @@ int run(RunArgs& a) {
       if (!dry || (uri.rfind("ref:", 0) == 0 && !named)) {
         auto so = session_options(a.t, "run", out);
         so.stop_mid_exchange = false;  // the runner stops between cases
-        if (!a.map.empty()) so.rules.access_unstated = !(given_map && given_map->access_known());
         session = std::make_unique<conf::Session>(uri, &s, std::move(so));
         if (!session->journal_path().empty())
           fmt::print(stderr, "journal: {} (if this command is killed: mbconform restore {})\n", session->journal_path(),
@@ -232,13 +231,16 @@ int run(RunArgs& a) {
     } else if (a.map == "auto" && a.plan) {
       fmt::print("# --map auto: the probe sends at most {} reads (FC 01/02/03/04, --map-budget) before the cases; "
                  "the cases below are the spec's own map's\n", conf::map::planned_requests(a.map_budget));
+      // The cases will run on a probed map, whose facts the frame policy
+      // takes as observed: the plan's writes are skipped as the run's will be.
+      if (info.live) s.device.manual.source = "probe";
     } else if (map) {
       notes.push_back(fmt::format("map from {}: {}", map->source, map->describe()));
     }
     if (map && (a.map != "auto" || target)) s = conf::map::apply(s, *map);
 
     conf::GenContext g{s, info, a.t.policy, standard ? &*standard : nullptr, std::nullopt};
-    if (map) g.map = conf::map::terms(*map, a.t.allow_writes);
+    if (map) g.map = conf::map::terms(*map);
     std::vector<conf::Case> cases;
     cases = conf::select_cases(conf::all_cases(g), a.filter, pattern_for(a.filter));
     bool security_kept = false;  // an mbtls:// target also runs conformance/security/'s checks

@@ -264,7 +264,7 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
   discover->add_flag("-q,--quiet", discover_quiet, "no progress");
   discover->callback([&] {
     try {
-      // Through a session with no spec: its gate lets no write through.
+      // Through a session with no spec: the frame policy lets nothing but reads out.
       conf::install_stop_signals();
       conf::SessionOptions so;
       so.command = "spec discover";

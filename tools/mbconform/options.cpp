@@ -37,7 +37,12 @@ void add_opt_ins(CLI::App& cmd, TargetOptions& o) {
   cmd.add_flag("--allow-motion", o.policy.allow_motion, "live targets: allow writes to command and motion registers");
   cmd.add_flag("--allow-eeprom-writes", o.policy.allow_eeprom_writes, "live targets: allow writes that wear EEPROM/flash");
   cmd.add_flag("--allow-broadcast", o.policy.allow_broadcast, "live targets: allow writes to unit 0 (every drive on the line takes them)");
-  cmd.add_flag("--allow-writes", o.allow_writes, "live targets: allow writes where the map in use states no access (--map auto, a map without access)");
+  cmd.add_flag("--allow-writes", o.policy.allow_writes,
+               "live targets: allow writes to a map no manual states (imported, discovered, probed: --map auto) and to "
+               "registers whose access is only inferred or observed");
+  cmd.add_flag("--allow-disruptive", o.policy.allow_disruptive,
+               "live targets: allow function codes whose effect the spec does not state (FC 08 restart, listen only, "
+               "clears; user-defined codes 65-72, 100-110; FC 21; codes the spec's profile does not list)");
   cmd.add_flag("--allow-long-waits", o.allow_long_waits,
                fmt::format("frame scripts: allow a `wait` longer than {} s", kMaxWaitSeconds));
 }
@@ -45,8 +50,7 @@ void add_opt_ins(CLI::App& cmd, TargetOptions& o) {
 conf::SessionOptions session_options(const TargetOptions& o, const std::string& command, const std::string& out_dir) {
   conf::SessionOptions s;
   s.command = command;
-  s.rules.policy = o.policy;
-  s.rules.allow_writes = o.allow_writes;
+  s.policy = o.policy;
   s.out_dir = out_dir;
   if (!o.pcap.empty()) s.wrap = [pcap = o.pcap](std::unique_ptr<conf::Target> t) { return conf::capture::tap_pcap(std::move(t), pcap); };
   return s;

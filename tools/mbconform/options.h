@@ -1,9 +1,9 @@
 // The options the commands that reach a target share (run, props, fuzz,
 // replay, restore), wired in one place: which target(s), which spec
-// describes them (--device / --spec), the one table of opt-ins that decides
-// what the session's gate lets through to a live drive (README.md, "Live
-// drives": --allow-motion, --allow-eeprom-writes, --allow-broadcast,
-// --allow-writes, --allow-long-waits), and where the results and the
+// describes them (--device / --spec), the one table of opt-ins the frame
+// policy reads (conformance/policy/README.md: --allow-motion,
+// --allow-eeprom-writes, --allow-broadcast, --allow-writes,
+// --allow-disruptive; and --allow-long-waits), and where the results and the
 // journal go (--out; checked before the first frame). A new option every one
 // of them takes goes here.
 #pragma once
@@ -17,7 +17,7 @@
 #include <string>
 #include <vector>
 
-#include "safety/safety.h"
+#include "policy/policy.h"
 #include "session/session.h"
 #include "spec.h"
 
@@ -27,9 +27,8 @@ struct TargetOptions {
   std::vector<std::string> targets;  // URIs; `run` and `props` default to every reference device
   std::string device, spec_file;     // --device ID | --spec FILE
   std::string out;                   // --out DIR
-  conf::WritePolicy policy;          // --allow-motion, --allow-eeprom-writes, --allow-broadcast
+  conf::WritePolicy policy;          // --allow-motion, --allow-eeprom-writes, --allow-broadcast, --allow-writes, --allow-disruptive
   std::string pcap;                  // --pcap FILE: every exchange as pcapng (conformance/capture/pcap_tap.h)
-  bool allow_writes = false;         // --allow-writes: a map whose access is not stated
   bool allow_long_waits = false;     // --allow-long-waits: a frame script's `wait` over kMaxWait
   bool progress = false;             // --progress: progress on stderr even when it is not a terminal
   bool quiet = false;                // -q: no progress (commands that had no quiet flag of their own)

@@ -28,7 +28,7 @@
 #include "modbus/pdu.h"
 #include "safety/safety.h"
 #include "serve_process.h"
-#include "session/gate.h"
+#include "policy/policy.h"
 #include "session/journal.h"
 #include "session/session.h"
 #include "targets/target.h"
@@ -49,89 +49,7 @@ TargetInfo live_rtu(uint8_t unit) {
   return i;
 }
 
-// ---- the gate ---------------------------------------------------------------
-
-TEST(Gate, WritesOfEveryWriteFunction) {
-  auto w = writes_of(write_single_register(0x0020, 7));
-  ASSERT_TRUE(w);
-  EXPECT_EQ(w->table, spec::Table::holding);
-  EXPECT_EQ(w->address, 0x0020);
-  EXPECT_EQ(w->count, 1);
-  uint16_t v[3] = {1, 2, 3};
-  w = writes_of(write_multiple_registers(0x0100, v));
-  ASSERT_TRUE(w);
-  EXPECT_EQ(w->count, 3);
-  w = writes_of(write_single_coil(5, true));
-  ASSERT_TRUE(w);
-  EXPECT_EQ(w->table, spec::Table::coil);
-  EXPECT_FALSE(writes_of(read_request(3, 0, 10)));
-  EXPECT_FALSE(writes_of(read_request(1, 0, 10)));
-}
-
-TEST(Gate, RawBytesAreJudgedByWhatAReceiverCouldTake) {
-  Bytes frame = {0x02, 0x06, 0x00, 0x20, 0x00, 0x07};
-  append_crc(frame);
-  auto frames = frames_in(&mbc::kRtu, frame, std::nullopt);
-  ASSERT_EQ(frames.size(), 1u);
-  EXPECT_EQ(frames[0].first, 2);
-  // Over-long: the valid prefix is still a frame to a receiver that frames by length.
-  Bytes longer = frame;
-  longer.push_back(0x55);
-  EXPECT_EQ(frames_in(&mbc::kRtu, longer, std::nullopt).size(), 1u);
-  // A corrupted byte: nothing a receiver takes.
-  Bytes bad = frame;
-  bad[3] ^= 0x10;
-  EXPECT_TRUE(frames_in(&mbc::kRtu, bad, std::nullopt).empty());
-}
-
-TEST(Gate, NeverAValidWriteToAnotherUnitAndOptInsForTheRest) {
-  spec::Spec s = spec::load_spec_by_id("sihong-57hs-r");
-  Gate gate(&s, live_rtu(1), {});
-  const spec::Register* plain = nullptr;
-  for (const auto& r : s.registers)
-    if (r.table == spec::Table::holding && r.access == spec::Access::rw && !r.command && r.words == 1 &&
-        may_write(s, r, live_rtu(1), {}).allowed) {
-      plain = &r;
-      break;
-    }
-  ASSERT_NE(plain, nullptr);
-  Bytes w = write_single_register(plain->address, 1);
-  EXPECT_FALSE(gate.check(1, w)) << "a plain register of the target's unit";
-  auto other = gate.check(2, w);
-  ASSERT_TRUE(other);
-  EXPECT_NE(other->reason.find("unit 2"), std::string::npos) << other->reason;
-  EXPECT_TRUE(other->opt_in.empty());
-  EXPECT_FALSE(gate.check(2, read_request(3, plain->address, 1))) << "a read to another unit passes";
-  auto bcast = gate.check(0, w);
-  ASSERT_TRUE(bcast);
-  EXPECT_EQ(bcast->opt_in, "--allow-broadcast");
-  GateRules with;
-  with.policy.allow_broadcast = true;
-  EXPECT_FALSE(Gate(&s, live_rtu(1), with).check(0, w));
-  // The "do not persist" switch and the line settings: never by a check.
-  auto sw = persist_switch(s);
-  ASSERT_TRUE(sw);
-  EXPECT_TRUE(gate.check(1, write_single_register(sw->first, 0)));
-  for (const auto& st : s.serial.settings) EXPECT_TRUE(gate.check(1, write_single_register(st.register_address, 0)));
-  // A command register needs --allow-motion.
-  for (const auto& r : s.registers)
-    if (r.command && r.command->motion && r.table == spec::Table::holding) {
-      auto m = gate.check(1, write_single_register(r.address, 1));
-      ASSERT_TRUE(m);
-      EXPECT_EQ(m->opt_in, "--allow-motion") << m->reason;
-      break;
-    }
-  // A map without access: every write needs --allow-writes.
-  GateRules unstated;
-  unstated.access_unstated = true;
-  auto u = Gate(&s, live_rtu(1), unstated).check(1, w);
-  ASSERT_TRUE(u);
-  EXPECT_EQ(u->opt_in, "--allow-writes");
-  // In-process targets are simulations: nothing is held.
-  TargetInfo ref = live_rtu(1);
-  ref.live = false;
-  EXPECT_FALSE(Gate(&s, ref, {}).check(2, w));
-}
+// The frame policy's own tests are conformance/tests/policy/.
 
 // ---- the journal --------------------------------------------------------------
 
@@ -295,7 +213,7 @@ std::string write_script(const spec::Spec& s, int unit) {
   for (int round = 0; round < 20; ++round)
     for (const auto& r : s.registers) {
       if (r.table != spec::Table::holding || r.access != spec::Access::rw || r.words != 1 || !r.range || r.command) continue;
-      if (!may_write(s, r, live_rtu(uint8_t(unit)), {}).allowed) continue;
+      if (!allowed_write(PolicyFacts{&s, live_rtu(uint8_t(unit)), {}}, r)) continue;
       Bytes f{uint8_t(unit)};
       Bytes pdu = write_single_register(r.address, uint16_t(round % 2 ? r.range->min : r.range->max));
       f.insert(f.end(), pdu.begin(), pdu.end());

@@ -1,5 +1,4 @@
-// Safety with live drives: what may be written (from the spec's access,
-// command and persistence), and the snapshot that puts a served device back
+// Safety with live drives: the snapshot that puts a served device back
 // the way it was, including the "do not persist" switch of the 57HS-R
 // (0x0016, manual §6.1), checked end to end through serve's EEPROM files.
 #include <fmt/core.h>
@@ -22,12 +21,6 @@ using serve_test::ServeProcess;
 using serve_test::TempDir;
 using spec::Register;
 
-TargetInfo live_info() {
-  TargetInfo i;
-  i.live = true;
-  return i;
-}
-
 std::vector<uint16_t> read(Target& t, uint16_t address, int words) {
   Bytes req = read_request(3, address, uint16_t(words));
   Reply r = t.transact(req);
@@ -49,60 +42,15 @@ std::optional<uint16_t> other_value(const Register& r, uint16_t now) {
   return std::nullopt;
 }
 
+
 bool is_serial_setting(const spec::Spec& s, const Register& r) {
   for (const auto& st : s.serial.settings)
     if (st.register_address == r.address) return true;
   return false;
 }
 
-TEST(MayWrite, CommandRegistersNeedAllowMotionOnLiveTargets) {
-  int commands = 0;
-  for (const auto& id : spec::spec_ids()) {
-    auto s = spec::load_spec_by_id(id);
-    for (const auto& r : s.registers) {
-      if (r.access != spec::Access::command && !r.command) continue;
-      ++commands;
-      EXPECT_TRUE(may_write(s, r, TargetInfo{}, {}).allowed) << id << " ref targets allow everything";
-      auto d = may_write(s, r, live_info(), {});
-      EXPECT_FALSE(d.allowed) << id << " " << r.address;
-      EXPECT_NE(d.reason.find("--allow-motion"), std::string::npos) << d.reason;
-      bool eeprom = r.command && r.command->eeprom;
-      EXPECT_EQ(may_write(s, r, live_info(), {.allow_motion = true}).allowed, !eeprom) << id << " " << r.address;
-      EXPECT_TRUE(may_write(s, r, live_info(), {.allow_motion = true, .allow_eeprom_writes = true}).allowed);
-    }
-  }
-  EXPECT_GT(commands, 0) << "the specs name command registers";
-}
-
-TEST(MayWrite, StoredOnWriteNeedsAllowEepromUnlessTheSpecHasASwitch) {
-  int stored = 0, switched = 0;
-  for (const auto& id : spec::spec_ids()) {
-    auto s = spec::load_spec_by_id(id);
-    for (const auto& r : s.registers) {
-      if (r.command || r.access == spec::Access::command) continue;
-      const auto& p = r.persistence;
-      bool on_write = p.store != spec::Store::none && p.by == spec::PersistBy::on_write;
-      auto d = may_write(s, r, live_info(), {});
-      if (is_serial_setting(s, r)) {
-        // Slave id, baud rate, frame format: never written on a live line, whatever the opt-ins.
-        EXPECT_FALSE(d.allowed) << id << " " << r.address;
-        EXPECT_FALSE(may_write(s, r, live_info(), {.allow_motion = true, .allow_eeprom_writes = true}).allowed);
-        continue;
-      }
-      if (on_write && !p.unless_register) {
-        ++stored;
-        EXPECT_FALSE(d.allowed) << id << " " << r.address;
-        EXPECT_NE(d.reason.find("--allow-eeprom-writes"), std::string::npos) << d.reason;
-        EXPECT_TRUE(may_write(s, r, live_info(), {.allow_eeprom_writes = true}).allowed);
-      } else {
-        switched += on_write;
-        EXPECT_TRUE(d.allowed) << id << " " << r.address << ": " << d.reason;
-      }
-    }
-  }
-  EXPECT_GT(stored, 0);
-  EXPECT_GT(switched, 0) << "57HS-R registers persist unless 0x0016 = 1";
-}
+// What may be written on a live target is the frame policy's: its tests
+// are conformance/tests/policy/.
 
 // A device without a switch (hsc60 keeps by a save command): the snapshot
 // restores what the run changed, verified by reading back.
@@ -257,7 +205,7 @@ TEST(Snapshot, KeepsOnlyWhatThePolicyLetsTheRunWrite) {
   Snapshot snap = Snapshot::take(*t, s, {});
   for (const auto& k : snap.kept()) {
     const Register* r = s.find_register(k.address, k.table);
-    EXPECT_TRUE(may_write(s, *r, t->info(), {}).allowed) << k.name;
+    EXPECT_TRUE(allowed_write(PolicyFacts{&s, t->info(), {}}, *r)) << k.name;
     EXPECT_FALSE(r->command) << k.name;
     EXPECT_EQ(r->access, spec::Access::rw) << k.name;
   }
