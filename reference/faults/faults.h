@@ -44,6 +44,7 @@ enum class Fault {
   homing_gate_open,
   slow_estop,
   creep,
+  silent_command_reads,
 };
 
 struct FaultInfo {
