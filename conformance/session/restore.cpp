@@ -265,8 +265,8 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
   for (const auto& k : c.commands) {
     const spec::Register* r = s.register_covering(k.address, k.table);
     if (r && r->command && !r->command->motion) {
-      rep.notes.push_back(fmt::format("{}: a command was written ({}): nothing to put back", journal_label(&s, k.table, r->address),
-                                      r->command->effect.substr(0, r->command->effect.find('.'))));
+      rep.notes.push_back(fmt::format("{}: a command that starts no motion was written: nothing to put back",
+                                      journal_label(&s, k.table, r->address)));
       continue;
     }
     needs_stop = true;
