@@ -24,6 +24,7 @@
 #include <sstream>
 #include <thread>
 
+#include "check/exchange.h"
 #include "loader.h"
 #include "modbus/crc16.h"
 #include "modbus/hex.h"
@@ -441,6 +442,64 @@ TEST(JournalRestore, ACommandIsWrittenWithoutAReadOnADriveSilentThere) {
   RestoreReport rep = session.restore();
   EXPECT_TRUE(rep.not_restored.empty()) << joined(rep.not_restored);
   EXPECT_NE(joined(rep.notes).find("stopped: "), std::string::npos) << joined(rep.notes);
+}
+
+// ---- a case's own restore ---------------------------------------------------------------
+
+// A link whose writes are refused once the case's steps are sent: the write
+// back after the case fails, and the case and the device say so.
+class RefusesWritesBack final : public Link {
+ public:
+  explicit RefusesWritesBack(Target& t) : d_(t) {}
+  const TargetInfo& info() const override { return d_.info(); }
+  Sent transact(uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait) override {
+    if (!pdu.empty() && (pdu[0] == 6 || pdu[0] == 16)) return Sent{{}, Refusal{"refused by the test", ""}, false};
+    return d_.transact(unit, pdu, wait);
+  }
+  Sent send_raw(std::span<const uint8_t> adu, std::optional<size_t> gap, Target::Wait wait) override {
+    return d_.send_raw(adu, gap, wait);
+  }
+  std::chrono::microseconds silence_window() const override { return d_.silence_window(); }
+  uint64_t late_replies() const override { return d_.late_replies(); }
+  std::optional<std::chrono::microseconds> split_gap() const override { return d_.split_gap(); }
+  void set_split_gap(std::chrono::microseconds g) override { d_.set_split_gap(g); }
+  bool reconnect() override { return d_.reconnect(); }
+  void advance(std::chrono::microseconds dt) override { d_.advance(dt); }
+  void power_cycle() override { d_.power_cycle(); }
+
+ private:
+  DirectLink d_;
+};
+
+TEST(CaseRestore, AWriteBackThatFailsIsReported) {
+  auto s = spec::load_spec_by_id("hsc60");
+  const Register* r = nullptr;
+  for (const auto& x : s.registers)
+    if (x.table == spec::Table::holding && x.access == spec::Access::rw && x.words == 1) {
+      r = &x;
+      break;
+    }
+  ASSERT_TRUE(r);
+  auto t = open_target("ref:hsc60");
+  RefusesWritesBack link(*t);
+  DeviceRun run;
+  check::Exchange x(link, run);
+  check::Case c;
+  c.id = "test/touches";
+  c.touches = {{r->address, 1}};
+  c.steps = {check::frame(t->info().framing, t->info().unit, read_request(3, r->address, 1))};
+  CaseResult res = check::run_case(x, s, c);
+  ASSERT_TRUE(res.extra.contains("restore_failed")) << res.extra.dump();
+  EXPECT_NE(res.extra["restore_failed"][0].get<std::string>().find("refused by the test"), std::string::npos) << res.extra.dump();
+  ASSERT_EQ(run.restore_failures.size(), 1u);
+  EXPECT_EQ(run.restore_failures[0].rfind("test/touches: ", 0), 0u) << run.restore_failures[0];
+  // Through a link that takes the write back: nothing to report.
+  DirectLink direct(*t);
+  DeviceRun clean;
+  check::Exchange y(direct, clean);
+  res = check::run_case(y, s, c);
+  EXPECT_FALSE(res.extra.contains("restore_failed")) << res.extra.dump();
+  EXPECT_TRUE(clean.restore_failures.empty());
 }
 
 // ---- the commands ----------------------------------------------------------------------
