@@ -216,8 +216,12 @@ std::string journal_mismatch(Target& t, const spec::Spec& s, const JournalConten
     return fmt::format("the spec {} changed since the journal was made (CRC-32 {} then, {} now): its registers may not be "
                        "the ones journaled", s.path, kept, now);
   if (const std::string kept = get("identity"); !kept.empty())
-    if (const std::string now = journal_identity(t, s); now != kept)
+    if (const std::string now = journal_identity(t, s); now != kept) {
+      if (now.find("answers") == std::string::npos && now.find("exception") == std::string::npos &&
+          now.find("VendorName") == std::string::npos)
+        return fmt::format("unit {} does not answer the reads that identify it ({}): is the target right?", unit, now);
       return fmt::format("unit {} is not the drive the journal was made on: it answered \"{}\" then, \"{}\" now", unit, kept, now);
+    }
   return "";
 }
 

@@ -580,6 +580,24 @@ TEST(RestoreCommand, AJournalOfAnotherDriveOrUnitIsRefusedWithOneLine) {
   EXPECT_EQ(mbconform({"restore", journal, "--device", "sihong-57hs-r"}, &text), 2) << text;
   // The journal's own drive.
   EXPECT_EQ(mbconform({"restore", journal}, &text), 0) << text;
+  // A spec file edited since the journal was made.
+  const std::string copy = out / "hsc60.yaml";
+  std::filesystem::copy_file(hsc.spec.path, copy);
+  auto loaded = spec::load_spec_file(copy);
+  ASSERT_TRUE(loaded.ok());
+  std::string from_copy;
+  {
+    TempDir out2;
+    Session session(hsc.uri, &*loaded.spec, options(out2.path()));
+    session.keep();
+    from_copy = out / "copy-journal.txt";
+    std::filesystem::copy_file(session.journal_path(), from_copy);
+    session.restore();
+  }
+  EXPECT_EQ(mbconform({"restore", from_copy, "--spec", copy}, &text), 0) << text;
+  std::ofstream(copy, std::ios::app) << "# edited\n";
+  EXPECT_EQ(mbconform({"restore", from_copy, "--spec", copy}, &text), 2) << text;
+  EXPECT_NE(text.find("changed since the journal was made"), std::string::npos) << text;
   // Forced: it goes on (the 57HS-R at its own unit; what it writes is its business).
   EXPECT_NE(mbconform({"restore", journal, "--target", as_unit_1, "--force-identity"}, &text), 2) << text;
   EXPECT_NE(text.find("--force-identity: restoring anyway"), std::string::npos) << text;
