@@ -1,6 +1,7 @@
 #include "check/exchange.h"
 
 #include <fmt/core.h>
+#include <fmt/ranges.h>
 
 #include <chrono>
 #include <thread>
@@ -118,15 +119,29 @@ std::vector<Saved> save(Exchange& x, const spec::Spec& s, const Case& c) {
 }
 
 // Writes back what save() read: FC 06 for one word when the profile has it,
-// else FC 16 (holding registers only: save() reads FC 03).
-void restore(Exchange& x, const spec::Spec& s, const std::vector<Saved>& saved) {
+// else FC 16 (holding registers only: save() reads FC 03). What could not be
+// written back, one line each (a refused, unanswered or refused-by-the-drive
+// write leaves the next case a state it did not expect, and the drive changed).
+std::vector<std::string> restore(Exchange& x, const spec::Spec& s, const std::vector<Saved>& saved) {
+  std::vector<std::string> failed;
   for (const auto& sv : saved) {
     Bytes pdu;
     if (sv.words.size() == 1 && has_fc(s, 6)) pdu = write_single_register(sv.reg->address, sv.words[0]);
     else if (has_fc(s, 16)) pdu = write_multiple_registers(sv.reg->address, sv.words);
     else continue;
-    x.quiet(x.link().info().unit, pdu);
+    Sent got = x.quiet(x.link().info().unit, pdu);
+    std::string why;
+    if (got.refused) why = "not sent: " + got.refused->reason;
+    else if (got.lost) why = "the target was lost";
+    else if (!got.reply.pdu) why = "no reply";
+    else if (Judged j = judge_reply(pdu, *got.reply.pdu); j.kind == Judged::Kind::exception)
+      why = fmt::format("exception {:02X}", j.exception_code);
+    else if (!j.ok()) why = j.problems.empty() ? "malformed reply" : j.problems.front();
+    if (!why.empty())
+      failed.push_back(fmt::format("0x{:04X} {}: writing back {:04X} after the case failed: {}", sv.reg->address,
+                                   sv.reg->name.en.empty() ? sv.reg->name.zh : sv.reg->name.en, fmt::join(sv.words, " "), why));
   }
+  return failed;
 }
 
 // The function code a step was refused with exception 01 (illegal
@@ -246,7 +261,10 @@ CaseResult run_case(Exchange& x, const spec::Spec& spec, const Case& c) {
     }
     res.frames.push_back(std::move(fr));
   }
-  restore(x, spec, saved);
+  for (auto& f : restore(x, spec, saved)) {
+    res.extra["restore_failed"].push_back(f);
+    x.counters().restore_failures.push_back(fmt::format("{}: {}", c.id, f));
+  }
   res.duration_ms = std::chrono::duration<double, std::milli>(clock_type::now() - t0).count();
   if (refused)
     return skipped(res, fmt::format("not sent: {}{}", refused->reason, refused->opt_in.empty() ? "" : " (" + refused->opt_in + ")"));

@@ -7,6 +7,7 @@
 #include <ctime>
 #include <map>
 #include <set>
+#include <tuple>
 #include <thread>
 
 #include "modbus/limits.h"
@@ -30,69 +31,6 @@ std::string utc_now() {
   char buf[32];
   std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
   return buf;
-}
-
-std::string label(const spec::Spec* s, spec::Table table, uint16_t address) {
-  if (s)
-    if (const auto* r = s->find_register(address, table)) return register_label(*r);
-  return fmt::format("{} 0x{:04X}", journal_table_name(table), address);
-}
-
-int read_limit(const spec::Spec* s, spec::Table table) {
-  const int fc = table == spec::Table::coil ? 1 : 3;
-  int most = standard_max_quantity(fc);
-  if (s)
-    if (const auto* f = s->profile.function(fc); f && f->max_quantity) most = std::min(most, *f->max_quantity);
-  return std::max(most, 1);
-}
-
-bool no_reply(const std::string& why) { return why.find("no reply") != std::string::npos; }
-
-// Each entry's value as the target reads it now. Entries of one table at
-// consecutive addresses go in one request, up to the read limit; a batch
-// that fails is read again entry by entry, so a drive that takes only single
-// reads costs what it did. Two silent entries in a row end the reading: a
-// dead target costs two time-outs, not one per register.
-std::vector<std::optional<std::vector<uint16_t>>> read_entries(Target& t, const spec::Spec* s,
-                                                               const std::vector<const JournalEntry*>& es,
-                                                               std::vector<std::string>& whys) {
-  std::vector<std::optional<std::vector<uint16_t>>> out(es.size());
-  whys.assign(es.size(), "");
-  int silent = 0;
-  for (size_t i = 0; i < es.size();) {
-    size_t j = i + 1;
-    int words = int(es[i]->value.size());
-    const int most = read_limit(s, es[i]->table);
-    while (j < es.size() && es[j]->table == es[i]->table &&
-           es[j]->address == uint32_t(es[j - 1]->address) + es[j - 1]->value.size() &&
-           words + int(es[j]->value.size()) <= most) {
-      words += int(es[j]->value.size());
-      ++j;
-    }
-    if (j - i > 1) {
-      std::string why;
-      if (auto all = read_table(t, es[i]->table, es[i]->address, words, why); all && int(all->size()) == words) {
-        size_t at = 0;
-        for (size_t k = i; k < j; ++k) {
-          out[k] = std::vector<uint16_t>(all->begin() + long(at), all->begin() + long(at + es[k]->value.size()));
-          at += es[k]->value.size();
-        }
-        silent = 0;
-        i = j;
-        continue;
-      }
-    }
-    for (size_t k = i; k < j; ++k) {
-      if (silent >= 2) {
-        whys[k] = "no reply (the target stopped answering)";
-        continue;
-      }
-      out[k] = read_table(t, es[k]->table, es[k]->address, int(es[k]->value.size()), whys[k]);
-      silent = !out[k] && no_reply(whys[k]) ? silent + 1 : 0;
-    }
-    i = j;
-  }
-  return out;
 }
 
 // Whether the target answers at all: the first item the profile can read,
@@ -122,11 +60,6 @@ std::string unreachable(Target& t, const spec::Spec& s) {
                        t.info().uri, kTries, to_hex(garbled->frame), garbled->framing_error.empty() ? "not a frame" : garbled->framing_error);
   return fmt::format("{} does not answer ({} tries, with reconnects; last: {})", t.info().uri, kTries, why);
 }
-
-// After a restore: how long the line settles before it is looked at again,
-// and how many times (restore_journal).
-constexpr std::chrono::milliseconds kSettle{300};
-constexpr int kSettleRounds = 3;
 
 }  // namespace
 
@@ -272,6 +205,7 @@ Session::Session(const std::string& uri, const spec::Spec* spec, SessionOptions 
     journal_ = Journal::create(opt_.out_dir, {{"target", inner_->info().uri},
                                               {"device", spec_ ? spec_->device.id : ""},
                                               {"spec", spec_ ? spec_->path : ""},
+                                              {"spec-crc32", spec_ ? spec_fingerprint(*spec_) : ""},
                                               {"unit", std::to_string(inner_->info().unit)},
                                               {"command", opt_.command},
                                               {"started", utc_now()}});
@@ -291,6 +225,7 @@ Session::~Session() {
 std::optional<std::string> Session::stopped() const {
   if (stop_requested()) return "stopped by " + signal_name(stop_signal());
   if (opt_.deadline && Clock::now() >= *opt_.deadline) return std::string("the time allowed ran out");
+  if (!journal_.failed().empty()) return "the journal could not be written (" + journal_.failed() + ")";
   return std::nullopt;
 }
 
@@ -327,20 +262,41 @@ std::optional<Refusal> Session::journal_range(Target& t, const WriteRange& w) {
     bool in_spec;
   };
   std::vector<Item> items;
+  std::vector<JournalCommand> commands;
   for (int k = 0; k < w.count; ++k) {
     uint32_t a = uint32_t(w.address) + uint32_t(k);
     if (a > 0xFFFF) break;
     if (journal_.has(w.table, uint16_t(a))) continue;
     const spec::Register* r = spec_ ? spec_->register_covering(uint16_t(a), w.table) : nullptr;
+    // A read-only register changes by side effect (57HS-R 0x0009, HSC60
+    // 0x004B): a write to it is meant to be refused, and its value is not
+    // the command's to put back.
+    if (r && r->access == spec::Access::ro) continue;
+    // A command register has no value to keep, and a drive may not answer
+    // a read of it (issue 37): journaled as written, undone by the spec's stop.
+    if (r && (r->access == spec::Access::command || r->command)) {
+      if (commands.empty() || commands.back().address != r->address) commands.push_back({w.table, r->address, r->words});
+      continue;
+    }
     Item it{r ? r->address : uint16_t(a), r ? r->words : 1, r != nullptr};
     if (!items.empty() && items.back().address == it.address) continue;
     if (uint32_t(it.address) + uint32_t(it.words) > 0x10000) it.words = 1;
     items.push_back(it);
   }
-  if (items.empty()) return std::nullopt;
+  if (items.empty() && commands.empty()) return std::nullopt;
+  auto unrecorded = [&](const std::exception& e) {
+    return Refusal{fmt::format("the journal could not record the value before this write ({}): not sent; the command "
+                               "stops and restores", journal_.failed().empty() ? e.what() : journal_.failed()),
+                   ""};
+  };
+  try {
+    record_identity();
+  } catch (const std::exception& e) {
+    return unrecorded(e);
+  }
   std::vector<JournalEntry> kept;
   std::vector<JournalUnread> unread;
-  const int limit = read_limit(spec_, w.table);
+  const int limit = journal_read_limit(spec_, w.table);
   // In runs of adjacent items within the read limit: one read each; a run
   // the drive refuses is read item by item where the spec maps the item
   // (an unmapped one it refused is not there to restore).
@@ -367,14 +323,25 @@ std::optional<Refusal> Session::journal_range(Target& t, const WriteRange& w) {
       if (v) kept.push_back({w.table, it.address, *v, false, ""});
       else if (it.in_spec && no_reply(one_why))
         return Refusal{fmt::format("{}: its value could not be read before the write ({}), so it is not written",
-                                   label(spec_, w.table, it.address), one_why),
+                                   journal_label(spec_, w.table, it.address), one_why),
                        ""};
       else unread.push_back({w.table, it.address, it.words, one_why});
     }
     i = j;
   }
-  journal_.keep(kept, unread);
+  try {
+    journal_.keep(kept, unread, commands);
+  } catch (const std::exception& e) {
+    return unrecorded(e);
+  }
   return std::nullopt;
+}
+
+void Session::record_identity() {
+  if (identity_recorded_ || !spec_ || !journal_.open()) return;
+  identity_recorded_ = true;
+  // Throws like keep() when the disk is full: the caller refuses the write.
+  journal_.record("identity " + journal_identity(*inner_, *spec_));
 }
 
 std::optional<Refusal> Session::before_write(Target& t, uint8_t unit, std::span<const uint8_t> pdu) {
@@ -536,22 +503,100 @@ std::string Session::preflight(std::string& identity) {
   return "";
 }
 
+namespace {
+
+// "holding 0x0010-0x001F, 0x0030 (exception 02); coils 0x0000-0x00C7 (no reply)":
+// addresses grouped by table and reason, adjacent ones as ranges.
+std::string ranges_line(std::vector<std::tuple<spec::Table, std::string, uint16_t, int>> items) {
+  std::sort(items.begin(), items.end());
+  std::string out;
+  for (size_t i = 0; i < items.size();) {
+    auto [table, why, a0, w0] = items[i];
+    std::string list;
+    size_t j = i;
+    while (j < items.size() && std::get<0>(items[j]) == table && std::get<1>(items[j]) == why) {
+      uint16_t first = std::get<2>(items[j]);
+      uint32_t last = uint32_t(first) + uint32_t(std::get<3>(items[j])) - 1;
+      while (j + 1 < items.size() && std::get<0>(items[j + 1]) == table && std::get<1>(items[j + 1]) == why &&
+             std::get<2>(items[j + 1]) == last + 1) {
+        ++j;
+        last = uint32_t(std::get<2>(items[j])) + uint32_t(std::get<3>(items[j])) - 1;
+      }
+      list += fmt::format("{}0x{:04X}", list.empty() ? "" : ", ", first);
+      if (last != first) list += fmt::format("-0x{:04X}", last);
+      ++j;
+    }
+    out += fmt::format("{}{} {} ({})", out.empty() ? "" : "; ", journal_table_name(table), list, why);
+    i = j;
+  }
+  return out;
+}
+
+// A write of `words` to `r`, as the gate would judge it.
+Bytes write_of(const spec::Register& r, int words) {
+  if (r.table == spec::Table::coil) return write_single_coil(r.address, false);
+  if (words == 1) return write_single_register(r.address, 0);
+  return write_multiple_registers(r.address, std::vector<uint16_t>(size_t(words), 0));
+}
+
+}  // namespace
+
 void Session::keep() {
   if (!inner_->info().live || !spec_) return;
   if (!journal_.open()) throw std::runtime_error("a live target needs an output directory for its journal");
+  record_identity();
   // The switch first: from the moment it is on, its original is on disk.
   auto sw = persist_switch(*spec_);
+  std::optional<uint16_t> switch_was;
   if (sw) {
     std::string why;
-    if (auto v = read_table(*inner_, spec::Table::holding, sw->first, 1, why))
+    if (auto v = read_table(*inner_, spec::Table::holding, sw->first, 1, why)) {
       journal_.keep({{spec::Table::holding, sw->first, *v, true, ""}});
+      switch_was = v->front();
+    } else {
+      notes_.push_back(fmt::format("do-not-persist switch 0x{:04X}: cannot read: {}", sw->first, why));
+    }
   }
-  Snapshot snap = Snapshot::take(*inner_, *spec_, opt_.policy);
+  // Every writable register the frame policy lets this command write, read before
+  // the first frame (holding registers FC 03, coils FC 01): a command that
+  // ends before it restores leaves nothing unjournaled.
+  std::vector<JournalEntry> wanted;
+  std::vector<std::tuple<spec::Table, std::string, uint16_t, int>> unread, unwritable;
+  for (const auto& r : spec_->registers) {
+    if (r.access != spec::Access::rw || r.command) continue;
+    if (sw && r.table == spec::Table::holding && r.address == sw->first) continue;
+    if (r.table != spec::Table::holding && r.table != spec::Table::coil) {
+      unwritable.emplace_back(r.table, "no Modbus function writes this table", r.address, r.words);
+      continue;
+    }
+    if (!allowed_write(facts_, r)) continue;
+    wanted.push_back({r.table, r.address, std::vector<uint16_t>(size_t(r.words), 0), false, register_label(r)});
+  }
+  std::vector<const JournalEntry*> ptrs;
+  for (const auto& e : wanted) ptrs.push_back(&e);
+  std::vector<std::string> whys;
+  const auto got = read_entries(*inner_, spec_, ptrs, whys);
   std::vector<JournalEntry> kept;
-  for (const auto& k : snap.kept())
-    kept.push_back({k.table, k.address, std::vector<uint16_t>(k.value, k.value + k.words), false, k.name});
+  for (size_t k = 0; k < wanted.size(); ++k) {
+    if (got[k]) {
+      kept.push_back(wanted[k]);
+      kept.back().value = *got[k];
+    } else {
+      unread.emplace_back(wanted[k].table, whys[k], wanted[k].address, int(wanted[k].value.size()));
+    }
+  }
   journal_.keep(kept);
-  for (const auto& f : snap.failures()) notes_.push_back(f);
+  // One line each, with ranges: a drive that refuses 60 reads is one finding, not 60.
+  if (!unread.empty()) notes_.push_back("could not be read before the run, so not restored: " + ranges_line(unread));
+  if (!unwritable.empty()) notes_.push_back("marked writable but cannot be restored: " + ranges_line(unwritable));
+  // 57HS-R §6.1: the switch held on keeps every write of the command out of
+  // EEPROM; turning it on (and back) costs one stored write each.
+  if (sw && switch_was && !kept.empty() && *switch_was != uint16_t(sw->second)) {
+    const uint16_t on = uint16_t(sw->second);
+    std::string err = write_table_verified(*inner_, *spec_, spec::Table::holding, sw->first, std::span(&on, 1),
+                                           fmt::format("do-not-persist switch 0x{:04X}", sw->first));
+    if (!err.empty()) notes_.push_back(err);
+  }
 }
 
 RestoreReport Session::restore() {
@@ -562,142 +607,22 @@ RestoreReport Session::restore() {
     return rep;
   }
   spec::Spec none;
-  JournalContents c = read_journal(journal_.path());
-  rep = restore_journal(*inner_, spec_ ? *spec_ : none, c, journal_);
-  restored_ = true;
-  return rep;
-}
-
-// ---- restore ------------------------------------------------------------------
-
-RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalContents& c, Journal& record) {
-  RestoreReport rep;
-  rep.journal = record.path();
-  rep.kept = c.originals.size();
-  for (const auto& u : c.unread)
-    rep.unread.push_back(fmt::format("{} 0x{:04X}{}: written, but it could not be read first ({})", journal_table_name(u.table),
-                                     u.address, u.count > 1 ? fmt::format("-0x{:04X}", u.address + u.count - 1) : "", u.why));
-  auto name = [&](const JournalEntry& e) { return e.name.empty() ? label(&s, e.table, e.address) : e.name; };
-  auto line = [&](const char* kind, const JournalEntry& e, const std::string& why = "") {
-    try {
-      record.record(fmt::format("{} {} 0x{:04X}{}{}", kind, journal_table_name(e.table), e.address, why.empty() ? "" : " ",
-                                why));
-    } catch (const std::exception&) {
-    }
-  };
-  if (c.originals.empty()) {
-    try {
-      record.record("end restored nothing was written");
-    } catch (const std::exception&) {
-    }
-    return rep;
-  }
-  // One liveness probe, one reconnect, one more probe: a dead target costs
-  // a few time-outs, not one per register.
-  auto alive = [&](const JournalEntry& e) {
-    std::string why;
-    if (read_table(t, e.table, e.address, int(e.value.size()), why)) return true;
-    if (!t.reconnect()) return false;
-    return read_table(t, e.table, e.address, int(e.value.size()), why).has_value();
-  };
-  // The persistence switch first, then the rest in the order journaled.
-  std::vector<const JournalEntry*> order;
-  for (const auto& e : c.originals)
-    if (e.persist_switch) order.push_back(&e);
-  for (const auto& e : c.originals)
-    if (!e.persist_switch) order.push_back(&e);
-  auto give_up = [&](size_t from, const std::string& why) {
-    rep.gave_up = true;
-    for (size_t k = from; k < order.size(); ++k) {
-      rep.not_restored.push_back(fmt::format("{}: not restored: {}", name(*order[k]), why));
-      line("not-restored", *order[k], why);
-    }
-  };
-  std::vector<const JournalEntry*> done;
-  if (!alive(*order.front())) {
-    give_up(0, "the target does not answer (one probe, one reconnect)");
-  } else {
-    int silent_in_a_row = 0;
-    std::vector<std::string> whys;
-    const auto before = read_entries(t, &s, order, whys);
-    for (size_t k = 0; k < order.size(); ++k) {
-      const JournalEntry& e = *order[k];
-      const std::string& why = whys[k];
-      const auto& now = before[k];
-      if (now && *now == e.value) {
-        done.push_back(&e);
-        silent_in_a_row = 0;
-        continue;
-      }
-      std::string err = write_table_verified(t, s, e.table, e.address, e.value, name(e));
-      if (err.empty()) {
-        ++rep.restored;
-        line("restored", e);
-        done.push_back(&e);
-        silent_in_a_row = 0;
-        continue;
-      }
-      rep.not_restored.push_back(err);
-      line("not-restored", e, err);
-      if (no_reply(err) || (!now && no_reply(why))) {
-        if (++silent_in_a_row >= 2 && !alive(e)) {
-          give_up(k + 1, "the target stopped answering during the restore");
-          break;
-        }
-      } else {
-        silent_in_a_row = 0;
-      }
-    }
-  }
-  // Verify everything put back once more: a write with a side effect on
-  // another register (a mode that resets a setpoint) shows up here.
-  std::vector<std::string> vwhys;
-  const auto after = rep.gave_up ? decltype(read_entries(t, &s, done, vwhys)){} : read_entries(t, &s, done, vwhys);
-  if (!rep.gave_up)
-    for (size_t i = 0; i < done.size(); ++i) {
-      const JournalEntry* e = done[i];
-      const std::string& why = vwhys[i];
-      const auto& now = after[i];
-      if (now && *now == e->value) {
-        ++rep.verified;
-        line("verified", *e);
-      } else {
-        std::string msg = now ? fmt::format("{}: reads {:04X} after the restore (kept {:04X})", name(*e), fmt::join(*now, " "),
-                                            fmt::join(e->value, " "))
-                              : fmt::format("{}: verify failed: {}", name(*e), why);
-        rep.not_restored.push_back(msg);
-        line("not-restored", *e, msg);
-      }
-    }
-  // Frames the stopped command left queued (in a serial adapter, a
-  // gateway, a server the host holds up) may still be applied after the
-  // restore: let the line settle, look again, put back what changed.
-  for (int round = 0; round < kSettleRounds && !rep.gave_up && rep.not_restored.empty(); ++round) {
-    std::this_thread::sleep_for(kSettle);
-    bool changed = false;
-    std::vector<std::string> swhys;
-    const auto settled = read_entries(t, &s, order, swhys);
-    for (size_t i = 0; i < order.size(); ++i) {
-      const JournalEntry* e = order[i];
-      if (settled[i] && *settled[i] == e->value) continue;
-      changed = true;
-      std::string err = write_table_verified(t, s, e->table, e->address, e->value, name(*e));
-      if (err.empty()) {
-        ++rep.restored;
-        line("restored", *e, "again, after the line settled");
-      } else {
-        rep.not_restored.push_back(err);
-        line("not-restored", *e, err);
-      }
-    }
-    if (!changed) break;
-  }
+  // The file (with what forked children journaled), and what this process
+  // kept in memory: a record the disk would not take is still put back.
+  JournalContents c;
+  std::string unreadable;
   try {
-    record.record(fmt::format("end {} {} kept, {} written back, {} verified, {} not restored",
-                              rep.not_restored.empty() ? "restored" : "incomplete", rep.kept, rep.restored, rep.verified,
-                              rep.not_restored.size()));
-  } catch (const std::exception&) {
+    c = read_journal(journal_.path());
+  } catch (const std::exception& e) {
+    unreadable = e.what();
   }
+  c = merge_journal(std::move(c), journal_.memory());
+  rep = restore_journal(*inner_, spec_ ? *spec_ : none, c, journal_);
+  if (!unreadable.empty()) rep.notes.push_back("restored from memory: the journal file could not be read: " + unreadable);
+  if (!journal_.failed().empty())
+    rep.notes.push_back(fmt::format("the journal stopped recording ({}): the restore used what the command kept in memory",
+                                    journal_.failed()));
+  restored_ = true;
   return rep;
 }
 

@@ -10,12 +10,14 @@
 //     held is appended to the journal (session/journal.h) and flushed to
 //     disk; keep() journals every register the command may write at once and
 //     turns the spec's "do not persist" switch on.
-//   - restore() puts every journaled address back: the persistence switch
-//     first, then the rest, each written only when it differs and read back,
-//     then all verified once more. Against a target that does not answer it
-//     gives up after one failed liveness probe and one reconnect, and lists
-//     what it could not restore. `mbconform restore JOURNAL` runs the same
-//     restore from the journal alone.
+//   - A command register (`access: command`) is written without a read
+//     first: it is journaled as written, and the restore undoes it with the
+//     spec's stop. A read-only register is never journaled.
+//   - When the journal cannot be written (a full disk), the write it was to
+//     guard is not sent and sending stops (stopped() says why).
+//   - restore() puts every journaled address back (session/restore.h), from
+//     the file and from what the journal kept in memory. `mbconform restore
+//     JOURNAL` runs the same restore from the journal alone.
 //   - A stop signal (session/signals.h) or the deadline ends the sending.
 //
 // Code that still takes a Target& (runner, properties, fuzzer, replay, map
@@ -34,6 +36,7 @@
 #include "policy/policy.h"
 #include "session/journal.h"
 #include "session/link.h"
+#include "session/restore.h"
 #include "spec.h"
 
 namespace mbc::conf {
@@ -80,23 +83,6 @@ LineSettings line_settings(const std::string& uri, const spec::Spec* spec);
 // The liveness probe: a read of one item, the first the profile can read
 // (FC 03/04/01/02); any reply, even an exception, shows the target is there.
 Bytes probe_request(const spec::Spec& s);
-
-struct RestoreReport {
-  size_t kept = 0;       // addresses journaled
-  size_t restored = 0;   // written back (they had changed)
-  size_t verified = 0;   // read back equal to their original at the end
-  std::vector<std::string> not_restored;  // one line each
-  // Addresses written although the drive would not read them first (an
-  // unmapped address the write was meant to be refused at): nothing to put back.
-  std::vector<std::string> unread;
-  bool gave_up = false;  // the target did not answer: the rest is listed in not_restored
-  std::string journal;   // its path
-};
-
-// Puts back every original of `contents` on `target` (spec: how to write
-// each table), appending what it did to `record`. `progress` (may be empty)
-// hears one line per step.
-RestoreReport restore_journal(Target& target, const spec::Spec& spec, const JournalContents& contents, Journal& record);
 
 class Session final : public Link {
  public:
@@ -173,6 +159,8 @@ class Session final : public Link {
   // Journals what a write to `unit` is about to change (live targets).
   std::optional<Refusal> journal_write(Target& t, uint8_t unit, std::span<const uint8_t> pdu);
   std::optional<Refusal> journal_range(Target& t, const WriteRange& w);
+  // Records the drive's identity in the journal once, before the first value.
+  void record_identity();
   void count_frame() {
     ++frames_;
     if (opt_.on_frame) opt_.on_frame(frames_);
@@ -187,6 +175,7 @@ class Session final : public Link {
   std::unique_ptr<Target> view_;
   std::vector<std::string> notes_;
   bool restored_ = false;
+  bool identity_recorded_ = false;
   uint64_t frames_ = 0, refused_ = 0;
 };
 

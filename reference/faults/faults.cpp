@@ -56,6 +56,9 @@ const std::vector<FaultInfo>& all_faults() {
       {Fault::refuse_reserved, "refuse-reserved",
        "answers exception 02 to FC 03/04 reads of registers named reserved (an HSC60 whose reserved 92-150 is not "
        "implemented)"},
+      {Fault::silent_command_reads, "silent-command-reads",
+       "never answers a read (FC 03/04) that covers an `access: command` register; Hanstar and Rieding print no "
+       "exception reply for it, so a drive may stay silent (the printed examples write those registers without reading them)"},
   };
   return list;
 }
@@ -115,7 +118,8 @@ bool device_level(const FaultSet& f) {
 bool pdu_level(const FaultSet& f) {
   for (Fault x : {Fault::wrong_exception_code, Fault::off_by_one_limit, Fault::refuse_limit, Fault::swapped_words,
                   Fault::accept_out_of_range, Fault::accept_read_only, Fault::lost_write, Fault::wrong_byte_count,
-                  Fault::read_before_write, Fault::silent_unstated_reads, Fault::refuse_reserved})
+                  Fault::read_before_write, Fault::silent_unstated_reads, Fault::refuse_reserved,
+                  Fault::silent_command_reads})
     if (f.has(x)) return true;
   return false;
 }
@@ -270,6 +274,12 @@ std::optional<Bytes> FaultyBus::device_pdu(ref::Device& d, std::span<const uint8
     return reply;
   }
   const bool read_words = (fc == 3 || fc == 4) && pdu.size() == 5;
+  // silent-command-reads: no reply at all to a read that reaches a command register.
+  if (faults_.has(Fault::silent_command_reads) && read_words)
+    for (uint32_t a = be16(pdu, 1); a < uint32_t(be16(pdu, 1)) + be16(pdu, 3) && a <= 0xFFFF; ++a)
+      if (const spec::Register* r = d.spec().register_covering(uint16_t(a), fc == 4 ? Table::input : Table::holding);
+          r && r->access == Access::command)
+        return std::nullopt;
   const bool write_words = (fc == 6 && pdu.size() == 5) || (fc == 16 && pdu.size() >= 6 && pdu.size() == size_t(6 + pdu[5]));
   uint16_t start = pdu.size() >= 3 ? be16(pdu, 1) : 0;
   uint16_t qty = fc == 6 ? 1 : pdu.size() >= 5 ? be16(pdu, 3) : 0;

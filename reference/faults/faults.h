@@ -46,6 +46,7 @@ enum class Fault {
   creep,
   silent_unstated_reads,
   refuse_reserved,
+  silent_command_reads,
 };
 
 struct FaultInfo {

@@ -102,6 +102,7 @@ std::vector<std::string> restore_and_say(conf::Session& session, const char* com
     r.not_restored.push_back(fmt::format("restore stopped: {}", e.what()));
   }
   for (const auto& f : r.not_restored) fmt::print(stderr, "mbconform {}: NOT RESTORED: {}\n", command, f);
+  for (const auto& n : r.notes) fmt::print(stderr, "mbconform {}: restore: {}\n", command, n);
   if (!r.not_restored.empty())
     fmt::print(stderr, "mbconform {}: the journal is {} (mbconform restore {} tries again)\n", command, session.journal_path(),
                session.journal_path());

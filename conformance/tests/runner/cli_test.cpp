@@ -326,7 +326,7 @@ TEST(RunCli, InterruptedRunWritesPartialReports) {
   EXPECT_GT(n, 0u);
   EXPECT_LT(n, 900u);
   EXPECT_NE(slurp(dir / "out.txt").find("interrupted"), std::string::npos);
-  // The drive was put back as it was before the run (safety: Snapshot).
+  // The drive was put back as it was before the run (the journal's restore).
   EXPECT_TRUE(j["devices"][0]["restore_failures"].empty()) << j["devices"][0]["restore_failures"].dump();
   EXPECT_EQ(serve.stop(SIGTERM).value_or(-1), 0);
 }

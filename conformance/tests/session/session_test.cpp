@@ -51,32 +51,6 @@ TargetInfo live_rtu(uint8_t unit) {
 
 // The frame policy's own tests are conformance/tests/policy/.
 
-// ---- the journal --------------------------------------------------------------
-
-TEST(Journal, FirstValueOfAnAddressIsTheOriginalAndTheFileIsBounded) {
-  TempDir dir;
-  std::string path;
-  {
-    Journal j = Journal::create(dir.path(), {{"target", "rtu:///dev/null?unit=1"}, {"device", "hsc60"}, {"unit", "1"}});
-    path = j.path();
-    j.keep({{spec::Table::holding, 0x0016, {0}, true, ""}, {spec::Table::holding, 0x0020, {0x1234, 0x5678}, false, ""}});
-    EXPECT_TRUE(j.has(spec::Table::holding, 0x0021));
-    j.keep({}, {{spec::Table::holding, 0x0100, 2, "exception 02"}});
-  }
-  // A forked child journaling again appends a later value: ignored.
-  std::ofstream(path, std::ios::app) << "orig holding 0x0020 2 0000 0000\n";
-  JournalContents c = read_journal(path);
-  EXPECT_EQ(c.header["device"], "hsc60");
-  ASSERT_EQ(c.originals.size(), 2u);
-  EXPECT_TRUE(c.originals[0].persist_switch);
-  EXPECT_EQ(c.originals[1].value, (std::vector<uint16_t>{0x1234, 0x5678}));
-  ASSERT_EQ(c.unread.size(), 1u);
-  EXPECT_EQ(c.unread[0].why, "exception 02");
-  std::ofstream(dir / "bad.txt") << "mbconform-journal 1\norig holding zz 1 0000\n";
-  EXPECT_THROW(read_journal(dir / "bad.txt"), std::runtime_error);
-  EXPECT_THROW(read_journal("/dev/zero"), std::runtime_error);
-}
-
 // ---- the line --------------------------------------------------------------
 
 TEST(LineSettings, UriThenSpecThenTheStandard) {

@@ -1,0 +1,463 @@
+#include "session/restore.h"
+
+#include <fmt/core.h>
+#include <fmt/ranges.h>
+
+#include <algorithm>
+#include <fstream>
+#include <iterator>
+#include <map>
+#include <memory>
+#include <thread>
+
+#include "modbus/judge.h"
+#include "modbus/limits.h"
+#include "modbus/pdu.h"
+#include "safety/safety.h"
+#include "policy/policy.h"
+
+namespace mbc::conf {
+namespace {
+
+// After a restore: how long the line settles before it is looked at again,
+// and how many times.
+constexpr std::chrono::milliseconds kSettle{300};
+constexpr int kSettleRounds = 3;
+// Registers read for the identity when the drive has no FC 43/14 objects.
+constexpr size_t kIdentitySamples = 8;
+
+bool is_command(const spec::Register* r) { return r && (r->access == spec::Access::command || r->command); }
+
+// The write a restore would send for `value` at `address` (the policy judges
+// it by the registers it reaches).
+Bytes write_pdu(spec::Table table, uint16_t address, const std::vector<uint16_t>& value) {
+  if (table == spec::Table::coil) {
+    if (value.size() == 1) return write_single_coil(address, value[0] != 0);
+    auto bits = std::make_unique<bool[]>(value.size());
+    for (size_t k = 0; k < value.size(); ++k) bits[k] = value[k] != 0;
+    return write_multiple_coils(address, std::span<const bool>(bits.get(), value.size()));
+  }
+  if (value.size() == 1) return write_single_register(address, value[0]);
+  return write_multiple_registers(address, value);
+}
+
+// The spec's stop as the words of its register (2-word registers in the spec's word order).
+std::optional<std::pair<const spec::Register*, std::vector<uint16_t>>> stop_words(const spec::Spec& s) {
+  if (!s.operations.motion || !s.operations.motion->stop) return std::nullopt;
+  const auto& st = *s.operations.motion->stop;
+  const spec::Register* r = s.find_by_key(st.key);
+  if (!r) return std::nullopt;
+  const auto v = uint32_t(st.value);
+  if (r->words == 1) return std::pair{r, std::vector<uint16_t>{uint16_t(v)}};
+  const uint16_t hi = uint16_t(v >> 16), lo = uint16_t(v);
+  return std::pair{r, r->word_order == spec::WordOrder::low_first ? std::vector<uint16_t>{lo, hi} : std::vector<uint16_t>{hi, lo}};
+}
+
+}  // namespace
+
+// ---- shared helpers -----------------------------------------------------------
+
+std::string journal_label(const spec::Spec* s, spec::Table table, uint16_t address) {
+  if (s)
+    if (const auto* r = s->find_register(address, table)) return register_label(*r);
+  return fmt::format("{} 0x{:04X}", journal_table_name(table), address);
+}
+
+int journal_read_limit(const spec::Spec* s, spec::Table table) {
+  const int fc = table == spec::Table::coil ? 1 : 3;
+  int most = standard_max_quantity(fc);
+  if (s)
+    if (const auto* f = s->profile.function(fc); f && f->max_quantity) most = std::min(most, *f->max_quantity);
+  return std::max(most, 1);
+}
+
+bool no_reply(const std::string& why) { return why.find("no reply") != std::string::npos; }
+
+// A batch that fails is read again entry by entry, so a drive that takes only
+// single reads costs what it did. Two silent entries in a row end the
+// reading: a dead target costs two time-outs, not one per register.
+std::vector<std::optional<std::vector<uint16_t>>> read_entries(Target& t, const spec::Spec* s,
+                                                               const std::vector<const JournalEntry*>& es,
+                                                               std::vector<std::string>& whys) {
+  std::vector<std::optional<std::vector<uint16_t>>> out(es.size());
+  whys.assign(es.size(), "");
+  int silent = 0;
+  for (size_t i = 0; i < es.size();) {
+    size_t j = i + 1;
+    int words = int(es[i]->value.size());
+    const int most = journal_read_limit(s, es[i]->table);
+    while (j < es.size() && es[j]->table == es[i]->table &&
+           es[j]->address == uint32_t(es[j - 1]->address) + es[j - 1]->value.size() &&
+           words + int(es[j]->value.size()) <= most) {
+      words += int(es[j]->value.size());
+      ++j;
+    }
+    if (j - i > 1) {
+      std::string why;
+      if (auto all = read_table(t, es[i]->table, es[i]->address, words, why); all && int(all->size()) == words) {
+        size_t at = 0;
+        for (size_t k = i; k < j; ++k) {
+          out[k] = std::vector<uint16_t>(all->begin() + long(at), all->begin() + long(at + es[k]->value.size()));
+          at += es[k]->value.size();
+        }
+        silent = 0;
+        i = j;
+        continue;
+      }
+    }
+    for (size_t k = i; k < j; ++k) {
+      if (silent >= 2) {
+        whys[k] = "no reply (the target stopped answering)";
+        continue;
+      }
+      out[k] = read_table(t, es[k]->table, es[k]->address, int(es[k]->value.size()), whys[k]);
+      silent = !out[k] && no_reply(whys[k]) ? silent + 1 : 0;
+    }
+    i = j;
+  }
+  return out;
+}
+
+// ---- the policy ------------------------------------------------------------------
+
+std::optional<Refusal> restore_refusal(const spec::Spec& s, const TargetInfo& info, uint8_t unit,
+                                       std::span<const uint8_t> pdu, bool stop_operation) {
+  WritePolicy p;
+  // Putting a stored value back costs the one stored write it undoes; the
+  // command that journaled it had the opt-ins for the map it used.
+  p.allow_eeprom_writes = true;
+  p.allow_writes = true;
+  // A restore never starts motion: the one command it sends is the spec's stop.
+  p.allow_motion = stop_operation;
+  return allowed(PolicyFacts{&s, info, p}, unit, pdu).refused;
+}
+
+// ---- identity ------------------------------------------------------------------
+
+std::string spec_fingerprint(const spec::Spec& s) {
+  if (s.path.empty()) return "";
+  std::ifstream in(s.path, std::ios::binary);
+  if (!in) return "";
+  std::string all((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  return fmt::format("{:08X}", journal_crc32(all));
+}
+
+std::string journal_identity(Target& t, const spec::Spec& s) {
+  const auto& id = s.device.identification;
+  const auto* fc43 = s.profile.function(43);
+  const Target::Wait kept_wait = Target::Wait::automatic;
+  t.set_wait(Target::Wait::reply);
+  if (fc43 && std::find(fc43->mei_types.begin(), fc43->mei_types.end(), 14) != fc43->mei_types.end() &&
+      !id.product_code.empty()) {
+    // Read Device Identification, basic stream (MBAP v1.1b3 §6.21): 00 VendorName, 01 ProductCode, 02 Revision.
+    Reply r = t.transact(t.info().unit, read_device_identification(1, 0));
+    t.set_wait(kept_wait);
+    std::map<int, std::string> objects;
+    if (r.pdu && r.pdu->size() >= 7 && (*r.pdu)[0] == 0x2B && (*r.pdu)[1] == 0x0E) {
+      const Bytes& p = *r.pdu;
+      size_t at = 7;
+      for (int k = 0; k < p[6] && at + 2 <= p.size(); ++k) {
+        int oid = p[at], len = p[at + 1];
+        if (at + 2 + size_t(len) > p.size()) break;
+        objects[oid] = std::string(p.begin() + long(at) + 2, p.begin() + long(at) + 2 + len);
+        at += 2 + size_t(len);
+      }
+    }
+    if (objects.empty()) return "FC 43/14: no identification";
+    return fmt::format("FC 43/14: VendorName \"{}\", ProductCode \"{}\", Revision \"{}\"", objects[0], objects[1], objects[2]);
+  }
+  std::vector<const spec::Register*> readable;
+  for (const auto& r : s.registers)
+    if ((r.table == spec::Table::holding || r.table == spec::Table::input) && r.access != spec::Access::wo &&
+        !is_command(&r) && s.profile.function(r.table == spec::Table::holding ? 3 : 4))
+      readable.push_back(&r);
+  std::vector<std::string> seen;
+  const size_t samples = std::min(kIdentitySamples, readable.size());
+  for (size_t k = 0; k < samples; ++k) {
+    const spec::Register& r = *readable[k * readable.size() / samples];
+    const uint8_t fc = r.table == spec::Table::holding ? 3 : 4;
+    const Bytes req = read_request(fc, r.address, uint16_t(r.words));
+    std::string what = "no reply";
+    for (int attempt = 0; attempt < 2 && what == "no reply"; ++attempt) {
+      Reply got;
+      try {
+        got = t.transact(t.info().unit, req);
+      } catch (const std::exception&) {
+        continue;
+      }
+      if (!got.pdu) continue;
+      Judged j = judge_reply(req, *got.pdu);
+      what = j.kind == Judged::Kind::exception ? fmt::format("exception {:02X}", j.exception_code)
+             : j.ok()                          ? "answers"
+                                               : "malformed";
+    }
+    seen.push_back(fmt::format("FC {:02} 0x{:04X} {}", fc, r.address, what));
+  }
+  t.set_wait(kept_wait);
+  if (seen.empty()) return "no register the spec says is readable";
+  return fmt::format("{}", fmt::join(seen, ", "));
+}
+
+std::string journal_mismatch(Target& t, const spec::Spec& s, const JournalContents& c) {
+  auto get = [&](const char* key) {
+    auto it = c.header.find(key);
+    return it == c.header.end() ? std::string() : it->second;
+  };
+  const std::string device = get("device"), unit = get("unit");
+  if (device.empty() || unit.empty())
+    return fmt::format("the journal's header names no {} (a damaged header): it cannot be matched to the target",
+                       device.empty() ? "device" : "unit");
+  if (device != s.device.id)
+    return fmt::format("the journal was made on a {}; the spec given is {}'s", device, s.device.id);
+  if (unit != std::to_string(t.info().unit))
+    return fmt::format("the journal was made on unit {}; the target is unit {}", unit, t.info().unit);
+  if (const std::string kept = get("spec-crc32"), now = spec_fingerprint(s); !kept.empty() && !now.empty() && kept != now)
+    return fmt::format("the spec {} changed since the journal was made (CRC-32 {} then, {} now): its registers may not be "
+                       "the ones journaled", s.path, kept, now);
+  if (const std::string kept = get("identity"); !kept.empty())
+    if (const std::string now = journal_identity(t, s); now != kept) {
+      if (now.find("answers") == std::string::npos && now.find("exception") == std::string::npos &&
+          now.find("VendorName") == std::string::npos)
+        return fmt::format("unit {} does not answer the reads that identify it ({}): is the target right?", unit, now);
+      return fmt::format("unit {} is not the drive the journal was made on: it answered \"{}\" then, \"{}\" now", unit, kept, now);
+    }
+  return "";
+}
+
+// ---- the restore ------------------------------------------------------------------
+
+RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalContents& c, Journal& record) {
+  RestoreReport rep;
+  rep.journal = record.path();
+  rep.kept = c.originals.size() + c.commands.size();
+  std::vector<std::string> unrecorded;
+  auto note = [&](const std::string& text) {
+    if (!record.try_record(text)) unrecorded.push_back(text);
+  };
+  for (const auto& u : c.unread)
+    rep.unread.push_back(fmt::format("{} 0x{:04X}{}: written, but it could not be read first ({})", journal_table_name(u.table),
+                                     u.address, u.count > 1 ? fmt::format("-0x{:04X}", u.address + u.count - 1) : "", u.why));
+  for (const auto& tr : c.torn) {
+    if (tr.last)
+      rep.notes.push_back(fmt::format("journal line {}: cut off while it was written ({}): skipped; the write it was to "
+                                      "guard was not sent", tr.line, tr.why));
+    else
+      rep.not_restored.push_back(fmt::format("journal line {}: damaged ({}): skipped; what it held is not known", tr.line, tr.why));
+  }
+  auto name = [&](const JournalEntry& e) { return e.name.empty() ? journal_label(&s, e.table, e.address) : e.name; };
+  auto line = [&](const char* kind, const JournalEntry& e, const std::string& why = "") {
+    note(fmt::format("{} {} 0x{:04X}{}{}", kind, journal_table_name(e.table), e.address, why.empty() ? "" : " ", why));
+  };
+  auto valued = [&](const char* kind, const JournalEntry& e, const std::string& why = "") {
+    std::string words = std::to_string(e.value.size());
+    for (uint16_t w : e.value) words += fmt::format(" {:04X}", w);
+    note(fmt::format("{} {} 0x{:04X} {}{}{}", kind, journal_table_name(e.table), e.address, words, why.empty() ? "" : " ", why));
+  };
+  auto earlier = [&](const JournalEntry& e) -> const JournalRestored* {
+    for (const auto& r : c.restored)
+      if (r.table == e.table && r.address == e.address) return &r;
+    return nullptr;
+  };
+  const uint8_t unit = t.info().unit;
+
+  // What goes back, in order (the persistence switch first); what the policy
+  // or the register's access keeps out; the command registers to stop.
+  std::vector<const JournalEntry*> order;
+  std::vector<std::string> commands_written;
+  bool needs_stop = false;
+  for (const auto& k : c.commands) {
+    const spec::Register* r = s.register_covering(k.address, k.table);
+    if (r && r->command && !r->command->motion) {
+      rep.notes.push_back(fmt::format("{}: a command that starts no motion was written: nothing to put back",
+                                      journal_label(&s, k.table, r->address)));
+      continue;
+    }
+    needs_stop = true;
+    commands_written.push_back(journal_label(&s, k.table, r ? r->address : k.address));
+  }
+  for (int pass = 0; pass < 2; ++pass)
+    for (const auto& e : c.originals) {
+      if (e.persist_switch != (pass == 0)) continue;
+      const spec::Register* r = s.register_covering(e.address, e.table);
+      if (r && r->access == spec::Access::ro) {
+        rep.notes.push_back(fmt::format("{}: read-only: it changes by side effect, so it is not put back", name(e)));
+        continue;
+      }
+      if (is_command(r)) {  // a journal of format 1 kept a command register's value: stopped instead
+        needs_stop = true;
+        commands_written.push_back(name(e));
+        continue;
+      }
+      // The "do not persist" switch is the session's own write (it turned it
+      // on): the policy never lets a check write it, the restore puts it back.
+      if (auto no = e.persist_switch ? std::nullopt : restore_refusal(s, t.info(), unit, write_pdu(e.table, e.address, e.value), false)) {
+        std::string msg = fmt::format("{}: not written back: {}", name(e), no->reason);
+        rep.not_restored.push_back(msg);
+        line("not-restored", e, msg);
+        continue;
+      }
+      order.push_back(&e);
+    }
+
+  // A command register has no value to put back: what its write started is
+  // undone by the spec's stop, first, before any setpoint goes back.
+  if (needs_stop) {
+    const std::string what = fmt::format("{}", fmt::join(commands_written, ", "));
+    auto stop = stop_words(s);
+    if (!stop) {
+      rep.not_restored.push_back(fmt::format("{}: a command register was written, and the spec names no stop operation "
+                                             "(operations.motion.stop) to undo it", what));
+      note(fmt::format("not-restored command {}: the spec names no stop", what));
+    } else {
+      const auto& [reg, words] = *stop;
+      Bytes pdu = write_pdu(reg->table, reg->address, words);
+      std::string why;
+      if (auto no = restore_refusal(s, t.info(), unit, pdu, true)) {
+        why = no->reason;
+      } else {
+        t.set_wait(Target::Wait::reply);
+        Reply got = t.transact(unit, pdu);
+        Judged j = got.pdu ? judge_reply(pdu, *got.pdu) : Judged{};
+        if (!got.pdu) why = "no reply";
+        else if (j.kind == Judged::Kind::exception) why = fmt::format("exception {:02X}", j.exception_code);
+        else if (!j.ok()) why = j.problems.empty() ? "malformed reply" : j.problems.front();
+      }
+      const std::string op = fmt::format("{} = {} (operations.motion.stop, {})", register_label(*reg),
+                                         s.operations.motion->stop->value, s.operations.motion->stop->section);
+      if (why.empty()) {
+        rep.notes.push_back(fmt::format("stopped: {} after writes to {}", op, what));
+        note(fmt::format("stopped {} after {}", op, what));
+      } else {
+        rep.not_restored.push_back(fmt::format("{}: the stop {} failed: {}", what, op, why));
+        note(fmt::format("not-restored command {}: the stop failed: {}", what, why));
+      }
+    }
+  }
+
+  auto finish = [&] {
+    if (!unrecorded.empty()) {
+      std::vector<std::string> first(unrecorded.begin(), unrecorded.begin() + long(std::min<size_t>(unrecorded.size(), 8)));
+      rep.notes.push_back(fmt::format("the journal could not record {} line(s) of this restore ({}): {}{}", unrecorded.size(),
+                                      record.failed().empty() ? "not open" : record.failed(), fmt::join(first, "; "),
+                                      unrecorded.size() > first.size() ? "; ..." : ""));
+    }
+  };
+  if (order.empty()) {
+    note(fmt::format("end {} {} kept, 0 written back, 0 verified, {} not restored",
+                     rep.not_restored.empty() ? "restored" : "incomplete", rep.kept, rep.not_restored.size()));
+    finish();
+    return rep;
+  }
+  // One liveness probe, one reconnect, one more probe: a dead target costs
+  // a few time-outs, not one per register.
+  auto alive = [&](const JournalEntry& e) {
+    std::string why;
+    if (read_table(t, e.table, e.address, int(e.value.size()), why)) return true;
+    if (!t.reconnect()) return false;
+    return read_table(t, e.table, e.address, int(e.value.size()), why).has_value();
+  };
+  auto give_up = [&](size_t from, const std::string& why) {
+    rep.gave_up = true;
+    for (size_t k = from; k < order.size(); ++k) {
+      rep.not_restored.push_back(fmt::format("{}: not restored: {}", name(*order[k]), why));
+      line("not-restored", *order[k], why);
+    }
+  };
+  std::vector<const JournalEntry*> done;
+  if (!alive(*order.front())) {
+    give_up(0, "the target does not answer (one probe, one reconnect)");
+  } else {
+    int silent_in_a_row = 0;
+    std::vector<std::string> whys;
+    const auto before = read_entries(t, &s, order, whys);
+    for (size_t k = 0; k < order.size(); ++k) {
+      const JournalEntry& e = *order[k];
+      const std::string& why = whys[k];
+      const auto& now = before[k];
+      if (now && *now == e.value) {
+        done.push_back(&e);
+        silent_in_a_row = 0;
+        continue;
+      }
+      // An earlier restore put this address back; it changed since: the
+      // user's value now, not the command's, and it stays.
+      if (const JournalRestored* was = earlier(e)) {
+        std::string msg = now ? fmt::format("{}: reads {:04X}, changed since an earlier restore put back {:04X}: left as it is",
+                                            name(e), fmt::join(*now, " "), fmt::join(was->value, " "))
+                              : fmt::format("{}: an earlier restore put it back, and it cannot be read now ({}): not "
+                                            "overwritten blind", name(e), why);
+        rep.notes.push_back(msg);
+        line("left", e, msg);
+        continue;
+      }
+      std::string err = write_table_verified(t, s, e.table, e.address, e.value, name(e));
+      if (err.empty()) {
+        ++rep.restored;
+        valued("restored", e);
+        done.push_back(&e);
+        silent_in_a_row = 0;
+        continue;
+      }
+      rep.not_restored.push_back(err);
+      line("not-restored", e, err);
+      if (no_reply(err) || (!now && no_reply(why))) {
+        if (++silent_in_a_row >= 2 && !alive(e)) {
+          give_up(k + 1, "the target stopped answering during the restore");
+          break;
+        }
+      } else {
+        silent_in_a_row = 0;
+      }
+    }
+  }
+  // Verify everything put back once more: a write with a side effect on
+  // another register (a mode that resets a setpoint) shows up here.
+  if (!rep.gave_up) {
+    std::vector<std::string> vwhys;
+    const auto after = read_entries(t, &s, done, vwhys);
+    for (size_t i = 0; i < done.size(); ++i) {
+      const JournalEntry* e = done[i];
+      const auto& now = after[i];
+      if (now && *now == e->value) {
+        ++rep.verified;
+        valued("verified", *e);
+      } else {
+        std::string msg = now ? fmt::format("{}: reads {:04X} after the restore (kept {:04X})", name(*e), fmt::join(*now, " "),
+                                            fmt::join(e->value, " "))
+                              : fmt::format("{}: verify failed: {}", name(*e), vwhys[i]);
+        rep.not_restored.push_back(msg);
+        line("not-restored", *e, msg);
+      }
+    }
+  }
+  // Frames the stopped command left queued (in a serial adapter, a
+  // gateway, a server the host holds up) may still be applied after the
+  // restore: let the line settle, look again, put back what changed.
+  for (int round = 0; round < kSettleRounds && !rep.gave_up && rep.not_restored.empty() && !done.empty(); ++round) {
+    std::this_thread::sleep_for(kSettle);
+    bool changed = false;
+    std::vector<std::string> swhys;
+    const auto settled = read_entries(t, &s, done, swhys);
+    for (size_t i = 0; i < done.size(); ++i) {
+      const JournalEntry* e = done[i];
+      if (settled[i] && *settled[i] == e->value) continue;
+      changed = true;
+      std::string err = write_table_verified(t, s, e->table, e->address, e->value, name(*e));
+      if (err.empty()) {
+        ++rep.restored;
+        valued("restored", *e, "again, after the line settled");
+      } else {
+        rep.not_restored.push_back(err);
+        line("not-restored", *e, err);
+      }
+    }
+    if (!changed) break;
+  }
+  note(fmt::format("end {} {} kept, {} written back, {} verified, {} not restored",
+                   rep.not_restored.empty() ? "restored" : "incomplete", rep.kept, rep.restored, rep.verified,
+                   rep.not_restored.size()));
+  finish();
+  return rep;
+}
+
+}  // namespace mbc::conf
