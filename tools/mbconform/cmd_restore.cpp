@@ -2,7 +2,7 @@
 // (conformance/session/journal.h) after a crash, a SIGKILL or a second
 // SIGINT, then verifies what it restored.
 //
-//   mbconform restore reports/runs/20261201T120000Z/journal.txt [--target URI] [--device ID | --spec FILE]
+//   mbconform restore reports/run/20261201T120000Z/journal.txt [--target URI] [--device ID | --spec FILE]
 //
 // The target is the journal's (as the command opened it) unless --target
 // names another way to reach the same drive; the spec is the journal's
@@ -23,6 +23,7 @@ namespace {
 
 struct RestoreArgs {
   std::string journal, target, device, spec_file;
+  bool quiet = false;
 };
 
 int run_restore(const RestoreArgs& a) {
@@ -55,11 +56,13 @@ int run_restore(const RestoreArgs& a) {
     fmt::print(stderr, "mbconform restore: error: {}\n", e.what());
     return kExitUsage;
   }
-  fmt::print("restoring {} address(es) of {} on {} from {}\n", c.originals.size(), s.device.id, target->info().uri, a.journal);
+  if (!a.quiet)
+    fmt::print("restoring {} address(es) of {} on {} from {}\n", c.originals.size(), s.device.id, target->info().uri, a.journal);
   std::fflush(stdout);
   conf::RestoreReport r = conf::restore_journal(*target, s, c, record);
   for (const auto& f : r.not_restored) fmt::print("NOT RESTORED: {}\n", f);
-  for (const auto& u : r.unread) fmt::print("note: {}\n", u);
+  if (!a.quiet)
+    for (const auto& u : r.unread) fmt::print("note: {}\n", u);
   fmt::print("{} kept, {} written back, {} verified, {} not restored{}\n", r.kept, r.restored, r.verified, r.not_restored.size(),
              r.gave_up ? " (the target did not answer)" : "");
   if (r.gave_up && r.verified == 0 && r.kept > 0) return kExitUsage;
@@ -75,6 +78,7 @@ void add_restore_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--target", a->target, "how to reach the drive (default: the journal's target)");
   cmd->add_option("--device", a->device, "ID: the drive's spec (default: the journal's device)");
   cmd->add_option("--spec", a->spec_file, "FILE: a spec file for the drive")->excludes(cmd->get_option("--device"));
+  cmd->add_flag("-q,--quiet", a->quiet, "print only what was not restored and the counts");
   cmd->callback([a, &exit_code] { exit_code = run_restore(*a); });
 }
 
