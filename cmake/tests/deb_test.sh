@@ -25,7 +25,7 @@ for exe in "$work"/root/usr/bin/*; do
   for so in $(readelf -d "$exe" | sed -n 's/.*(NEEDED).*\[\(.*\)\]/\1/p'); do
     pkg=$(dpkg -S "*/$multiarch/$so" 2>/dev/null | head -1 | cut -d: -f1) || true
     [ -n "$pkg" ] || fail "$(basename "$exe") needs $so, which no package of this machine holds"
-    grep -Eq "(^|, )$pkg( |,|$)" <<<"$depends" || fail "Depends lacks $pkg ($(basename "$exe") needs $so)"
+    [[ ", $depends," == *", $pkg "* || ", $depends," == *", $pkg,"* ]] || fail "Depends lacks $pkg ($(basename "$exe") needs $so)"
   done
 done
 maintainer=$(dpkg-deb -f "$deb" Maintainer)

@@ -55,6 +55,7 @@ kill "$serve_pid"; wait "$serve_pid" 2>/dev/null || true; serve_pid=""
 adapter=$prefix/share/mbconform/client/adapters/bin/libmodbus_adapter
 [ -f "$prefix/share/mbconform/deviations/libmodbus-tcp.yaml" ] || fail "deviations/libmodbus-tcp.yaml is not installed"
 [ -f "$prefix/share/mbconform/quirks/jsmodbus.yaml" ] || fail "quirks/jsmodbus.yaml is not installed"
+[ -x "$adapter" ] || echo "installed_checks: no libmodbus adapter installed: the client quirks check is skipped"
 if [ -x "$adapter" ]; then
   rc=0; "$mbc" client --adapter "$adapter" --filter client/reply/trailing-bytes --out plain -q >plain.txt 2>&1 || rc=$?
   [ "$rc" = 1 ] || { cat plain.txt >&2; fail "libmodbus without its quirks: exit $rc, expected 1 (it fails trailing-bytes)"; }

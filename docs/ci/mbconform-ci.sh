@@ -37,7 +37,7 @@ MBCONFORM_DEVICES=${MBCONFORM_DEVICES:-modbus-standard@1 hsc60@2}
 OUT=${OUT:-mbconform-results}
 mkdir -p "$OUT"
 OUT=$(cd "$OUT" && pwd)
-cases=()   # "name|status|seconds|message|file whose last lines go into the failure's text"
+cases=()   # "name|status|seconds|file whose last lines go into the failure's text|message" (the message last: it may hold a |)
 serve_pid=""
 cleanup() { [ -n "$serve_pid" ] && kill "$serve_pid" 2>/dev/null; wait 2>/dev/null; }
 trap cleanup EXIT
@@ -46,7 +46,7 @@ xml() { sed -e 's/&/\&amp;/g' -e 's/</\&lt;/g' -e 's/>/\&gt;/g' -e 's/"/\&quot;/
 write_junit() {
   local failures=0 skipped=0 c name status secs msg log
   for c in "${cases[@]}"; do
-    IFS='|' read -r name status secs msg log <<<"$c"
+    IFS='|' read -r name status secs log msg <<<"$c"
     [ "$status" = failed ] && failures=$((failures + 1))
     [ "$status" = skipped ] && skipped=$((skipped + 1))
   done
@@ -54,7 +54,7 @@ write_junit() {
     echo '<?xml version="1.0" encoding="UTF-8"?>'
     echo "<testsuites><testsuite name=\"mbconform-ci\" tests=\"${#cases[@]}\" failures=\"$failures\" skipped=\"$skipped\">"
     for c in "${cases[@]}"; do
-      IFS='|' read -r name status secs msg log <<<"$c"
+      IFS='|' read -r name status secs log msg <<<"$c"
       echo "  <testcase classname=\"mbconform-ci\" name=\"$(xml <<<"$name")\" time=\"$secs\">"
       if [ "$status" = failed ]; then
         echo -n "    <failure message=\"$(xml <<<"$msg")\">"
@@ -76,7 +76,7 @@ step() {  # step NAME LOG COMMAND...: run (output also to LOG), record passed/fa
   "$@" 2>&1 | tee "$log"
   rc=${PIPESTATUS[0]}
   if [ "$rc" = 0 ]; then cases+=("$name|passed|$(($(date +%s) - start))||")
-  else cases+=("$name|failed|$(($(date +%s) - start))|exit $rc|$log"); fi
+  else cases+=("$name|failed|$(($(date +%s) - start))|$log|exit $rc"); fi
   return "$rc"
 }
 # The failing cases of a junit.xml mbconform wrote, "ID|MESSAGE" one a line
@@ -102,7 +102,7 @@ done
 MBCONFORM_TCP_PORT=$(sed -n 's/^listening tcp .*:\([0-9]*\)$/\1/p' "$OUT/serve.log")
 if [ -z "$MBCONFORM_TCP_PORT" ]; then
   cat "$OUT/serve.log" >&2
-  cases+=("serve reference devices|failed|0|mbconform serve did not start|$OUT/serve.log")
+  cases+=("serve reference devices|failed|0|$OUT/serve.log|mbconform serve did not start")
   write_junit
   exit 1
 fi
@@ -117,10 +117,10 @@ step "library tests" "$OUT/library-tests.log" sh -c "$LIBRARY_TEST_CMD"
 commands=$("$MBCONFORM" --help 2>/dev/null || true)
 if ! grep -qE '^ +client( |$)' <<<"$commands"; then
   echo "mbconform-ci: skipped the client conformance run: this mbconform has no 'client' command"
-  cases+=("client conformance|skipped|0|this mbconform has no client command|")
+  cases+=("client conformance|skipped|0||this mbconform has no client command")
 elif [ -z "${MBCONFORM_ADAPTER:-}" ]; then
   echo "mbconform-ci: skipped the client conformance run: MBCONFORM_ADAPTER is not set"
-  cases+=("client conformance|skipped|0|MBCONFORM_ADAPTER is not set|")
+  cases+=("client conformance|skipped|0||MBCONFORM_ADAPTER is not set")
 else
   client_args=${MBCONFORM_CLIENT_ARGS:-}
   [ -n "${MBCONFORM_QUIRKS:-}" ] && client_args="$client_args --quirks $MBCONFORM_QUIRKS"
@@ -132,12 +132,12 @@ else
     while IFS='|' read -r id msg; do
       [ -n "$id" ] || continue
       failed_ids="${failed_ids:+$failed_ids, }$id"
-      cases+=("client: $id|failed|0|$msg|")
+      cases+=("client: $id|failed|0||$msg")
     done < <(failing_cases "$OUT/client/junit.xml")
     for i in "${!cases[@]}"; do
-      IFS='|' read -r name status secs msg log <<<"${cases[$i]}"
+      IFS='|' read -r name status secs log msg <<<"${cases[$i]}"
       if [ "$name" = "client conformance" ] && [ -n "$failed_ids" ]; then
-        cases[$i]="$name|$status|$secs|$msg: failed: $failed_ids|$log"
+        cases[$i]="$name|$status|$secs|$log|$msg: failed: $failed_ids"
       fi
     done
   fi
