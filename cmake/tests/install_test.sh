@@ -3,10 +3,11 @@
 # the source tree, then use the installed mbconform from there: its specs are
 # found relative to the executable, --spec-dir and $MBCONFORM_SPEC_DIR add a
 # user's own, a duplicate id names both files, and `spec check`, `run` and
-# `serve` work.
-# usage: install_test.sh BUILD_DIR SOURCE_DIR
+# `serve` work; then installed_checks.sh (stripped, version, man page,
+# completion, a served qualification, quirks by name).
+# usage: install_test.sh BUILD_DIR SOURCE_DIR VERSION
 set -euo pipefail
-build=$1 src=$2
+build=$1 src=$2 version=$3
 scratch=$(mktemp -d /tmp/mbconform-install-test.XXXXXX)
 serve_pid=""
 cleanup() {
@@ -23,7 +24,7 @@ unset MBCONFORM_SPEC_DIR
 mbc=$prefix/bin/mbconform
 
 for f in bin/mbconform share/mbconform/schema/device.schema.json include/mbconform_plugin.h \
-         share/mbconform/plugin/example/libmodbus_slave_plugin.c; do
+         share/mbconform/plugin/example/libmodbus_slave_plugin.c share/doc/mbconform/LICENSE share/doc/mbconform/copyright; do
   [ -e "$prefix/$f" ] || fail "$f is not installed"
 done
 if [ -e "$build/bin/mbconform-plugin-host" ]; then
@@ -85,4 +86,6 @@ reply = s.recv(64)
 tid, proto, length, unit, fc, count = struct.unpack(">HHHBBB", reply[:9])
 sys.exit(0 if (tid, proto, unit, fc, count, len(reply)) == (7, 0, 1, 3, 2, 11) else 1)
 PY
+kill "$serve_pid"; wait "$serve_pid" 2>/dev/null || true; serve_pid=""
+"$src/cmake/tests/installed_checks.sh" "$prefix" "$version" "$scratch/checks" || fail "installed_checks.sh"
 echo "install_test: ok ($n specs installed in $prefix, run and serve from $scratch)"

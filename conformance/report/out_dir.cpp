@@ -1,7 +1,9 @@
 // The output directory, checked before the first frame: a run that cannot
 // write its reports is lost (a 20-second run at 9600 baud found out only at
-// the end). Created here, then a probe file is created and removed.
+// the end). Created here, then a probe file is created and removed. A
+// default directory is claimed new (claim_new_dir), never shared.
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -26,6 +28,20 @@ std::string out_dir_problem(const std::string& dir) {
   ::close(fd);
   ::unlink(probe.c_str());
   return "";
+}
+
+std::string claim_new_dir(const std::string& parent, const std::string& stem) {
+  std::error_code ec;
+  std::filesystem::create_directories(parent, ec);
+  const std::string first = (std::filesystem::path(parent) / stem).string();
+  // 10000 runs in one second is more than any machine starts; past it the
+  // name is left to out_dir_problem (it exists: written into, as before).
+  for (int n = 1; n < 10000; ++n) {
+    std::string candidate = n == 1 ? first : fmt::format("{}-{}", first, n);
+    if (::mkdir(candidate.c_str(), 0777) == 0) return candidate;
+    if (errno != EEXIST) break;
+  }
+  return first;
 }
 
 bool out_dir_ok(const std::string& dir, const char* command) {

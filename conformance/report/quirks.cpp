@@ -3,10 +3,13 @@
 #include <fmt/core.h>
 #include <fnmatch.h>
 
+#include <algorithm>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
 
+#include "spec_path.h"
 #include "yaml_json.h"
 
 namespace mbc::conf::quirks {
@@ -22,7 +25,44 @@ const Quirk* first_match(const std::vector<Quirk>& list, Quirk::By by, const std
   return nullptr;
 }
 
+namespace fs = std::filesystem;
+
+// Where the declared deviations are: beside the installed specs
+// (share/mbconform/{deviations,quirks}, cmake/Install.cmake), or in the
+// source tree the built-in specs come from (spec/ -> conformance/peers/).
+std::vector<fs::path> quirks_dirs() {
+  auto [dir, origin] = spec::builtin_spec_dir();
+  fs::path base = origin == "installed" ? fs::path(dir) : fs::path(dir).parent_path() / "conformance" / "peers";
+  return {base / "deviations", base / "quirks"};
+}
+
 }  // namespace
+
+std::vector<std::string> known_names() {
+  std::vector<std::string> out;
+  std::error_code ec;
+  for (const auto& d : quirks_dirs())
+    for (const auto& e : fs::directory_iterator(d, ec))
+      if (e.path().extension() == ".yaml") out.push_back(e.path().stem().string());
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+std::string find(const std::string& name_or_path) {
+  std::error_code ec;
+  const std::string& n = name_or_path;
+  bool path_like = n.find('/') != std::string::npos || (n.size() > 5 && n.compare(n.size() - 5, 5, ".yaml") == 0);
+  if (path_like || fs::exists(n, ec)) return n;
+  std::vector<std::string> found;
+  for (const auto& d : quirks_dirs())
+    if (fs::is_regular_file(d / (n + ".yaml"), ec)) found.push_back((d / (n + ".yaml")).string());
+  if (found.size() == 1) return found.front();
+  if (found.size() > 1) throw std::runtime_error(fmt::format("--quirks {}: two files have that name: {} and {}", n, found[0], found[1]));
+  std::string names;
+  for (const auto& k : known_names()) names += (names.empty() ? "" : ", ") + k;
+  throw std::runtime_error(fmt::format("--quirks {}: no such file, and no declared deviations of that name{}", n,
+                                       names.empty() ? " (none are installed)" : " (known: " + names + ")"));
+}
 
 const Quirk* Quirks::for_case(const std::string& id) const { return first_match(list, Quirk::By::case_id, id); }
 const Quirk* Quirks::for_kind(const std::string& kind) const { return first_match(list, Quirk::By::kind, kind); }

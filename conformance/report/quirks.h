@@ -40,6 +40,17 @@ struct Quirks {
 // that cannot be read or does not follow the format.
 Quirks load(const std::string& path);
 
+// The file `--quirks` names: a path as given when it names a file (or holds
+// a '/' or ends in .yaml), else the declared deviations that come with
+// mbconform, by name: NAME.yaml in deviations/ (libraries as masters:
+// libmodbus-tcp, pymodbus-rtu, ...) or quirks/ (as servers: jsmodbus, ...)
+// of share/mbconform of an installed mbconform, else of this source tree's
+// conformance/peers/. Throws std::runtime_error naming the known names
+// (and the nearest) when there is no such file.
+std::string find(const std::string& name_or_path);
+// The names find() knows, sorted.
+std::vector<std::string> known_names();
+
 // The one way a quirks file changes a run, for `run` and `client` alike.
 // Every failed case a case quirk declares stays a failure, reported apart as
 // a declared quirk (CaseResult::quirk = the reason; Quirk::used): it does not

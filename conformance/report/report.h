@@ -47,6 +47,12 @@ Counts count(const DeviceRun&);
 // "COMMAND: error: --out: ..." and returns false (the caller exits 2).
 std::string out_dir_problem(const std::string& dir);
 bool out_dir_ok(const std::string& dir, const char* command);
+// A new directory PARENT/STEM (PARENT created), or PARENT/STEM-2, -3, ...
+// when that one exists: mkdir(2) claims it atomically, so two commands
+// started in the same second (the default report directories are named by
+// the second) never share one. When no directory can be made (PARENT not
+// writable), PARENT/STEM, for out_dir_problem to name the reason.
+std::string claim_new_dir(const std::string& parent, const std::string& stem);
 // "INCOMPLETE: ..." when a target was lost or the run was interrupted, else
 // empty: the first line of every report (terminal, HTML, JUnit comment, JSON
 // "incomplete").

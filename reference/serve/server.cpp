@@ -347,7 +347,8 @@ struct Server::Impl {
       if (!max_links || room < max_links) max_links = room;
     }
     if (tls_door) tls_door->start();  // its thread inherits the blocked stop signals
-    for (const auto& line : listening) std::fputs((line + "\n").c_str(), stdout);
+    if (!opt.quiet)
+      for (const auto& line : listening) std::fputs((line + "\n").c_str(), stdout);
     std::fflush(stdout);
   }
 

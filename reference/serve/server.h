@@ -63,6 +63,7 @@ struct Options {
   // V1.0b §4.2.1.2).
   size_t max_connections = 4096;
   TlsOptions tls;  // for Transport::tls endpoints
+  bool quiet = false;  // `serve -q`: no "listening" lines (errors still go to stderr)
 };
 
 class Server {

@@ -14,6 +14,7 @@
 
 #include "capture/check.h"
 #include "commands.h"
+#include "conventions.h"
 #include "loader.h"
 #include "map/map.h"
 #include "options.h"
@@ -26,7 +27,7 @@ struct CaptureArgs {
   std::string file, device, spec_file, map, map_file, out;
   std::vector<uint16_t> ports;
   std::optional<int> unit, baud;
-  bool junit_only = false;
+  bool junit_only = false, quiet = false;
 };
 
 int check_capture(const CaptureArgs& a) {
@@ -53,7 +54,7 @@ int check_capture(const CaptureArgs& a) {
     fmt::print(stderr, "{}: error: {}: no such file\n", me, a.file);
     return kExitUsage;
   }
-  const std::string out = a.out.empty() ? "reports/runs/" + utc_now("%Y%m%dT%H%M%SZ") : a.out;
+  const std::string out = a.out.empty() ? default_out_dir("check-capture") : a.out;
   if (!conf::out_dir_ok(out, me)) return kExitUsage;
 
   conf::capture::Options o;
@@ -66,7 +67,7 @@ int check_capture(const CaptureArgs& a) {
   conf::RunReport report;
   report.command = "check-capture";
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
-  report.version = "mbconform 0.1";
+  report.version = kVersionLine;
   report.devices.push_back(r.run);
   try {
     conf::write_reports(report, out, a.junit_only);
@@ -75,7 +76,7 @@ int check_capture(const CaptureArgs& a) {
     fmt::print(stderr, "{}: error: {}\n", me, e.what());
     return kExitUsage;
   }
-  fmt::print("{}", conf::summary_table(report));
+  if (!a.quiet) fmt::print("{}", conf::summary_table(report));
   fmt::print("reports: {}\n", out);
   if (!r.stats.error.empty()) {
     fmt::print(stderr, "{}: error: {}: {}\n", me, a.file, r.stats.error);
@@ -97,8 +98,9 @@ void add_capture_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--port", a->ports, "another server port carrying Modbus TCP or RTU over TCP (502 always); repeatable");
   cmd->add_option("--unit", a->unit, "judge only this unit id (slave address); every unit is counted in coverage")->check(CLI::Range(0, 255));
   cmd->add_option("--baud", a->baud, "serial logs: the line rate for t1.5 and t3.5 (default: the spec's)")->check(CLI::Range(300, 4000000));
-  cmd->add_option("--out", a->out, "report directory (default reports/runs/<UTC date-time>/)");
+  cmd->add_option("--out", a->out, "report directory (default reports/check-capture/<UTC date-time>/)");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
+  cmd->add_flag("-q,--quiet", a->quiet, "no summary table: only the reports' directory and errors");
   cmd->callback([a, &exit_code] { exit_code = check_capture(*a); });
 }
 

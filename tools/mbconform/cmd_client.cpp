@@ -103,8 +103,9 @@ int run(const ClientArgs& a) {
   conf::quirks::Quirks quirks;
   if (!a.quirks.empty()) {
     try {
-      check_readable(a.quirks, kMaxQuirksBytes, "--quirks");
-      quirks = conf::quirks::load(a.quirks);
+      std::string file = conf::quirks::find(a.quirks);  // a path, or a declared library's name
+      check_readable(file, kMaxQuirksBytes, "--quirks");
+      quirks = conf::quirks::load(file);
     } catch (const std::exception& e) {
       fmt::print(stderr, "{}\n", e.what());
       return kExitUsage;
@@ -125,7 +126,7 @@ int run(const ClientArgs& a) {
   conf::RunReport report;
   report.command = "client";
   report.started_at = stamp("%Y-%m-%dT%H:%M:%SZ");
-  report.version = "mbconform 0.1";
+  report.version = kVersionLine;
   report.fail_on_should = a.fail_on_should;
   client::ClientRun cr = client::run_client(o, list);
   progress.clear();
@@ -178,7 +179,7 @@ void add_client_command(CLI::App& app, int& exit_code) {
   cmd->add_flag("--list", a->list, "print the scenarios (id, level, clause, title) and exit");
   cmd->add_flag("--plan", a->plan, "print every request expected and every answer the server gives, without running");
   cmd->add_option("--out", a->out, "report directory (default reports/client/<UTC date-time>/)");
-  cmd->add_option("--quirks", a->quirks, "a quirks file, a YAML list of {case: ID-or-glob, reason} (conformance/README.md): known deviations, reported apart");
+  cmd->add_option("--quirks", a->quirks, "FILE|NAME: a quirks file, a YAML list of {case: ID-or-glob, reason} (conformance/README.md), or the name of a library's declared deviations (libmodbus-tcp): known deviations, reported apart");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
   add_fail_on_option(cmd, a->fail_on_should);
   cmd->add_flag("-q,--quiet", a->quiet, "no progress and no failure printed as it comes (the summary and the reports stay)");

@@ -70,7 +70,6 @@ fs::path save(const fs::path& dir, const conf::blackbox::Plan& plan, const conf:
 int run_fuzz(FuzzArgs& a) {
   const std::string uri = a.t.targets.front();
   if (!a.replay.empty()) return replay_file(a.replay, uri, a.t, "fuzz");
-  if (a.t.out.empty()) a.t.out = default_out_dir("fuzz");
   auto duration = parse_duration(a.duration);
   if (duration && (*duration < kMinDuration || *duration > kMaxDuration)) duration.reset();
   if (!duration) {
@@ -78,6 +77,7 @@ int run_fuzz(FuzzArgs& a) {
                a.duration, kMinDuration.count(), kMaxDuration.count() / 24);
     return kExitUsage;
   }
+  if (a.t.out.empty()) a.t.out = default_out_dir("fuzz");
   if (!conf::out_dir_ok(a.t.out, "mbconform fuzz")) return kExitUsage;
   conf::install_stop_signals();
   Opened opened;
@@ -87,8 +87,9 @@ int run_fuzz(FuzzArgs& a) {
   conf::Progress progress(fmt::format("fuzz {}", uri), a.t.progress, a.quiet);
   try {
     if (!a.quirks_file.empty()) {
-      check_readable(a.quirks_file, kMaxQuirksBytes, "--quirks");
-      quirks = conf::quirks::load(a.quirks_file);
+      std::string file = conf::quirks::find(a.quirks_file);  // a path, or a declared library's name
+      check_readable(file, kMaxQuirksBytes, "--quirks");
+      quirks = conf::quirks::load(file);
     }
     auto named = named_spec(a.t);
     // Every frame goes through the session: its gate, its journal (in --out), its restore.
@@ -194,7 +195,7 @@ void add_fuzz_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--batch", args->batch, "Frames between two liveness probes (default 50)")->check(CLI::Range(1, 100000));
   cmd->add_option("--pipeline", args->pipeline, "Modbus TCP: requests out at once, paired by transaction id (default 16; "
                   "1: one exchange at a time)")->check(CLI::Range(1, 256));
-  cmd->add_option("--quirks", args->quirks_file, "a quirks file (conformance/README.md): findings of the kinds it declares "
+  cmd->add_option("--quirks", args->quirks_file, "FILE|NAME: a quirks file (conformance/README.md) or a declared library's name (jsmodbus): findings of the kinds it declares "
                   "('kind: KIND' or 'KIND fcNN', globs) are left aside");
   cmd->add_flag("-q,--quiet", args->quiet, "no progress on stderr");
   cmd->add_option("--replay", args->replay, "Replay a reproducer FILE instead of fuzzing (as mbconform replay)");

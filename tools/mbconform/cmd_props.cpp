@@ -65,7 +65,7 @@ int replay_files(const PropsArgs& a) {
     try {
       auto named = named_spec(a.t);
       if (!named) named = spec::load_spec_by_id(r.device_id);
-      std::string out = a.t.out.empty() ? "reports/runs/props-" + utc_now("%Y%m%dT%H%M%SZ") : a.t.out;
+      std::string out = a.t.out.empty() ? default_out_dir("props") : a.t.out;
       auto opened = open_session(named, uri, session_options(a.t, "props", out));
       const spec::Spec& s = *opened.spec;
       conf::Target& target = opened.session->target();
@@ -142,7 +142,7 @@ int run(PropsArgs& a) {
   conf::RunReport report;
   report.command = "props";
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
-  report.version = "mbconform 0.1";
+  report.version = kVersionLine;
   std::string out = a.t.out.empty() ? default_out_dir("props") : a.t.out;
   if (!conf::out_dir_ok(out, "mbconform props")) return kExitUsage;
   conf::install_stop_signals();

@@ -14,6 +14,7 @@
 #include <fmt/core.h>
 
 #include "commands.h"
+#include "conventions.h"
 #include "loader.h"
 #include "options.h"
 #include "check/text.h"
@@ -61,9 +62,9 @@ int replay_file(const std::string& file, const std::string& uri_in, const Target
     named = named_spec(o);
     // The spec says what may be written; a script names its device.
     if (!named && !sc.device.empty() && uri.rfind("ref:", 0) != 0) named = spec::load_spec_by_id(sc.device);
-    std::string out = o.out.empty() ? "reports/runs/replay-" + utc_now("%Y%m%dT%H%M%SZ") : o.out;
     conf::Uri u = conf::parse_uri(uri);
     bool live = u.scheme != "ref" && u.scheme != "plugin";
+    std::string out = !o.out.empty() ? o.out : live ? default_out_dir("replay") : std::string();
     if (live && !conf::out_dir_ok(out, ("mbconform " + std::string(command)).c_str())) return kExitUsage;
     conf::install_stop_signals();
     opened = open_session(named, uri, session_options(o, command, live ? out : ""), true);
@@ -139,7 +140,7 @@ void add_replay_command(CLI::App& app, int& exit_code) {
                                         "target URI (default: ref: of the script's device)");
   cmd->add_option("--device", o->device, "ID: the spec of the target (default: the script's device)");
   cmd->add_option("--spec", o->spec_file, "FILE: a spec file describing the target");
-  cmd->add_option("--out", o->out, "DIR: the journal of a live target (default reports/runs/replay-<UTC date-time>/)");
+  cmd->add_option("--out", o->out, "DIR: the journal of a live target (default reports/replay/<UTC date-time>/)");
   add_opt_ins(*cmd, *o);
   cmd->add_flag("--no-preflight", o->no_preflight, "live targets: skip the read-only check that the drive looks like the spec");
   cmd->add_flag("--progress", o->progress, "progress on stderr (cases done of the script's, rate, ETA) even when it is not a terminal");

@@ -2,7 +2,7 @@
 // (conformance/session/journal.h) after a crash, a SIGKILL or a second
 // SIGINT, then verifies what it restored.
 //
-//   mbconform restore reports/runs/20261201T120000Z/journal.txt [--target URI] [--device ID | --spec FILE] [--force-identity]
+//   mbconform restore reports/run/20261201T120000Z/journal.txt [--target URI] [--device ID | --spec FILE] [--force-identity]
 //
 // The target is the journal's (as the command opened it) unless --target
 // names another way to reach the same drive; the spec is the journal's
@@ -28,6 +28,7 @@ namespace {
 struct RestoreArgs {
   std::string journal, target, device, spec_file;
   bool force_identity = false;
+  bool quiet = false;
 };
 
 int run_restore(const RestoreArgs& a) {
@@ -67,13 +68,16 @@ int run_restore(const RestoreArgs& a) {
     }
     fmt::print(stderr, "mbconform restore: warning: {} (--force-identity: restoring anyway)\n", why);
   }
-  fmt::print("restoring {} address(es) of {} on {} from {}\n", c.originals.size() + c.commands.size(), s.device.id,
-             target->info().uri, a.journal);
+  if (!a.quiet)
+    fmt::print("restoring {} address(es) of {} on {} from {}\n", c.originals.size() + c.commands.size(), s.device.id,
+               target->info().uri, a.journal);
   std::fflush(stdout);
   conf::RestoreReport r = conf::restore_journal(*target, s, c, record);
   for (const auto& f : r.not_restored) fmt::print("NOT RESTORED: {}\n", f);
-  for (const auto& u : r.unread) fmt::print("note: {}\n", u);
-  for (const auto& n : r.notes) fmt::print("note: {}\n", n);
+  if (!a.quiet) {
+    for (const auto& u : r.unread) fmt::print("note: {}\n", u);
+    for (const auto& n : r.notes) fmt::print("note: {}\n", n);
+  }
   fmt::print("{} kept, {} written back, {} verified, {} not restored{}\n", r.kept, r.restored, r.verified, r.not_restored.size(),
              r.gave_up ? " (the target did not answer)" : "");
   if (r.gave_up && r.verified == 0 && r.kept > 0) return kExitUsage;
@@ -91,6 +95,7 @@ void add_restore_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--spec", a->spec_file, "FILE: a spec file for the drive")->excludes(cmd->get_option("--device"));
   cmd->add_flag("--force-identity", a->force_identity,
                 "restore although the journal's device, unit, spec file or the drive's identity differ from the target's");
+  cmd->add_flag("-q,--quiet", a->quiet, "print only what was not restored and the counts");
   cmd->callback([a, &exit_code] { exit_code = run_restore(*a); });
 }
 

@@ -116,8 +116,9 @@ int run(RunArgs& a) {
   conf::quirks::Quirks quirks;
   if (!a.quirks_file.empty()) {
     try {
-      check_readable(a.quirks_file, kMaxQuirksBytes, "--quirks");
-      quirks = conf::quirks::load(a.quirks_file);
+      std::string file = conf::quirks::find(a.quirks_file);  // a path, or a declared library's name
+      check_readable(file, kMaxQuirksBytes, "--quirks");
+      quirks = conf::quirks::load(file);
     } catch (const std::exception& e) {
       fmt::print(stderr, "{}\n", e.what());
       return kExitUsage;
@@ -159,7 +160,7 @@ int run(RunArgs& a) {
   std::vector<std::string> quirks_gone;  // declared quirks whose cases ran and passed (in the notes too)
   report.command = "run";
   report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
-  report.version = "mbconform 0.1";
+  report.version = kVersionLine;
   report.fail_on_should = a.fail_on_should;
 
   conf::install_stop_signals();
@@ -179,7 +180,7 @@ int run(RunArgs& a) {
   };
   bool dry = a.list || a.plan;
   bool tty = isatty(STDOUT_FILENO) && !a.quiet;
-  const std::string out = a.t.out.empty() ? default_out_dir("run") : a.t.out;
+  const std::string out = !a.t.out.empty() ? a.t.out : dry ? std::string() : default_out_dir("run");
   if (!dry && !conf::out_dir_ok(out, "mbconform run")) return kExitUsage;
   if (!dry && !a.summary_dir.empty()) {
     if (std::string why = conf::out_dir_problem(a.summary_dir); !why.empty()) {
@@ -390,8 +391,8 @@ void add_run_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--map-budget", a->map_budget, "the most requests --map auto sends (default 2000)")->check(CLI::Range(1, 1000000));
   add_map_time_option(cmd, a->map_time);
   add_fail_on_option(cmd, a->fail_on_should);
-  cmd->add_option("--quirks", a->quirks_file, "a quirks file: known deviations (case ids or globs, with reasons) "
-                  "reported apart, not failed (conformance/README.md, Quirks files)");
+  cmd->add_option("--quirks", a->quirks_file, "FILE|NAME: a quirks file, or a declared library's name (jsmodbus): known deviations (case ids or globs, with "
+                  "reasons) reported apart, not failed (conformance/README.md, Quirks files)");
   cmd->add_option("--deadline", a->deadline, "the whole run's time (e.g. 10m): then the run stops between cases, restores, "
                   "and names the cases not run (report INCOMPLETE, exit 2)");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");

@@ -19,7 +19,7 @@ struct ServeArgs {
   std::optional<int> baud, line_rate;
   std::string line;  // --line 19200-8E1
   bool echo = false;
-  bool trace = false;
+  bool trace = false, quiet = false;
   std::string pcap;
   std::vector<std::string> faults;  // --fault NAME[,NAME], repeatable
   bool list_faults = false;
@@ -38,6 +38,7 @@ serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_
   if (o.endpoints.empty()) throw CLI::ValidationError("serve", "give at least one of --tcp, --rtu-tcp, --pty, --tls");
   o.eeprom_dir = a.eeprom_dir;
   o.trace = a.trace;
+  o.quiet = a.quiet;
   o.pcap = a.pcap;
   o.echo = a.echo;
   o.line_rate = a.line_rate;
@@ -123,6 +124,7 @@ void add_serve_command(CLI::App& app, int& exit_code) {
                   "N: TCP connections at once; at the cap the one unused the longest is closed")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000000));
+  cmd->add_flag("-q,--quiet", a.quiet, "print no `listening` lines (use fixed ports); errors still go to stderr");
   cmd->add_flag("--list-faults", a.list_faults, "print the faults --fault takes, one per line, and exit");
   cmd->callback([&exit_code, cmd, tcp, rtu_tcp, pty, tls] {
     if (a.list_faults) {

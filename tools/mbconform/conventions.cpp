@@ -8,13 +8,15 @@
 #include <cstdio>
 #include <ctime>
 
+#include "report/report.h"
+
 namespace mbc::cli {
 
 std::string default_out_dir(const std::string& command) {
   std::time_t now = std::time(nullptr);
   std::tm utc{};
   gmtime_r(&now, &utc);
-  return fmt::format("reports/{}/{:%Y%m%dT%H%M%SZ}", command, utc);
+  return conf::claim_new_dir("reports/" + command, fmt::format("{:%Y%m%dT%H%M%SZ}", utc));
 }
 
 std::optional<std::chrono::milliseconds> parse_duration_text(const std::string& text) {
@@ -116,11 +118,19 @@ std::string path_of(const CLI::App* app) {
 }  // namespace
 
 void add_conventions(CLI::App& app, int& exit_code) {
-  app.set_version_flag("--version", std::string("mbconform ") + MBCONFORM_VERSION);
+  app.set_version_flag("--version", kVersionLine);
   auto* help = app.add_subcommand("help", "Print the help of a command (mbconform help run; mbconform help spec import)");
   static std::vector<std::string> topic;
+  static bool man = false;
   help->add_option("command", topic, "the command (and subcommand)");
+  help->add_flag("--man", man, "print the man page instead (roff; read it with: mbconform help --man | man -l -)");
+  add_completion_command(app, exit_code);
   help->callback([&app, &exit_code] {
+    if (man) {
+      std::fputs(man_page(app).c_str(), stdout);
+      exit_code = 0;
+      return;
+    }
     CLI::App* at = &app;
     for (const auto& word : topic) {
       CLI::App* next = nullptr;
@@ -135,7 +145,9 @@ void add_conventions(CLI::App& app, int& exit_code) {
       }
       at = next;
     }
-    std::string text = at->help();
+    // The formatter itself: App::help() would show `help`'s own help (the
+    // command running now); the usage line names the whole path.
+    std::string text = at->get_formatter()->make_help(at, path_of(at), CLI::AppFormatMode::Normal);
     if (!text.empty() && text.back() != '\n') text += '\n';
     std::printf("%s", text.c_str());
     exit_code = 0;
@@ -170,7 +182,7 @@ std::optional<int> check_args(CLI::App& app, std::vector<std::string>& args) {
       // An option's value is not a command: skip it when the option takes one.
       const CLI::Option* opt = nullptr;
       for (const CLI::App* a = at; a && !opt; a = a->get_parent()) opt = a->get_option_no_throw(name);
-      if (opt && opt->get_type_size() != 0 && w.find('=') == std::string::npos) ++i;
+      if (opt && opt->get_expected_max() != 0 && w.find('=') == std::string::npos) ++i;
       continue;
     }
     if (positional_seen) continue;

@@ -1,7 +1,8 @@
-// The command line's shared conventions, one place for each: the default
-// output root (reports/<command>/<UTC time>/), the --map-time option, the
-// exit codes every --help prints, and "did you mean" for a mistyped
-// subcommand or option.
+// The command line's shared conventions, one place for each: the version,
+// the default output root (reports/<command>/<UTC time>/), the --map-time
+// option, the exit codes every --help prints, usage lines that name the
+// program, "did you mean" for a mistyped subcommand or option, and the man
+// page and shell completion generated from the commands' own definitions.
 #pragma once
 
 #include <CLI/CLI.hpp>
@@ -14,8 +15,16 @@
 
 namespace mbc::cli {
 
-// reports/<command>/<UTC date-time>/ (e.g. reports/run/20261201T230501Z):
-// where a command writes when no --out is given.
+// The version, one source: CMake's project(VERSION) (tools/CMakeLists.txt
+// passes it as MBCONFORM_VERSION). `mbconform --version` prints kVersionLine,
+// and every report.json carries it.
+inline constexpr const char* kVersion = MBCONFORM_VERSION;
+inline constexpr const char* kVersionLine = "mbconform " MBCONFORM_VERSION;
+
+// reports/<command>/<UTC date-time>/ (e.g. reports/run/20261201T230501Z),
+// created here and new: a second run started in the same second gets
+// reports/run/20261201T230501Z-2 (conf::claim_new_dir). Where a command
+// writes when no --out is given; call it only when the command will write.
 std::string default_out_dir(const std::string& command);
 
 // "500ms", "20s", "2m", "1h" (a bare number is seconds); nullopt when not a duration.
@@ -33,8 +42,17 @@ bool run_failed(const conf::RunReport& report);
 const char* exit_codes_footer();
 
 // After every command is added: the exit codes at the end of every --help,
-// `--version`, `help [COMMAND...]`.
+// `--version`, `help [COMMAND...]` (and `help --man`, the man page),
+// `completion bash`.
 void add_conventions(CLI::App& app, int& exit_code);
+
+// The man page (roff), written from the commands' definitions: every command
+// shown, its usage line, arguments and options (manual.cpp).
+std::string man_page(const CLI::App& app);
+// A bash completion script for every command and option of `app`.
+std::string bash_completion(const CLI::App& app);
+// `completion bash`: prints bash_completion(app).
+void add_completion_command(CLI::App& app, int& exit_code);
 
 // Before parsing: a mistyped command or option is one line with the nearest
 // known one ("did you mean"), and -q means --quiet where a command has it.

@@ -6,7 +6,8 @@
 #include "conventions.h"
 
 int main(int argc, char** argv) {
-  CLI::App app{"mbconform: Modbus conformance and fuzz test suite for motor drives"};
+  // Named, so that every usage line names the program ("Usage: mbconform run [OPTIONS]").
+  CLI::App app{"mbconform: Modbus conformance and fuzz test suite for motor drives", "mbconform"};
   app.require_subcommand(1);
   int exit_code = mbc::cli::kExitOk;
   mbc::cli::add_spec_commands(app, exit_code);

@@ -13,7 +13,7 @@ namespace mbc::cli {
 
 void add_target_options(CLI::App& cmd, TargetOptions& o, bool many, const std::string& out_help) {
   const std::string kinds = "ref:ID[?fault=NAME] | tcp://HOST:PORT?unit=N | rtu-tcp://HOST:PORT?unit=N | "
-                            "rtu:///dev/tty?baud=B&unit=N | plugin:PATH.so";
+                            "rtu:///dev/tty?baud=B&unit=N | mbtls://HOST[:802]?cert=FILE&key=FILE&ca=FILE | plugin:PATH.so";
   if (many) {
     cmd.add_option("--target", o.targets, kinds + " (repeatable; default: every reference device)");
   } else {
