@@ -297,6 +297,7 @@ std::vector<Case> examples_cases(const GenContext& g) {
       // answers is recorded, not judged.
       c.level = Level::observed;
       c.requirement += " [" + b.note + "reply recorded]";
+      c.incomparable = b.note.substr(0, b.note.size() - 2);
     } else if (!b.note.empty()) {
       c.requirement += " [" + b.note.substr(0, b.note.size() - 2) + "]";
     }

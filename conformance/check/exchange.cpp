@@ -2,6 +2,7 @@
 
 #include <fmt/core.h>
 
+#include <algorithm>
 #include <chrono>
 #include <thread>
 
@@ -84,6 +85,24 @@ namespace {
 
 std::string hex_or_silence(const std::optional<Bytes>& b) { return b ? to_hex(*b) : "silence"; }
 
+// Whether a Modbus TCP gateway is in front of the device: tcp://...?gateway=1,
+// or a gateway the target recognised by its exception 0A/0B (tcp_target.cpp
+// adds "gateway=1" to the URI then).
+bool behind_gateway(const TargetInfo& i) {
+  return i.framing == &mbc::kTcp && i.uri.find("gateway=1") != std::string::npos;
+}
+
+// A gateway's own exception (0A path unavailable, 0B target device failed to
+// respond; MBAP v1.1b3 §7) to the step's request, where the step lets the
+// device stay silent.
+bool gateway_exception(const Step& st, const Bytes& pdu, uint8_t unit) {
+  bool may_be_silent = st.expect.kind == Expect::Kind::silence || st.expect.kind == Expect::Kind::any_or_silence;
+  for (const auto& e : st.expect.either) may_be_silent |= e.kind == Expect::Kind::silence;
+  auto req = request_pdu(st, unit);
+  return may_be_silent && pdu.size() == 2 && (pdu[0] & 0x80) && (pdu[1] == 0x0A || pdu[1] == 0x0B) &&
+         (!req || req->empty() || (pdu[0] & 0x7F) == (*req)[0]);
+}
+
 bool has_fc(const spec::Spec& s, int fc) { return s.profile.function(fc) != nullptr; }
 
 struct Saved {
@@ -155,9 +174,12 @@ std::string observed_summary(const CaseResult& r) {
   return s.empty() ? "documented in the spec: " + r.title : s;
 }
 
+// A skipped case; `opt_in` the flag that would let it run (a refusal names
+// it; a generator's reason says "needs --flag").
 CaseResult& skipped(CaseResult& r, const std::string& why) {
   r.outcome = Outcome::skip;
   r.message = why;
+  r.opt_in = opt_in_named(why);
   return r;
 }
 
@@ -232,6 +254,14 @@ CaseResult run_case(Exchange& x, const spec::Spec& spec, const Case& c) {
       fr.expected_decoded = describe_pdu(adu ? rtu_unframe(e).pdu : e, false);
     }
     auto miss = judge_expect(st.expect, st, reply, ctx);
+    if (miss && behind_gateway(info) && reply.pdu && gateway_exception(st, *reply.pdu, info.unit)) {
+      // Where the device stays silent (or may), the gateway in front of it
+      // answers 0A/0B itself (MBAP v1.1b3 §7): the device's silence, said by
+      // the gateway.
+      miss.reset();
+      res.extra["gateway"].push_back(fmt::format("{}: the gateway answered {} for the device, which stayed silent "
+                                                 "(MBAP v1.1b3 §7: 0A/0B are a gateway's own)", st.note, to_hex(*reply.pdu)));
+    }
     if (!st.expect.either.empty()) {
       // Printed two ways: the step passes on any reading; record which one.
       std::string chosen = judge_reading(st, reply, ctx);
@@ -241,15 +271,28 @@ CaseResult run_case(Exchange& x, const spec::Spec& spec, const Case& c) {
     replies.push_back(reply.pdu);
     if (miss) {
       if (st.setup) setup_failed = true;
+      if (!res.cause) res.cause = Cause{miss->kind, miss->due, miss->did, req && !req->empty() ? std::optional<uint8_t>((*req)[0]) : std::nullopt};
       std::string got = reply.silent() && reply.closed ? "nothing" : hex_or_silence(fr.actual);
       failures.push_back(fmt::format("{}{}: expected {}; got {}: {}", st.setup ? "setup: " : "", st.note, fr.expected_text, got, miss->why));
     }
     res.frames.push_back(std::move(fr));
   }
+  if (res.extra.contains("gateway")) {
+    std::string note = fmt::format("a gateway is in front of the device ({}): where the device stays silent, its exception 0A/0B "
+                                   "is accepted as the gateway's own answer (MBAP v1.1b3 §7), and a silence is waited for "
+                                   "as long as the gateway takes to give up",
+                                   x.counters().target_uri.find("gateway=1") != std::string::npos ? "gateway=1"
+                                                                                                   : "detected from a 0A/0B reply");
+    auto& notes = x.counters().notes;
+    if (std::find(notes.begin(), notes.end(), note) == notes.end()) notes.push_back(note);
+  }
   restore(x, spec, saved);
   res.duration_ms = std::chrono::duration<double, std::milli>(clock_type::now() - t0).count();
-  if (refused)
-    return skipped(res, fmt::format("not sent: {}{}", refused->reason, refused->opt_in.empty() ? "" : " (" + refused->opt_in + ")"));
+  if (refused) {
+    skipped(res, fmt::format("not sent: {}{}", refused->reason, refused->opt_in.empty() ? "" : " (" + refused->opt_in + ")"));
+    res.opt_in = refused->opt_in;  // the gate's own word, not read from its sentence
+    return res;
+  }
   if (c.functions_optional && !failures.empty())
     if (auto fc = not_implemented(c, replies, info.unit))
       return skipped(res, fmt::format("the server does not implement FC {:02} (exception 01); every function is optional "
@@ -261,7 +304,15 @@ CaseResult run_case(Exchange& x, const spec::Spec& spec, const Case& c) {
     res.outcome = c.level == Level::observed ? Outcome::observed : Outcome::fail;
     res.message = failures.front();
     if (failures.size() > 1) res.message += fmt::format(" (+{} more)", failures.size() - 1);
-    if (c.level == Level::observed) res.message = "differs from the expectation: " + res.message;
+    if (c.level == Level::observed && !c.incomparable.empty()) {
+      // The device's own data against the values the source prints for a
+      // state the bus cannot set: no comparison can be made.
+      res.message = fmt::format("not comparable: {}; the device answered: {}", c.incomparable, observed_summary(res));
+      res.extra["not_comparable"] = c.incomparable;
+      res.cause.reset();
+    } else if (c.level == Level::observed) {
+      res.message = "differs from the expectation: " + res.message;
+    }
     if (setup_failed && c.level != Level::observed) res.message = "could not establish the state: " + res.message;
   }
   return res;
