@@ -296,6 +296,10 @@ std::vector<Case> examples_cases(const GenContext& g) {
       // answers is recorded, not judged.
       c.level = Level::observed;
       c.requirement += " [" + b.note + "reply recorded]";
+      c.incomparable = b.note.substr(0, b.note.size() - 2);
+      if (size_t n = size_t(std::count(b.note.begin(), b.note.end(), ';')); n > 2)
+        c.incomparable = fmt::format("the given state ({} values, {}) cannot be set through the bus", n,
+                                     b.note.substr(0, b.note.find(" cannot")));
     } else if (!b.note.empty()) {
       c.requirement += " [" + b.note.substr(0, b.note.size() - 2) + "]";
     }

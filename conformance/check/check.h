@@ -127,6 +127,11 @@ struct Case {
   // implement that function, and the case does not apply (skip), rather than
   // fails.
   bool functions_optional = false;
+  // Set when the state the case starts from cannot be established through
+  // the bus (a printed example whose given input registers or status the
+  // bus cannot set): why. Its reply is recorded; one that differs from the
+  // printed one is "not comparable" (with this reason), never "differs".
+  std::string incomparable{};
   int line = 0;             // where its `case` line was read (0: generated)
 };
 

@@ -2,6 +2,8 @@
 
 #include <fmt/core.h>
 
+#include <cctype>
+
 #include "modbus/crc16.h"
 #include "modbus/judge.h"
 #include "modbus/limits.h"
@@ -71,7 +73,52 @@ bool reply_is_targets(uint8_t to, std::span<const uint8_t> reply, const JudgeCon
   return told && reply[0] == ctx.unit;
 }
 
+std::string due_words(const Expect& e) {
+  switch (e.kind) {
+    case Expect::Kind::none: return "anything";
+    case Expect::Kind::reply:
+      return !e.pdu.empty() && (e.pdu[0] & 0x80) && e.pdu.size() == 2 ? fmt::format("exception {:02X}", e.pdu[1])
+                                                                       : "the stated reply";
+    case Expect::Kind::exception: return fmt::format("exception {:02X}", e.code);
+    case Expect::Kind::silence: return "silence";
+    case Expect::Kind::normal: return "a normal reply";
+    case Expect::Kind::registers: return "the stated value";
+    case Expect::Kind::same: return "the value unchanged";
+    case Expect::Kind::answered: return "a reply to the request's function";
+    case Expect::Kind::any: return "a well-formed reply";
+    case Expect::Kind::any_or_silence: return "a well-formed reply or silence";
+  }
+  return "";
+}
+
 namespace {
+
+// The digits of a sentence taken out ("byte count 4, expected 2" ->
+// "byte count #, expected #"): a problem at every address is one cause.
+std::string without_numbers(const std::string& s) {
+  std::string out;
+  bool in_number = false;
+  for (size_t i = 0; i < s.size(); ++i) {
+    char c = s[i];
+    bool hexish = std::isxdigit(static_cast<unsigned char>(c)) && in_number;
+    if (std::isdigit(static_cast<unsigned char>(c)) || hexish ||
+        (c == 'x' && in_number && i > 0 && s[i - 1] == '0')) {
+      if (!in_number) out += '#';
+      in_number = true;
+      continue;
+    }
+    in_number = false;
+    out += c;
+  }
+  return out;
+}
+
+// What a reply was, in cause words: "exception 02", "a normal reply".
+std::string did_words(const Bytes& pdu) {
+  if (!pdu.empty() && (pdu[0] & 0x80) && pdu.size() == 2) return fmt::format("exception {:02X}", pdu[1]);
+  if (!pdu.empty() && (pdu[0] & 0x80)) return fmt::format("an exception reply of {} bytes", pdu.size());
+  return "a normal reply";
+}
 
 // MBAP v1.1b3 §7: an exception reply is the function code with its high bit
 // set and one exception code.
@@ -83,7 +130,9 @@ std::string exception_shape(const Bytes& pdu) {
 
 }  // namespace
 
-std::optional<Mismatch> judge_expect(const Expect& e, const Step& s, const Reply& r, const JudgeContext& ctx) {
+namespace {
+
+std::optional<Mismatch> judge_core(const Expect& e, const Step& s, const Reply& r, const JudgeContext& ctx) {
   using K = Expect::Kind;
   using M = Mismatch::Kind;
   if (e.kind == K::none) return std::nullopt;
@@ -171,6 +220,37 @@ std::optional<Mismatch> judge_expect(const Expect& e, const Step& s, const Reply
     }
     default: return std::nullopt;
   }
+}
+
+}  // namespace
+
+std::optional<Mismatch> judge_expect(const Expect& e, const Step& s, const Reply& r, const JudgeContext& ctx) {
+  auto m = judge_core(e, s, r, ctx);
+  if (!m) return m;
+  // What was due and what the device did, in words free of values.
+  if (m->due.empty()) m->due = due_words(e);
+  if (m->did.empty()) {
+    const Bytes empty;
+    const Bytes& pdu = r.pdu ? *r.pdu : empty;
+    switch (m->kind) {
+      case Mismatch::Kind::answered: m->did = "a reply"; break;
+      case Mismatch::Kind::silent: m->did = r.closed ? "a closed connection" : "silence"; break;
+      case Mismatch::Kind::malformed_framing: m->did = "an unusable frame"; break;
+      case Mismatch::Kind::malformed_reply: m->did = "a malformed reply (" + without_numbers(m->why) + ")"; break;
+      case Mismatch::Kind::unknown_exception:
+      case Mismatch::Kind::refused: m->did = did_words(pdu); break;
+      case Mismatch::Kind::different:
+        if (e.kind == Expect::Kind::registers || e.kind == Expect::Kind::same) m->did = "another value";
+        else if (!pdu.empty() && (pdu[0] & 0x80)) m->did = did_words(pdu);
+        else if (e.kind == Expect::Kind::reply && pdu.size() != e.pdu.size())
+          m->did = fmt::format("a reply {} bytes {}", pdu.size() > e.pdu.size() ? pdu.size() - e.pdu.size() : e.pdu.size() - pdu.size(),
+                               pdu.size() > e.pdu.size() ? "longer" : "shorter");
+        else if (e.kind == Expect::Kind::reply && r.pdu && *r.pdu == e.pdu) m->did = "another frame around the stated reply";
+        else m->did = "another reply of the stated length";
+        break;
+    }
+  }
+  return m;
 }
 
 std::optional<Mismatch> judge(const Step& s, const Reply& r, const JudgeContext& ctx) {

@@ -12,18 +12,16 @@
 
 namespace mbc::conf::check {
 
-// How an exchange departed from its expectation.
+// How an exchange departed from its expectation: its kind (one enum from
+// here to every report: report/result.h's MismatchKind), why in full, and
+// what the device did against what was due in words free of addresses and
+// values (report/result.h's Cause groups failures by them).
 struct Mismatch {
-  enum class Kind {
-    answered,          // a reply where silence was expected
-    malformed_framing, // a reply whose framing is wrong (CRC, unit, transaction)
-    silent,            // silence (or a closed connection) where a reply was expected
-    malformed_reply,   // the reply PDU breaks MBAP v1.1b3 for the request
-    unknown_exception, // an exception code neither the standard nor the spec knows
-    refused,           // an exception where a normal reply was expected
-    different,         // a well-formed reply other than the expected one
-  } kind;
+  using Kind = MismatchKind;
+  Kind kind;
   std::string why;
+  std::string due{};  // "exception 01", "silence", "a normal reply", "the stated value"
+  std::string did{};  // "exception 02", "a reply", "another value"
 };
 
 // What the judge needs beyond the step and the reply.
@@ -68,6 +66,9 @@ bool reply_is_targets(uint8_t to, std::span<const uint8_t> reply, const JudgeCon
 
 // The expectation in words ("exception 03", "exactly 03 02 00 01", ...).
 std::string describe(const Expect&);
+// What an expectation makes due, free of addresses and values ("exception
+// 03", "the stated reply", "silence"): the `due` of a Mismatch.
+std::string due_words(const Expect&);
 
 // The reply an expectation fixes, framed as it comes back from a target of
 // `framing` (RTU for frame steps on RTU targets; else the PDU), for reports;

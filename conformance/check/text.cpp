@@ -202,6 +202,7 @@ std::vector<std::string> case_lines(const Case& c, Framing framing) {
   if (!c.title.empty()) out.push_back("title " + c.title);
   for (auto [a, n] : c.touches) out.push_back(fmt::format("touches 0x{:04X} {}", a, n));
   if (c.functions_optional) out.push_back("functions-optional");
+  if (!c.incomparable.empty()) out.push_back("incomparable " + c.incomparable);
   if (!c.skip_reason.empty()) out.push_back("skip " + c.skip_reason);
   for (const auto& st : c.steps) out.push_back((c.skip_reason.empty() ? "" : "# ") + line(st, framing));
   return out;
@@ -240,7 +241,8 @@ Script parse(const std::string& text, const std::string& file) {
     }
     // Lines whose text runs to the end of the line ('#' included).
     if (auto lw = words_of(raw_line); !lw.empty() && v2 &&
-                                      (lw[0].text == "case" || lw[0].text == "title" || lw[0].text == "skip")) {
+                                      (lw[0].text == "case" || lw[0].text == "title" || lw[0].text == "skip" ||
+                                       lw[0].text == "incomparable")) {
       in_comment = false;
       const std::string& kw = lw[0].text;
       if (kw == "case") {
@@ -263,8 +265,9 @@ Script parse(const std::string& text, const std::string& file) {
       }
       if (!open()) p.fail(lw[0].col, kw, kw + " belongs to a case: write it after a 'case' line");
       if (!open()->steps.empty()) p.fail(lw[0].col, kw, kw + " comes before the case's first step");
-      (kw == "title" ? open()->title : open()->skip_reason) = rest_of(raw_line, lw[0]);
-      if (kw == "skip" && open()->skip_reason.empty()) p.fail(lw[0].col, kw, "skip takes the reason");
+      std::string& field = kw == "title" ? open()->title : kw == "skip" ? open()->skip_reason : open()->incomparable;
+      field = rest_of(raw_line, lw[0]);
+      if (kw != "title" && field.empty()) p.fail(lw[0].col, kw, kw + " takes the reason");
       continue;
     }
     auto hash = raw_line.find('#');

@@ -32,8 +32,16 @@ bool names_firmware(const spec::Register& r) {
 
 void describe_device(DeviceRun& d, const spec::Spec& s) {
   DeviceFacts& f = d.facts;
-  f.title = s.device.vendor.empty() ? s.device.title : s.device.vendor + " " + s.device.title;
-  if (!s.device.models.empty()) f.title += fmt::format(" ({})", fmt::join(s.device.models, ", "));
+  // A vendor the manual does not print ("(not printed in the manual)") is
+  // left out; the model names come first, then the manual's title.
+  bool vendor = !s.device.vendor.empty() && s.device.vendor.front() != '(';
+  f.title = vendor ? s.device.vendor + " " + s.device.title : s.device.title;
+  if (!s.device.models.empty()) {
+    std::string models = fmt::format("{}", fmt::join(s.device.models, ", "));
+    f.title = f.title.find(models) == 0 || (vendor && f.title.find(models) == s.device.vendor.size() + 1)
+                  ? f.title
+                  : fmt::format("{} ({})", f.title, models);
+  }
   const auto& id = s.device.identification;
   if (!id.vendor_name.empty()) f.identity.emplace_back("VendorName", id.vendor_name);
   if (!id.product_code.empty()) f.identity.emplace_back("ProductCode", id.product_code);
@@ -45,7 +53,9 @@ void describe_device(DeviceRun& d, const spec::Spec& s) {
   else if (!s.serial.frame_formats.empty()) line += (line.empty() ? "" : " ") + fmt::format("{}", fmt::join(s.serial.frame_formats, "/"));
   if (!line.empty()) line += " (the manual's default)";
   if (s.serial.slave_default) line += fmt::format("{}slave id {} by default", line.empty() ? "" : ", ", *s.serial.slave_default);
-  f.line = line;
+  // Line settings are a serial line's: a Modbus TCP or TLS target has none.
+  bool tcp = d.target_uri.rfind("tcp://", 0) == 0 || d.target_uri.rfind("mbtls://", 0) == 0;
+  f.line = tcp ? "" : line;
   // Holding registers first: a case's register address is a holding address
   // unless the device maps only another table there.
   for (auto t : {spec::Table::holding, spec::Table::input, spec::Table::coil, spec::Table::discrete_input})

@@ -58,15 +58,15 @@ table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding
 code,pre{font:12px ui-monospace,monospace}pre{white-space:pre-wrap;margin:0}
 .bar{background:#4a7;height:1em}.hist td:nth-child(2){width:30em}.regs td{font-size:12px}
 .verdict{font-size:20px;padding:.6em 1em;border-radius:4px;margin-bottom:1em}.verdict b{font-size:26px;margin-right:.5em}
-.verdict.pass{background:#2e7d32;color:#fff}.verdict.fail{background:#c62828;color:#fff}.verdict.incomplete{background:#ef6c00;color:#fff}
+.verdict.pass{background:#2e7d32;color:#fff}.verdict.fail{background:#c62828;color:#fff}.verdict.incomplete{background:#ef6c00;color:#fff}.verdict.partial{background:#f9a825;color:#000}
 .verdict small{font-size:13px;opacity:.9}.facts th{width:12em;background:#f6f6f6}.counts td,.counts th{text-align:right}
 .device-summary{border-top:2px solid #999;margin-top:1em}.device-summary h2 small{font-weight:normal;color:#666}
-.causes code{font-size:11px;word-break:break-all}ul{margin:.3em 0}mark{background:#f44;color:#fff}
+.causes code{font-size:11px;word-break:break-all}.causes code.replay{display:block;max-height:4.5em;overflow:auto}ul{margin:.3em 0}mark{background:#f44;color:#fff}
 .detail{border-top:3px double #999;margin-top:2em}
 @page{size:A4;margin:12mm}
 @media print{body{margin:0;font-size:10px;max-width:none}.verdict{font-size:14px;-webkit-print-color-adjust:exact;print-color-adjust:exact}
  .verdict b{font-size:18px}.pass,.fail,.observed,.skip,mark{-webkit-print-color-adjust:exact;print-color-adjust:exact}
- h2{font-size:14px;margin:.4em 0}h3{font-size:12px;margin:.4em 0}code,pre{font-size:9px}.causes code{font-size:8px}
+ h2{font-size:14px;margin:.4em 0}h3{font-size:12px;margin:.4em 0}code,pre{font-size:9px}.causes code{font-size:8px}.causes code.replay{max-height:3.6em;overflow:hidden}
  tr,li{break-inside:avoid}h2,h3{break-after:avoid}.detail{break-before:page}}
 </style></head><body>)";
   h += html::summary(rep);

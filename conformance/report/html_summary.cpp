@@ -10,7 +10,6 @@
 
 #include <algorithm>
 #include <map>
-#include <regex>
 #include <set>
 
 #include "modbus/framing.h"
@@ -76,16 +75,6 @@ std::optional<uint16_t> value_read(const DeviceRun& d, uint16_t address) {
   return std::nullopt;
 }
 
-// A failure's cause: its clause and its message with the numbers taken out,
-// so the same fault at 35 registers is one line.
-std::string cause_of(const CaseResult& r) {
-  // 0x0044, 80000, -1.5, hex bytes "01 03 00 44", register words "[07D1 0000]".
-  static const std::regex numbers("0x[0-9A-Fa-f]+|\\b[0-9A-Fa-f]{2}( [0-9A-Fa-f]{2})+\\b|\\b[0-9A-F]{4}\\b|-?\\b[0-9]+(\\.[0-9]+)?\\b");
-  std::string m = r.message;
-  if (auto more = m.find(" (+"); more != std::string::npos) m.resize(more);
-  return r.clause + ": " + std::regex_replace(m, numbers, "#");
-}
-
 // Why a case is only OBSERVED: the facts it relies on that the manual does
 // not state (cases/facts.cpp appends " [relies on ...]"), else the level the
 // generator gave it (a reading the manual leaves open, a deviation from
@@ -110,19 +99,6 @@ std::vector<std::pair<std::string, size_t>> by_count(const Map& m) {
   for (const auto& [k, n] : m) v.emplace_back(k, n.size());
   std::stable_sort(v.begin(), v.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
   return v;
-}
-
-std::string quote_arg(const std::string& s) {
-  if (s.find_first_of(" '\"?&*$;|<>()") == std::string::npos) return s;
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
-std::string replay_command(const DeviceRun& d, const CaseResult& r) {
-  std::string cmd = "mbconform run --target " + quote_arg(d.target_uri);
-  if (d.target_uri.rfind("ref:", 0) != 0) cmd += " --device " + quote_arg(d.device_id);
-  return cmd + " --filter " + quote_arg(r.id);
 }
 
 std::string device_summary(const RunReport& rep, const DeviceRun& d) {
@@ -205,36 +181,35 @@ std::string device_summary(const RunReport& rep, const DeviceRun& d) {
     }
   }
 
-  // MUST failures grouped by cause.
-  std::map<std::string, std::vector<const CaseResult*>> causes;
-  for (const auto& r : d.cases)
-    if (fails_run(r, rep)) causes[cause_of(r)].push_back(&r);
+  // MUST failures grouped by cause: what the device did against what was due.
+  auto causes = failure_causes(rep, d);
   if (!causes.empty()) {
     size_t n = 0;
-    for (const auto& [k, v] : causes) n += v.size();
-    h += fmt::format("<h3>{} failing case{}, {} cause{}</h3><table class=causes><tr><th>cases</th><th>cause</th><th>registers</th><th>replay</th></tr>",
+    for (const auto& g : causes) n += g.cases.size();
+    h += fmt::format("<h3>{} failing case{}, {} cause{}</h3><table class=causes><tr><th>cases</th><th>cause</th><th>function codes</th>"
+                     "<th>registers</th><th>replay (all of them)</th></tr>",
                      n, n == 1 ? "" : "s", causes.size(), causes.size() == 1 ? "" : "s");
-    auto v = by_count(causes);
-    for (size_t i = 0; i < v.size() && i < kShown; ++i) {
-      const auto& cases = causes[v[i].first];
-      std::set<uint16_t> regs;
-      for (auto* r : cases)
-        if (r->register_address) regs.insert(*r->register_address);
+    for (size_t i = 0; i < causes.size() && i < kShown; ++i) {
+      const CauseGroup& g = causes[i];
       std::string rs;
       size_t shown = 0;
-      for (uint16_t a : regs) {
+      for (uint16_t a : g.registers) {
         if (shown++ == 4) {
-          rs += fmt::format(" and {} more", regs.size() - 4);
+          rs += fmt::format(" and {} more", g.registers.size() - 4);
           break;
         }
         auto it = d.facts.register_names.find(a);
         rs += fmt::format("{}0x{:04X}{}", rs.empty() ? "" : ", ", a, it == d.facts.register_names.end() ? "" : " " + esc(it->second));
       }
-      h += fmt::format("<tr class=fail><td>{}</td><td>{}<br><small>e.g. {}: {}</small></td><td>{}</td><td><code>{}</code></td></tr>",
-                       cases.size(), esc(cases.front()->clause + " — " + cases.front()->title), esc(cases.front()->id),
-                       esc(cases.front()->message), rs.empty() ? "—" : rs, esc(replay_command(d, *cases.front())));
+      std::string fs;
+      for (int fc : g.function_codes) fs += fmt::format("{}{:02}", fs.empty() ? "FC " : ", ", fc);
+      const CaseResult& first = *g.cases.front();
+      h += fmt::format("<tr class=fail><td>{}</td><td class=cause>{}<br><small>e.g. {}: {}</small></td><td class=fcs>{}</td><td>{}</td>"
+                       "<td><code class=replay>{}</code></td></tr>",
+                       g.cases.size(), esc(g.text), esc(first.id), esc(first.message), fs.empty() ? "—" : fs, rs.empty() ? "—" : rs,
+                       esc(g.replay));
     }
-    if (v.size() > kShown) h += fmt::format("<tr><td colspan=4>{} more causes: see Failures below</td></tr>", v.size() - kShown);
+    if (causes.size() > kShown) h += fmt::format("<tr><td colspan=5>{} more causes: see report.json</td></tr>", causes.size() - kShown);
     h += "</table>";
   }
 
@@ -259,12 +234,10 @@ std::string device_summary(const RunReport& rep, const DeviceRun& d) {
   }
 
   // Skipped families, with the flag that enables each.
-  static const std::regex flag("--[a-z][a-z-]+");
   std::map<std::string, std::vector<const CaseResult*>> skipped;
   for (const auto& r : d.cases) {
     if (r.outcome != Outcome::skip) continue;
-    std::smatch m;
-    std::string how = std::regex_search(r.message, m, flag) ? "enable with " + m.str() : "not applicable: " + r.message;
+    std::string how = !r.opt_in.empty() ? "enable with " + r.opt_in : "not applicable: " + r.message;
     skipped[r.family + " — " + how].push_back(&r);
   }
   if (!skipped.empty()) {
@@ -299,29 +272,22 @@ std::string byte_diff(const Bytes& expected, const std::optional<Bytes>& actual)
 }
 
 std::string summary(const RunReport& rep) {
-  bool failed = false;
-  size_t failing = 0, should_failed = 0;
-  for (const auto& d : rep.devices)
-    for (const auto& r : d.cases) {
-      if (fails_run(r, rep)) {
-        failed = true;
-        ++failing;
-      } else if (r.outcome == Outcome::fail && r.level == Level::should && r.quirk.empty()) {
-        ++should_failed;
-      }
-    }
-  std::string inc = incomplete_line(rep);
-  std::string verdict = !inc.empty() ? "incomplete" : failed ? "fail" : "pass";
+  // One verdict for every report (report/result.h): its word, its line.
+  Verdict v = verdict(rep);
+  std::string word = v.word();
+  std::string cls = word == "PASS" ? "pass" : word == "FAIL" ? "fail" : word == "PARTIAL" ? "partial" : "incomplete";
   std::string devices;
   for (const auto& d : rep.devices) devices += (devices.empty() ? "" : ", ") + d.device_id;
-  std::string line = !inc.empty() ? inc
-                     : failed     ? fmt::format("{} case{} that must pass failed", failing, failing == 1 ? "" : "s")
-                                  : "every MUST case passed";
-  if (should_failed) line += fmt::format("; {} SHOULD case{} failed (not failing the run without --fail-on should)", should_failed,
-                                         should_failed == 1 ? "" : "s");
+  std::string line = v.line();
+  if (auto colon = line.find(": "); colon != std::string::npos && line.compare(0, colon, word) == 0) line = line.substr(colon + 2);
   std::string h = fmt::format("<section class=summary><div class=\"verdict {0}\" id=verdict><b>{1}</b> {2}<br><small>{3} · {4} {5} · {6}</small></div>",
-                              verdict, verdict == "pass" ? "PASS" : verdict == "fail" ? "FAIL" : "INCOMPLETE", esc(line),
-                              esc(devices), esc(rep.command), esc(rep.version), esc(rep.started_at));
+                              cls, word, esc(line), esc(devices), esc(rep.command), esc(rep.version), esc(rep.started_at));
+  if (!v.missing.empty()) {
+    h += "<ul class=opt-ins id=opt-ins>";
+    for (const auto& [flag, n] : v.missing)
+      h += fmt::format("<li><code>{}</code> would enable {} MUST case{} this run skipped</li>", esc(flag), n, n == 1 ? "" : "s");
+    h += "</ul>";
+  }
   for (const auto& d : rep.devices) h += device_summary(rep, d);
   return h + "</section>";
 }

@@ -72,6 +72,11 @@ nlohmann::json report_json(const RunReport& rep) {
   j["version"] = rep.version;
   j["interrupted"] = rep.interrupted;
   j["incomplete"] = incomplete_line(rep);
+  Verdict v = verdict(rep);
+  j["verdict"] = v.word();
+  j["verdict_line"] = v.line();
+  j["missing_opt_ins"] = nlohmann::json::array();  // [{"flag": "--allow-writes", "must_cases": 41}]
+  for (const auto& [flag, n] : v.missing) j["missing_opt_ins"].push_back({{"flag", flag}, {"must_cases", n}});
   j["devices"] = nlohmann::json::array();
   for (const auto& d : rep.devices) {
     nlohmann::json dj;
@@ -95,6 +100,15 @@ nlohmann::json report_json(const RunReport& rep) {
     dj["notes"] = d.notes;
     dj["interrupted"] = d.interrupted;
     dj["error"] = d.error;
+    // The failures by cause: what the device did against what was due.
+    dj["causes"] = nlohmann::json::array();
+    for (const auto& g : failure_causes(rep, d)) {
+      nlohmann::json gj{{"cause", g.text}, {"kind", g.kind ? nlohmann::json(to_string(*g.kind)) : nlohmann::json(nullptr)},
+                        {"function_codes", g.function_codes}, {"registers", g.registers}, {"replay", g.replay}};
+      gj["cases"] = nlohmann::json::array();
+      for (const auto* r : g.cases) gj["cases"].push_back(r->id);
+      dj["causes"].push_back(std::move(gj));
+    }
     dj["cases"] = nlohmann::json::array();
     for (const auto& r : d.cases) {
       nlohmann::json cj;
@@ -107,6 +121,11 @@ nlohmann::json report_json(const RunReport& rep) {
       cj["outcome"] = to_string(r.outcome);
       cj["message"] = r.message;
       if (!r.quirk.empty()) cj["quirk"] = r.quirk;
+      if (!r.opt_in.empty()) cj["opt_in"] = r.opt_in;
+      if (r.cause)
+        cj["cause"] = {{"kind", to_string(r.cause->kind)}, {"due", r.cause->due}, {"did", r.cause->did},
+                       {"function_code", r.cause->fc ? nlohmann::json(*r.cause->fc) : nlohmann::json(nullptr)},
+                       {"text", r.cause->text()}};
       cj["register"] = r.register_address ? nlohmann::json(*r.register_address) : nlohmann::json(nullptr);
       cj["errata"] = r.errata;
       cj["duration_ms"] = r.duration_ms;

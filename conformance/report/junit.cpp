@@ -51,10 +51,15 @@ std::string junit_classname(const std::string& device, const std::string& family
 
 std::string junit_xml(const RunReport& rep) {
   std::string x = "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n";
-  if (std::string inc = incomplete_line(rep); !inc.empty()) {
-    for (size_t at; (at = inc.find("--")) != std::string::npos;) inc.replace(at, 2, "- ");  // not inside a comment
-    x += "<!-- " + xml_escape(inc) + " -->\n";
-  }
+  // The verdict first (report/result.h): INCOMPLETE, FAIL, PARTIAL (naming
+  // the opt-ins) or PASS; a CI reading only JUnit sees a partial run.
+  Verdict v = verdict(rep);
+  auto comment = [&](std::string line) {
+    for (size_t at; (at = line.find("--")) != std::string::npos;) line.replace(at, 2, "- ");  // not inside a comment
+    x += "<!-- " + xml_escape(line) + " -->\n";
+  };
+  if (std::string inc = incomplete_line(rep); !inc.empty()) comment(inc);
+  if (v.kind != Verdict::Kind::incomplete) comment(v.line());
   size_t tests = 0, failures = 0, skipped = 0, errors = 0;
   // Failures in JUnit's sense: the cases that fail the run.
   auto failing = [&](const DeviceRun& d) {
@@ -69,14 +74,17 @@ std::string junit_xml(const RunReport& rep) {
   }
   x += fmt::format("<testsuites name=\"mbconform {}\" tests=\"{}\" failures=\"{}\" errors=\"{}\" skipped=\"{}\">\n",
                    xml_escape(rep.command), tests, failures, errors, skipped);
+  std::string opt_ins;  // each opt-in MUST cases were skipped for want of, with how many
+  for (const auto& [flag, n] : v.missing)
+    opt_ins += fmt::format("<property name=\"opt-in\" value=\"{}: would enable {} MUST cases\"/>", xml_escape(flag), n);
   for (const auto& d : rep.devices) {
     Counts c = count(d);
     x += fmt::format("  <testsuite name=\"{}\" tests=\"{}\" failures=\"{}\" errors=\"{}\" skipped=\"{}\" time=\"{:.3f}\"{}>\n",
                      xml_escape(d.device_id), c.total(), failing(d), c.error, c.skip, d.wall_seconds,
                      rep.started_at.empty() ? "" : fmt::format(" timestamp=\"{}\"", xml_escape(rep.started_at)));
     x += fmt::format("    <properties><property name=\"target\" value=\"{}\"/><property name=\"spec\" value=\"{}\"/>"
-                     "<property name=\"interrupted\" value=\"{}\"/></properties>\n",
-                     xml_escape(d.target_uri), xml_escape(d.spec_path), d.interrupted ? "true" : "false");
+                     "<property name=\"interrupted\" value=\"{}\"/><property name=\"verdict\" value=\"{}\"/>{}</properties>\n",
+                     xml_escape(d.target_uri), xml_escape(d.spec_path), d.interrupted ? "true" : "false", v.word(), opt_ins);
     for (const auto& r : d.cases) {
       x += fmt::format("    <testcase name=\"{}\" classname=\"{}\" time=\"{:.6f}\">\n", xml_escape(r.id),
                        xml_escape(junit_classname(d.device_id, r.family)), r.duration_ms / 1000.0);

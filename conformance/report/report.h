@@ -7,7 +7,10 @@
 //                no timestamps, no wall times, so a test can check it is fresh.
 #pragma once
 
+#include <optional>
+#include <set>
 #include <string>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -41,6 +44,23 @@ struct Counts {
   size_t total() const { return pass + fail + skip + observed + error + quirks; }
 };
 Counts count(const DeviceRun&);
+
+// The failures of one device that fail the run, grouped by cause (what the
+// device did against what was due, result.h's Cause), most cases first
+// (causes.cpp). A failure with no judged step groups by its clause and message.
+struct CauseGroup {
+  std::string text;                     // "exception 02 where exception 01 is due"
+  std::optional<MismatchKind> kind;     // unset for a failure with no judged step
+  std::vector<const CaseResult*> cases;
+  std::set<int> function_codes;         // the requests' function codes
+  std::set<uint16_t> registers;         // the cases' registers
+  std::string replay;                   // one `mbconform run` that re-runs every case of the group
+};
+std::vector<CauseGroup> failure_causes(const RunReport&, const DeviceRun&);
+// `mbconform run` on the device's target selecting exactly `cases`.
+std::string replay_command(const DeviceRun&, const std::vector<const CaseResult*>& cases);
+// `s` as one shell word.
+std::string shell_quote(const std::string& s);
 
 // Creates `dir` and checks a file can be written into it, before a run sends
 // its first frame; what is wrong, or empty. out_dir_ok prints it as

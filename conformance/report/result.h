@@ -24,6 +24,34 @@ enum class Outcome { pass, fail, skip, observed, error };
 const char* to_string(Level);
 const char* to_string(Outcome);
 
+// How an exchange departed from its expectation: made by the one judge
+// (check/judge.h's Mismatch), kept as this enum into every report.
+enum class MismatchKind {
+  answered,           // a reply where silence was expected
+  malformed_framing,  // a reply whose framing is wrong (CRC, unit, transaction)
+  silent,             // silence (or a closed connection) where a reply was expected
+  malformed_reply,    // the reply PDU breaks MBAP v1.1b3 for the request
+  unknown_exception,  // an exception code neither the standard nor the spec knows
+  refused,            // an exception where a normal reply was expected
+  different,          // a well-formed reply other than the expected one
+};
+const char* to_string(MismatchKind);
+
+// Why a case failed, as a cause: what the device did against what was due,
+// at the first step that missed, in words free of addresses and values
+// ("exception 02" where "exception 01" is due; "silence" where "a normal
+// reply" is due), so one fault at 35 registers is one cause. The report
+// groups failures by (kind, due, did) and keeps the function codes and
+// registers each cause covers.
+struct Cause {
+  MismatchKind kind = MismatchKind::different;
+  std::string due;            // "exception 01", "silence", "the stated value", "a normal reply"
+  std::string did;            // "exception 02", "a reply", "another value", "a reply 2 bytes longer"
+  std::optional<uint8_t> fc;  // the function code of the request that missed
+  std::string text() const;   // "exception 02 where exception 01 is due"
+  std::string key() const;    // what groups causes: kind, due, did
+};
+
 // One frame exchanged by a case, kept for the report.
 struct FrameRecord {
   std::string step;                 // what the step does ("write 0x0020 = 1000")
@@ -52,6 +80,12 @@ struct CaseResult {
   // Set when the case failed and a quirks file (--quirks) declares the
   // deviation: the reason given there. Counted apart, never a failure.
   std::string quirk;
+  // A skipped case that a flag would let run ("--allow-writes"): what the
+  // frame policy or the generator named. A MUST skipped for want of one
+  // makes the run PARTIAL (verdict()).
+  std::string opt_in;
+  // Set when the case failed (or, OBSERVED, differed) on a step: its cause.
+  std::optional<Cause> cause;
   nlohmann::json extra = nlohmann::json::object();  // e.g. props: cases, seed, counterexample
 };
 
@@ -107,5 +141,31 @@ struct RunReport {
 
 // Whether a failed case fails the run: a MUST, or a SHOULD under --fail-on should.
 bool fails_run(const CaseResult&, const RunReport&);
+
+// The flag a skip reason names ("... needs --allow-writes" -> "--allow-writes"), or "".
+std::string opt_in_named(const std::string& why);
+
+// What a run comes to, one word for every report (terminal, HTML, JSON,
+// JUnit) and the exit code (tools/mbconform/cmd_run.cpp):
+//   incomplete  a target was lost or the run was stopped            exit 2
+//   fail        a case that fails the run failed                    exit 1
+//   partial     none failed, but MUST cases were skipped for want   exit 0, or 3
+//               of an opt-in (a flag the user did not give)         with --require-complete
+//   pass        every MUST case ran and passed                      exit 0
+struct Verdict {
+  enum class Kind { pass, partial, fail, incomplete } kind = Kind::pass;
+  size_t failed = 0;  // cases that fail the run
+  size_t should_failed = 0;  // failed SHOULD cases that do not
+  // The opt-ins MUST cases were skipped for want of, each with how many
+  // MUST cases it would enable (also set when the verdict is fail: the run
+  // is partial as well).
+  std::vector<std::pair<std::string, size_t>> missing;
+  std::string incomplete;  // incomplete_line()'s text, when incomplete
+  const char* word() const;  // "PASS" | "PARTIAL" | "FAIL" | "INCOMPLETE"
+  // The verdict in words: "PARTIAL: every MUST case that ran passed; 41 MUST
+  // cases did not run: --allow-writes would enable 41 (rerun with it)".
+  std::string line() const;
+};
+Verdict verdict(const RunReport&);
 
 }  // namespace mbc::conf

@@ -14,13 +14,14 @@ std::string progress_line(const CaseResult& r, size_t done, size_t total) {
 }
 
 std::string summary_table(const RunReport& rep) {
+  Verdict v = verdict(rep);
   std::string s = incomplete_line(rep);
   if (!s.empty()) s += "\n";
-  s += fmt::format("{:<22} {:>6} {:>6} {:>6} {:>6} {:>9} {:>6} {:>10} {:>12}\n", "device", "cases", "pass", "fail",
-                              "MUST!", "observed", "skip", "wall s", "wire-bound s");
+  s += fmt::format("{:<22} {:>6} {:>6} {:>6} {:>11} {:>9} {:>6} {:>10} {:>12}\n", "device", "cases", "pass", "fail",
+                              "MUST failed", "observed", "skip", "wall s", "wire-bound s");
   for (const auto& d : rep.devices) {
     Counts c = count(d);
-    s += fmt::format("{:<22} {:>6} {:>6} {:>6} {:>6} {:>9} {:>6} {:>10.3f} {:>12}\n", d.device_id, c.total(), c.pass, c.fail,
+    s += fmt::format("{:<22} {:>6} {:>6} {:>6} {:>11} {:>9} {:>6} {:>10.3f} {:>12}\n", d.device_id, c.total(), c.pass, c.fail,
                      c.must_failed, c.observed, c.skip, d.wall_seconds,
                      d.baud ? fmt::format("{:.3f}", d.wire_time_bound_seconds) : "n/a");
   }
@@ -29,6 +30,16 @@ std::string summary_table(const RunReport& rep) {
       if (r.outcome == Outcome::fail && r.quirk.empty())
         s += fmt::format("FAIL {} [{}{}]\n     {}\n", r.id, r.clause,
                          r.level == Level::must ? "" : fails_run(r, rep) ? ", SHOULD" : ", SHOULD: does not fail the run", r.message);
+  // The failures again by cause, each with one command that re-runs them all.
+  for (const auto& d : rep.devices) {
+    auto causes = failure_causes(rep, d);
+    if (causes.size() < 2 && (causes.empty() || causes.front().cases.size() < 2)) continue;
+    for (const auto& g : causes) {
+      std::string fcs;
+      for (int fc : g.function_codes) fcs += fmt::format("{}{:02}", fcs.empty() ? "; FC " : ", ", fc);
+      s += fmt::format("CAUSE {}: {} case{}{}\n      {}\n", g.text, g.cases.size(), g.cases.size() == 1 ? "" : "s", fcs, g.replay);
+    }
+  }
   for (const auto& d : rep.devices)
     for (const auto& r : d.cases)
       if (r.outcome == Outcome::fail && !r.quirk.empty())
@@ -43,7 +54,8 @@ std::string summary_table(const RunReport& rep) {
   for (const auto& d : rep.devices)
     for (const auto& n : d.notes) s += fmt::format("{}: {}\n", d.device_id, n);
   if (rep.interrupted) s += "interrupted: the reports hold the cases run so far\n";
-  return s;
+  // The last line: the verdict in words.
+  return s + v.line() + "\n";
 }
 
 nlohmann::json stable_summary(const RunReport& rep) {

@@ -28,6 +28,8 @@ using Clock = std::chrono::steady_clock;
 // was let in.
 const Bytes kProbePdu{0x03, 0x00, 0x00, 0x00, 0x01};
 constexpr uint16_t kProbeTid = 0x5EC1;
+// The sentence a server that drops the MBAP header fails with.
+constexpr const char* kNoMbap = "PDU without the MBAP header that Modbus/TCP Security carries inside TLS";
 
 struct Client {
   std::string cert, key;        // empty: no client certificate
@@ -36,6 +38,7 @@ struct Client {
   SSL_SESSION* session = nullptr;  // offered for resumption
   bool request = true;          // send kProbePdu after the handshake
   std::optional<Bytes> pdu;     // instead of kProbePdu
+  std::optional<Bytes> raw;     // sent as is, without an MBAP header (whatever comes back is raw_reply)
   bool close = false;           // send close_notify after the reply and wait for the server's
 };
 
@@ -55,6 +58,7 @@ struct Attempt {
   std::optional<int> alert;     // an alert the server sent (description)
   enum class After { none, answered, closed, silent } after = After::none;
   Bytes reply;                  // the PDU answered
+  Bytes raw_reply;              // every byte that came back (also when it was no MBAP ADU)
   bool resumed = false;
   bool close_notify_back = false;  // the server answered our close_notify with its own
   std::string close_text;
@@ -134,7 +138,7 @@ Attempt attempt(const ServerUnderTest& s, const Client& c) {
     SSL_shutdown(ssl);
     return finish();
   }
-  Bytes adu = mbap_frame(kProbeTid, s.unit, c.pdu ? *c.pdu : kProbePdu);
+  Bytes adu = c.raw ? *c.raw : mbap_frame(kProbeTid, s.unit, c.pdu ? *c.pdu : kProbePdu);
   if (SSL_write(ssl, adu.data(), int(adu.size())) <= 0) {
     a.after = Attempt::After::closed;
     return finish();
@@ -143,8 +147,15 @@ Attempt attempt(const ServerUnderTest& s, const Client& c) {
   // (SO_RCVTIMEO set by connect_tcp).
   Bytes in;
   for (;;) {
+    a.raw_reply = in;
     auto h = parse_mbap(in);
-    if (h && h->length_ok() && in.size() >= h->adu_size()) {
+    if (c.raw) {
+      // A bare PDU sent: a bare PDU reply to FC 03 is whole at its byte count (or 2 bytes, an exception).
+      if (in.size() >= 2 && ((in[0] & 0x80) ? in.size() >= 2 : in.size() >= size_t(in[1]) + 2)) {
+        a.after = Attempt::After::answered;
+        break;
+      }
+    } else if (h && h->length_ok() && in.size() >= h->adu_size()) {
       a.after = Attempt::After::answered;
       a.reply.assign(in.begin() + kMbapHeader, in.begin() + ptrdiff_t(h->adu_size()));
       break;
@@ -205,9 +216,14 @@ std::string admission(const Attempt& a) {
   return "accepted: handshake completed";
 }
 
+// A check, its level, and for a MUST or SHOULD the first word of a message
+// that meets it (every other word fails it; "error:" is a check that could
+// not be made).
 struct Check {
   std::string id, clause, title, requirement;
   std::function<std::string(const ServerUnderTest&, std::string& skip)> run;
+  Level level = Level::observed;
+  std::string meets{};  // "refused", "requested", "mbap"
 };
 
 std::string client_file(const ServerUnderTest& s, const std::string& name, std::string& skip) {
@@ -228,6 +244,34 @@ std::vector<Check> checks() {
   const std::string hs = "MB-TCP-Security v2.1 §8.1";
   const std::string ver = "MB-TCP-Security v2.1 §10.1";
   const std::string authz = "MB-TCP-Security v2.1 §8.3";
+  // The MBAP ADU inside TLS, unchanged: an MBAP request gets an MBAP reply.
+  // A server that answers a bare PDU with a bare PDU (pymodbus's
+  // ModbusTlsFramer, pymodbus #2014) carries no MBAP header.
+  v.push_back({"mbap-inside-tls", "MB-TCP-Security v2.1 §6 (Figure 3); Appendix A (Figure 11)",
+               "the MBAP ADU is carried unchanged inside TLS: an MBAP request gets an MBAP reply",
+               "the Modbus/TCP ADU, MBAP header included, is carried inside TLS unchanged (§6 Figure 3 \"mbap PDU "
+               "Encapsulated in TLS\", Appendix A Figure 11 \"TLS Transportation of mbap PDU\")",
+               [](const ServerUnderTest& s, std::string&) -> std::string {
+                 Attempt a = attempt(s, with_cert(s.files.cert, s.files.key));
+                 if (!a.handshake) return "error: the handshake with the URI's own certificate failed: " + a.error;
+                 if (a.after == Attempt::After::answered)
+                   return fmt::format("mbap: the MBAP request was answered with an MBAP reply ({})", to_hex(a.reply));
+                 // No MBAP reply: does the server speak bare PDUs?
+                 Client bare = with_cert(s.files.cert, s.files.key);
+                 bare.raw = kProbePdu;
+                 Attempt b = attempt(s, bare);
+                 bool pdu_reply = b.raw_reply.size() >= 2 && (b.raw_reply[0] & 0x7F) == kProbePdu[0] &&
+                                  (b.raw_reply[0] == 0x83 ? b.raw_reply.size() == 2 : b.raw_reply[1] + 2u == b.raw_reply.size());
+                 if (pdu_reply)
+                   return fmt::format("bare-pdu: {}: the MBAP request went {}; the bare PDU {} was answered with {}", kNoMbap,
+                                      a.after == Attempt::After::silent ? "unanswered" : "without a reply (closed)",
+                                      to_hex(kProbePdu), to_hex(b.raw_reply));
+                 if (!a.raw_reply.empty())
+                   return fmt::format("not-mbap: {}: the MBAP request got {}", kNoMbap, to_hex(a.raw_reply));
+                 return fmt::format("unanswered: the MBAP request got no reply inside TLS ({})",
+                                    a.after == Attempt::After::silent ? "silence" : "the connection closed");
+               },
+               Level::must, "mbap"});
   auto older = [](int version, const char* name) {
     return [version, name](const ServerUnderTest& s, std::string&) {
       Client c = with_cert(s.files.cert, s.files.key);
@@ -342,6 +386,15 @@ std::vector<Check> checks() {
                  return second.resumed ? fmt::format("resumed: {} session resumed", second.version)
                                        : fmt::format("not-resumed: {} full handshake again", second.version);
                }});
+  // The levels (README.md, "Levels"): what MB-TCP-Security v2.1 requires of a
+  // server is MUST; what it leaves to the server stays OBSERVED.
+  for (auto& c : v) {
+    if (c.id == "tls-1.0-refused" || c.id == "tls-1.1-refused" || c.id == "refuses-no-certificate" ||
+        c.id == "refuses-untrusted-certificate" || c.id == "refuses-expired-certificate" || c.id == "refuses-two-roles" ||
+        c.id == "refuses-role-not-utf8string")
+      c.level = Level::must, c.meets = "refused";
+    if (c.id == "asks-client-certificate") c.level = Level::must, c.meets = "requested";
+  }
   return v;
 }
 
@@ -370,7 +423,7 @@ std::vector<std::string> check_names() {
 
 std::vector<CheckListing> check_listing() {
   std::vector<CheckListing> out;
-  for (const auto& c : checks()) out.push_back({c.id, c.clause, c.title, c.requirement});
+  for (const auto& c : checks()) out.push_back({c.id, c.clause, c.title, c.requirement, c.level});
   return out;
 }
 
@@ -381,7 +434,7 @@ std::vector<CaseResult> check_server(const ServerUnderTest& s, const std::string
     r.id = fmt::format("{}/security/{}", device_id, c.id);
     r.family = "security";
     r.clause = c.clause;
-    r.level = Level::observed;
+    r.level = c.level;
     r.title = c.title;
     r.requirement = c.requirement;
     auto t0 = Clock::now();
@@ -395,7 +448,9 @@ std::vector<CaseResult> check_server(const ServerUnderTest& s, const std::string
       r.outcome = Outcome::skip;
       r.message = skip;
     } else {
-      r.outcome = r.message.rfind("error:", 0) == 0 ? Outcome::error : Outcome::observed;
+      bool error = r.message.rfind("error:", 0) == 0;
+      bool met = !c.meets.empty() && r.message.rfind(c.meets, 0) == 0;
+      r.outcome = error ? Outcome::error : c.level == Level::observed ? Outcome::observed : met ? Outcome::pass : Outcome::fail;
     }
     r.duration_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
     out.push_back(std::move(r));

@@ -35,7 +35,7 @@ class TcpTarget final : public Target {
  public:
   explicit TcpTarget(const Uri& u) : window_(kDefaultTimeout, false, std::nullopt) {
     std::string base = fmt::format("tcp://{}:{}", u.host, u.port ? u.port : kDefaultPort);
-    check_params(u, base, {"unit", "timeout", "silence"});
+    check_params(u, base, {"unit", "timeout", "silence", "gateway"});
     if (u.host.empty()) throw std::invalid_argument(fmt::format("target 'tcp:{}': needs HOST[:PORT], e.g. tcp://192.168.1.20:502", u.path));
     // MB TCP v1.0b §4.4.1.1: the unit id addresses a device behind a gateway;
     // 0 is broadcast on the serial side, so it is never the default.
@@ -50,6 +50,14 @@ class TcpTarget final : public Target {
     info_.unit = uint8_t(unit);
     info_.live = true;
     info_.raw = true;
+    // gateway=1: a Modbus TCP gateway in front of the device; it stays in
+    // the URI, which check/exchange.cpp reads (a gateway found by its 0A/0B
+    // is added to it the same way).
+    if (auto g = u.param("gateway")) {
+      if (*g != "0" && *g != "1") throw std::invalid_argument(fmt::format("target '{}': gateway={}: expected 0 or 1", base, *g));
+      gateway_ = *g == "1";
+      if (gateway_) info_.uri += "&gateway=1";
+    }
     std::string port = std::to_string(u.port ? u.port : kDefaultPort);
     ctx_ = modbus_new_tcp_pi(u.host.c_str(), port.c_str());
     if (!ctx_) throw std::invalid_argument(fmt::format("target '{}': {}", info_.uri, modbus_strerror(errno)));
@@ -216,11 +224,20 @@ class TcpTarget final : public Target {
     r.request = adu;
     bool for_reply = wait_ == Wait::reply || (wait_ == Wait::automatic && addressed);
     auto first_by = t0 + (for_reply ? microseconds(timeout_) : window_.window());
+    // Through a gateway a request the device leaves unanswered is answered
+    // 0A/0B by the gateway after its retries: wait for that (as long as the
+    // gateway took before, twice over; until the first one, the timeout)
+    // rather than let it come late and cancel the verdicts since.
+    if (gateway_ && !for_reply && addressed)
+      first_by = t0 + std::min<microseconds>(microseconds(timeout_),
+                                             std::max(window_.window(), gateway_answer_ ? 2 * *gateway_answer_ : microseconds(timeout_)));
     ReadResult rr;
     for (;;) {
       rr = read_frame(fd, in_, first_by, kReplyEndSilence, first_by + timeout_, whole_adu);
       if (!whole_adu(in_) || !is_stale(*parse_mbap(in_), sent)) break;
       window_.late_reply(stale_latency(parse_mbap(in_)->transaction));
+      gateway_seen(std::span<const uint8_t>(in_).subspan(kMbapHeader, parse_mbap(in_)->adu_size() - kMbapHeader),
+                   stale_latency(parse_mbap(in_)->transaction).value_or(microseconds(timeout_)));
       in_.erase(in_.begin(), in_.begin() + ptrdiff_t(parse_mbap(in_)->adu_size()));
     }
     size_t take = whole_adu(in_) ? parse_mbap(in_)->adu_size() : in_.size();
@@ -234,8 +251,20 @@ class TcpTarget final : public Target {
     }
     judge_mbap(r, sent);
     if (sent && r.frame.empty()) remember_stale(sent->transaction, t0);
+    if (r.pdu && gateway_seen(*r.pdu, r.latency)) return r;  // not a latency of the device
     if (r.pdu && timed) window_.record(r.latency, !r.pdu->empty() && ((*r.pdu)[0] & 0x80));
     return r;
+  }
+
+  // A gateway's own answer, 0A or 0B (MBAP v1.1b3 §7): a gateway is in
+  // front of the device, and the time it took to give up is how long a
+  // silence is waited for from now on.
+  bool gateway_seen(std::span<const uint8_t> pdu, microseconds after) {
+    if (pdu.size() != 2 || !(pdu[0] & 0x80) || (pdu[1] != 0x0A && pdu[1] != 0x0B)) return false;
+    if (!gateway_) info_.uri += "&gateway=1";
+    gateway_ = true;
+    gateway_answer_ = std::max(gateway_answer_.value_or(microseconds(0)), after);
+    return true;
   }
 
   bool is_stale(const Mbap& got, const std::optional<Mbap>& sent) const {
@@ -271,6 +300,8 @@ class TcpTarget final : public Target {
   bool connected_ = false;
   milliseconds timeout_{kDefaultTimeout};
   SilenceWindow window_;
+  bool gateway_ = false;                        // a gateway in front of the device (given, or found by its 0A/0B)
+  std::optional<microseconds> gateway_answer_;  // the longest a gateway took to answer 0A/0B
   uint16_t next_tid_ = 1;
   std::deque<std::pair<uint16_t, Clock::time_point>> stale_;
   Wait wait_ = Wait::automatic;

@@ -556,7 +556,6 @@ size_t Device::handle_rtu_into(std::span<const uint8_t> adu, std::span<uint8_t> 
     n = Engine{*this, pdu_out}.violate(Violation::crc_error, adu[1] & 0x7F);
   } else {
     if (!broadcast && address != slave_id_) return 0;
-    ++counters_.bus_messages;
     n = reply_pdu(kRtu.pdu_bytes(adu), pdu_out, broadcast);
     if (broadcast) return 0;
   }
@@ -577,6 +576,10 @@ size_t Device::handle_pdu_into(std::span<const uint8_t> pdu, std::span<uint8_t> 
 
 size_t Device::reply_pdu(std::span<const uint8_t> pdu, uint8_t* out, bool broadcast) {
   if (pdu.empty() || pdu.size() > kMaxPdu) return 0;
+  // MB-SL v1.02 §6.1.2: every message addressed to this device counts, on
+  // every transport (RTU frames, MBAP PDUs, TLS): the bus message count and
+  // the server message count alike.
+  ++counters_.bus_messages;
   ++counters_.server_messages;
   // MB-SL v1.02 §6.1.2: in Listen Only Mode only Restart Communications is acted on.
   if (listen_only_ && !(pdu.size() >= 3 && pdu[0] == 8 && be16(pdu, 1) == 1)) {

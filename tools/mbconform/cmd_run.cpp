@@ -5,9 +5,11 @@
 //   mbconform run --target tcp://10.0.0.5:502?unit=3 --device hsc60 --allow-motion
 //   mbconform run --target ref:hsc60 --filter '*/registers/*' --plan
 //
-// Exit codes: 0 every MUST case passed; 1 a MUST case failed (or a declared
-// quirk is gone: its cases ran and passed); 2 the run could
-// not be done (bad target, bad spec, bad arguments, interrupted).
+// Exit codes: 0 every MUST case passed (PASS), or every MUST case that ran
+// passed but some were skipped for want of an opt-in (PARTIAL); 1 a MUST case
+// failed (or a declared quirk is gone: its cases ran and passed); 2 the run
+// could not be done (bad target, bad spec, bad arguments, interrupted); 3 a
+// PARTIAL run under --require-complete.
 #include <fmt/core.h>
 #include <re2/re2.h>
 #include <unistd.h>
@@ -52,7 +54,11 @@ struct RunArgs {
   bool verbose = false;                               // -v: every case's line, not only failures
   std::string quirks_file;
   std::string deadline;  // --deadline: the whole run's time
+  bool require_complete = false;  // --require-complete: a PARTIAL run exits 3
 };
+
+// A PARTIAL run under --require-complete (MUST cases skipped for want of an opt-in).
+constexpr int kExitPartial = 3;
 
 // What --filter selects (conf::select_cases: literal unless it holds '*'
 // or '?', a glob over the whole id, '*' crossing '/'; or "re:REGEX", searched
@@ -219,6 +225,33 @@ int run(RunArgs& a) {
       return kExitUsage;
     }
 
+    // Modbus/TCP Security: what the server does around the TLS handshake
+    // (conformance/security/), each check on connections of its own, before
+    // the cases. A server that does not carry the MBAP ADU inside TLS cannot
+    // run a case: its failure is the run's verdict (exit 1), not "could not
+    // be done".
+    std::vector<conf::CaseResult> security_results;
+    bool no_mbap = false;
+    if (info.kind == "tls" && target && !dry && !conf::stop_requested()) {
+      for (auto& r : conf::security::check_server(conf::security::from_uri(uri), s.device.id)) {
+        bool mbap_failed = r.id == s.device.id + "/security/mbap-inside-tls" && r.outcome == conf::Outcome::fail;
+        no_mbap = no_mbap || mbap_failed;
+        if (keep(r.id) || mbap_failed) security_results.push_back(std::move(r));
+      }
+    }
+    if (no_mbap) {
+      conf::DeviceRun dr;
+      dr.device_id = s.device.id;
+      dr.target_uri = info.uri;
+      dr.spec_path = s.path;
+      dr.cases = std::move(security_results);
+      dr.notes.push_back("the standard cases were not run: the server does not carry the MBAP ADU inside TLS "
+                         "(security/mbap-inside-tls), so no Modbus request of theirs could be framed for it");
+      conf::describe_device(dr, s);
+      report.devices.push_back(std::move(dr));
+      continue;
+    }
+
     std::vector<std::string> notes;
     std::optional<conf::map::Map> map = given_map;
     if (a.map == "auto" && target) {
@@ -260,8 +293,8 @@ int run(RunArgs& a) {
       if (info.kind == "tls")
         for (const auto& k : conf::security::check_listing())
           if (keep(s.device.id + "/security/" + k.id))
-            fmt::print("{}{}/security/{}  {}  {}  {}  [a TLS check, made after the cases]\n", column, s.device.id, k.id,
-                       conf::to_string(conf::Level::observed), k.clause, k.title);
+            fmt::print("{}{}/security/{}  {}  {}  {}  [a TLS check, made on connections of its own]\n", column, s.device.id, k.id,
+                       conf::to_string(k.level), k.clause, k.title);
       continue;
     }
     if (a.plan) {
@@ -282,7 +315,7 @@ int run(RunArgs& a) {
           if (keep(s.device.id + "/security/" + k.id)) {
             if (!any) fmt::print("#\n# TLS checks `run` makes after the cases, each on connections of its own (replay does not make them):\n");
             any = true;
-            fmt::print("#   {}/security/{}  OBSERVED  {}  {}\n", s.device.id, k.id, k.clause, k.title);
+            fmt::print("#   {}/security/{}  {}  {}  {}\n", s.device.id, k.id, conf::to_string(k.level), k.clause, k.title);
           }
       }
       continue;
@@ -315,11 +348,8 @@ int run(RunArgs& a) {
       return kExitUsage;
     }
     conf::DeviceRun dr = conf::run_cases(*session, s, cases, opt);
-    // Modbus/TCP Security: what the server does around the TLS handshake
-    // (conformance/security/), beside the standard cases run inside TLS.
-    if (info.kind == "tls" && !conf::stop_requested())
-      for (auto& r : conf::security::check_server(conf::security::from_uri(uri), s.device.id))
-        if (keep(r.id)) dr.cases.push_back(std::move(r));
+    // The Modbus/TCP Security checks made before the cases, beside them in the report.
+    for (auto& r : security_results) dr.cases.push_back(std::move(r));
     conf::describe_device(dr, s);
     progress.clear();
     if (info.live) {
@@ -362,8 +392,9 @@ int run(RunArgs& a) {
     fmt::print(stderr, "mbconform run: error: {}\n", e.what());
     return kExitUsage;
   }
-  fmt::print("{}", conf::summary_table(report));
   fmt::print("reports: {}\n", out);
+  // The table, then the verdict in words as the last line (report/result.h).
+  fmt::print("{}", conf::summary_table(report));
   // Interrupted, or a target lost (DeviceRun::error): the run was not done
   // (2, INCOMPLETE), whatever it found so far; the case it was lost in is a
   // FAIL in the report (a device that dies on a request is a finding).
@@ -371,6 +402,9 @@ int run(RunArgs& a) {
   for (const auto& d : report.devices)
     if (!d.error.empty()) return kExitUsage;
   if (run_failed(report) || !quirks_gone.empty()) return kExitFailed;
+  // PARTIAL (MUST cases skipped for want of an opt-in): 0, unless the CI
+  // gate asks for a complete run.
+  if (a.require_complete && conf::verdict(report).kind == conf::Verdict::Kind::partial) return kExitPartial;
   return kExitOk;
 }
 
@@ -395,6 +429,9 @@ void add_run_command(CLI::App& app, int& exit_code) {
                   "reasons) reported apart, not failed (conformance/README.md, Quirks files)");
   cmd->add_option("--deadline", a->deadline, "the whole run's time (e.g. 10m): then the run stops between cases, restores, "
                   "and names the cases not run (report INCOMPLETE, exit 2)");
+  cmd->add_flag("--require-complete", a->require_complete,
+                "a PARTIAL run (MUST cases skipped for want of an opt-in such as --allow-writes) exits 3 instead of 0: "
+                "for a CI gate that must see every MUST case run");
   cmd->add_flag("--junit-only", a->junit_only, "write only junit.xml");
   cmd->add_flag("-q,--quiet", a->quiet, "no progress on stderr, no failure lines as they happen");
   cmd->add_flag("-v,--verbose", a->verbose, "a line for every case as it ends, not only for failures");

@@ -38,12 +38,9 @@ std::string quote(const std::string& s) {
   return q + "'";
 }
 
-Out run(const std::vector<std::string>& args) {
-  std::string cmd = quote(mbc::serve_test::mbconform_bin());
-  for (const auto& a : args) cmd += " " + quote(a);
-  cmd += " 2>&1";
+Out run_shell(const std::string& cmd) {
   Out o;
-  FILE* p = popen(cmd.c_str(), "r");
+  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
   if (!p) return o;
   std::array<char, 4096> buf;
   size_t n;
@@ -51,6 +48,12 @@ Out run(const std::vector<std::string>& args) {
   int st = pclose(p);
   o.rc = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
   return o;
+}
+
+Out run(const std::vector<std::string>& args) {
+  std::string cmd = quote(mbc::serve_test::mbconform_bin());
+  for (const auto& a : args) cmd += " " + quote(a);
+  return run_shell(cmd);
 }
 
 std::string slurp(const std::string& path) {
@@ -238,47 +241,82 @@ TEST(RunCli, PlanSendsNothing) {
 
 namespace {
 
-// The whole run against a device served by `mbconform serve` in a child
-// process, through the live targets (libmodbus): all MUST cases pass.
+// The whole run against every reference device (spec/devices/*.yaml) served
+// by `mbconform serve` in a child process, over every transport serve offers
+// (Modbus TCP, RTU over TCP, RTU on a pty, Modbus/TCP Security), through the
+// live targets: no MUST case fails. The reference is the device the specs
+// describe, so a MUST it fails on one transport and not on another is a
+// transport bug (the FC 08 counters over TCP were one: MB-SL v1.02 §6.1.2).
 struct Served {
-  const char* device;
-  const char* transport;  // tcp | rtu-tcp | pty
+  std::string device;
+  std::string transport;  // tcp | rtu-tcp | pty | tls
 };
 
 void PrintTo(const Served& s, std::ostream* os) { *os << s.device << " over " << s.transport; }
+
+// Every device spec, every transport; read from the tree, so a new device is tested without a line here.
+std::vector<Served> every_device_every_transport() {
+  std::vector<std::string> devices;
+  for (const auto& e : std::filesystem::directory_iterator(std::string(MBCONFORM_SOURCE_DIR) + "/spec/devices"))
+    if (e.path().extension() == ".yaml") devices.push_back(e.path().stem().string());
+  std::sort(devices.begin(), devices.end());
+  std::vector<Served> out;
+  for (const auto& d : devices)
+    for (const char* t : {"tcp", "rtu-tcp", "pty", "tls"}) out.push_back({d, t});
+  return out;
+}
 
 class OverTheWire : public ::testing::TestWithParam<Served> {};
 
 TEST_P(OverTheWire, EveryMustCasePasses) {
   const Served& p = GetParam();
   TempDir dir;
-  std::vector<std::string> args{"--device", std::string(p.device) + "@1"};
-  std::string t = p.transport;
-  if (t == "pty") args.insert(args.end(), {"--pty", dir / "tty"});
-  else args.insert(args.end(), {"--" + t, "127.0.0.1:0"});
+  std::vector<std::string> args{"--device", p.device + "@1"};
+  const std::string& t = p.transport;
+  std::string pki = dir / "pki";
+  if (t == "tls") {
+    // A throwaway PKI (conformance/tests/security/make_pki.sh, OpenSSL).
+    Out made = run_shell("bash " + quote(std::string(MBCONFORM_SOURCE_DIR) + "/conformance/tests/security/make_pki.sh") + " " +
+                         quote(pki));
+    ASSERT_EQ(made.rc, 0) << made.text;
+    args.insert(args.end(), {"--tls", "127.0.0.1:0", "--cert", pki + "/server.crt", "--key", pki + "/server.key", "--ca",
+                             pki + "/ca.crt"});
+  } else if (t == "pty") {
+    args.insert(args.end(), {"--pty", dir / "tty"});
+  } else {
+    args.insert(args.end(), {"--" + t, "127.0.0.1:0"});
+  }
   ServeProcess serve(args);
   ASSERT_TRUE(serve.wait_listening(1)) << serve.log();
   const auto* ep = serve.endpoint(t);
   ASSERT_NE(ep, nullptr);
   // A fixed 150 ms silence window: ctest runs in parallel on a loaded machine,
   // where a reply can come later than the adaptive window expects.
+  std::string port = t == "pty" ? "" : std::to_string(ep->port());
   std::string uri = t == "pty" ? "rtu://" + ep->address + "?baud=115200&unit=1&silence=150"
-                               : t + "://127.0.0.1:" + std::to_string(ep->port()) + "?unit=1&silence=150";
+                    : t == "tls" ? "mbtls://127.0.0.1:" + port + "?unit=1&silence=150&cert=" + pki + "/operator.crt&key=" + pki +
+                                       "/operator.key&ca=" + pki + "/ca.crt&clients=" + pki
+                                 : t + "://127.0.0.1:" + port + "?unit=1&silence=150";
   Out o = run({"run", "--quiet", "--target", uri, "--device", p.device, "--out", dir / "r"});
   EXPECT_EQ(o.rc, 0) << o.text;
   auto j = nlohmann::json::parse(slurp(dir / "r/report.json"));
   const auto& d = j["devices"][0];
-  EXPECT_EQ(d["counts"]["must_failed"], 0);
+  EXPECT_EQ(d["counts"]["must_failed"], 0) << o.text;
   // A manual that states little (7TRSM5740Q) leaves most cases OBSERVED.
   EXPECT_GT(d["counts"]["pass"].get<int>() + d["counts"]["observed"].get<int>(), 10);
   EXPECT_GT(d["counts"]["pass"].get<int>(), 0);
   EXPECT_TRUE(d["restore_failures"].empty()) << d["restore_failures"].dump();
-  if (t != "tcp") {  // RTU framing
+  if (t == "rtu-tcp" || t == "pty") {  // RTU framing
     // RTU framing cases ran (not skipped) through the raw path.
     for (const auto& c : d["cases"])
       if (c["id"].get<std::string>().find("/framing/rtu/crc-error") != std::string::npos) {
         EXPECT_NE(c["outcome"], "skip") << c.dump();
       }
+  }
+  if (t == "tls") {  // the Modbus/TCP Security checks ran too (conformance/security/)
+    size_t security = 0;
+    for (const auto& c : d["cases"]) security += c["id"].get<std::string>().find("/security/") != std::string::npos;
+    EXPECT_GT(security, 5u);
   }
   if (t == "pty") {
     EXPECT_GT(d["wire_time_bound_seconds"].get<double>(), 0.0);
@@ -286,14 +324,9 @@ TEST_P(OverTheWire, EveryMustCasePasses) {
   EXPECT_EQ(serve.stop(SIGTERM).value_or(-1), 0) << serve.log();
 }
 
-INSTANTIATE_TEST_SUITE_P(Serve, OverTheWire,
-                         ::testing::Values(Served{"sihong-57hs-r", "tcp"}, Served{"hsc60", "tcp"},
-                                           Served{"hanstar-7trsm5740q", "tcp"}, Served{"rieding-dhe", "tcp"},
-                                           Served{"hsc60", "rtu-tcp"}, Served{"sihong-57hs-r", "pty"},
-                                           Served{"hsc60", "pty"}, Served{"hanstar-7trsm5740q", "pty"},
-                                           Served{"rieding-dhe", "pty"}),
+INSTANTIATE_TEST_SUITE_P(Serve, OverTheWire, ::testing::ValuesIn(every_device_every_transport()),
                          [](const auto& info) {
-                           std::string n = std::string(info.param.device) + "_" + info.param.transport;
+                           std::string n = info.param.device + "_" + info.param.transport;
                            for (auto& ch : n)
                              if (ch == '-') ch = '_';
                            return n;
@@ -345,6 +378,147 @@ TEST(RunCli, ServedFaultIsCaughtByItsCase) {
   Out o = run({"run", "--quiet", "--target", uri, "--device", "sihong-57hs-r", "--out", dir / "r"});
   EXPECT_EQ(o.rc, 1) << o.text;
   EXPECT_NE(o.text.find("FAIL sihong-57hs-r/examples/6.2.4/unmapped-address"), std::string::npos) << o.text;
+  EXPECT_EQ(serve.stop(SIGTERM).value_or(-1), 0);
+}
+
+std::string last_line(const std::string& text) {
+  std::string t = text;
+  while (!t.empty() && t.back() == '\n') t.pop_back();
+  auto nl = t.rfind('\n');
+  return nl == std::string::npos ? t : t.substr(nl + 1);
+}
+
+// A server with a write bug (lost-write: FC 06/16 acknowledged, nothing
+// stored), probed with --map auto: without --allow-writes every write case
+// is held back by the frame policy, so the run is PARTIAL (exit 0, or 3
+// under --require-complete) and names the flag in every report; with the
+// flag the write bug fails the run (exit 1).
+TEST(RunCli, PartialRunSaysSoAndNamesTheOptIn) {
+  TempDir dir;
+  ServeProcess serve({"--device", "modbus-standard@1", "--tcp", "127.0.0.1:0", "--fault", "lost-write"});
+  ASSERT_TRUE(serve.wait_listening(1)) << serve.log();
+  std::string uri = "tcp://127.0.0.1:" + std::to_string(serve.endpoint("tcp")->port()) + "?unit=1";
+  Out o = run({"run", "--quiet", "--target", uri, "--map", "auto", "--out", dir / "partial"});
+  EXPECT_EQ(o.rc, 0) << o.text;
+  std::string last = last_line(o.text);
+  EXPECT_EQ(last.rfind("PARTIAL: ", 0), 0u) << o.text;
+  EXPECT_NE(last.find("--allow-writes would enable"), std::string::npos) << last;
+  auto j = nlohmann::json::parse(slurp(dir / "partial/report.json"));
+  EXPECT_EQ(j["verdict"], "PARTIAL");
+  ASSERT_FALSE(j["missing_opt_ins"].empty());
+  EXPECT_EQ(j["missing_opt_ins"][0]["flag"], "--allow-writes");
+  EXPECT_GT(j["missing_opt_ins"][0]["must_cases"].get<int>(), 0);
+  std::string junit = slurp(dir / "partial/junit.xml");
+  EXPECT_NE(junit.find("<property name=\"verdict\" value=\"PARTIAL\"/>"), std::string::npos);
+  EXPECT_NE(junit.find("<property name=\"opt-in\" value=\"--allow-writes: would enable"), std::string::npos);
+  std::string html = slurp(dir / "partial/report.html");
+  EXPECT_NE(html.find("<b>PARTIAL</b>"), std::string::npos);
+  EXPECT_NE(html.find("<code>--allow-writes</code> would enable"), std::string::npos);
+  // A Modbus TCP target has no serial line settings.
+  EXPECT_EQ(html.find("<th>Line settings</th>"), std::string::npos);
+
+  Out gate = run({"run", "--quiet", "--target", uri, "--map", "auto", "--require-complete", "--out", dir / "gate"});
+  EXPECT_EQ(gate.rc, 3) << gate.text;
+
+  Out full = run({"run", "--quiet", "--target", uri, "--map", "auto", "--allow-writes", "--out", dir / "full"});
+  EXPECT_EQ(full.rc, 1) << full.text;
+  EXPECT_EQ(last_line(full.text).rfind("FAIL: ", 0), 0u) << full.text;
+  auto fj = nlohmann::json::parse(slurp(dir / "full/report.json"));
+  EXPECT_EQ(fj["verdict"], "FAIL");
+  // The write bug by cause: a value other than the one written, one replay command for them all.
+  bool value_cause = false;
+  for (const auto& c : fj["devices"][0]["causes"])
+    if (c["kind"] == "different" && c["cause"].get<std::string>().find("another value") != std::string::npos) {
+      value_cause = true;
+      std::string replay = c["replay"];
+      EXPECT_NE(replay.find("--filter"), std::string::npos) << replay;
+      if (c["cases"].size() > 1) {
+        EXPECT_NE(replay.find("re:^("), std::string::npos) << replay;
+      }
+    }
+  EXPECT_TRUE(value_cause) << fj["devices"][0]["causes"].dump(1);
+  EXPECT_EQ(serve.stop(SIGTERM).value_or(-1), 0);
+}
+
+// One fault (an exception code other than the one due) is one cause,
+// whatever registers and function codes its cases cover; the cause's replay
+// command selects exactly its cases.
+TEST(RunCli, FailuresGroupByCause) {
+  TempDir dir;
+  Out o = run({"run", "--quiet", "--target", "ref:sihong-57hs-r?fault=wrong-exception-code", "--out", dir / "r"});
+  EXPECT_EQ(o.rc, 1) << o.text;
+  auto j = nlohmann::json::parse(slurp(dir / "r/report.json"));
+  const auto& causes = j["devices"][0]["causes"];
+  ASSERT_FALSE(causes.empty());
+  size_t failing = 0;
+  for (const auto& c : j["devices"][0]["cases"])
+    if (c["outcome"] == "fail" && c["level"] == "MUST") {
+      ++failing;
+      ASSERT_TRUE(c.contains("cause")) << c.dump();
+    }
+  size_t grouped = 0;
+  for (const auto& c : causes) grouped += c["cases"].size();
+  EXPECT_EQ(grouped, failing);
+  // Fewer causes than failing cases: the same fault at many registers is one line.
+  EXPECT_LT(causes.size(), failing);
+  const auto& top = causes[0];
+  EXPECT_NE(top["cause"].get<std::string>().find(" where exception "), std::string::npos) << top.dump();
+  // Its replay command re-runs exactly its cases.
+  std::string replay = top["replay"];
+  auto at = replay.find("--filter '");
+  ASSERT_NE(at, std::string::npos) << replay;
+  std::string filter = replay.substr(at + 10, replay.size() - at - 11);
+  Out again = run({"run", "--quiet", "--target", "ref:sihong-57hs-r?fault=wrong-exception-code", "--filter", filter, "--out",
+                   dir / "again"});
+  auto aj = nlohmann::json::parse(slurp(dir / "again/report.json"));
+  EXPECT_EQ(aj["devices"][0]["cases"].size(), top["cases"].size()) << replay;
+  // An in-process device is on a serial line of its own: its line settings show.
+  std::string html = slurp(dir / "r/report.html");
+  EXPECT_NE(html.find("<th>Line settings</th>"), std::string::npos);
+}
+
+// A served drive behind a Modbus TCP gateway that retries (retrying_gateway.py,
+// written in the tests from the TCP IG and MB-SL, not from mbconform): where
+// the device stays silent (listen-only mode) the gateway answers exception 0B
+// after its retries, which a gateway-aware run accepts as the gateway's own
+// (MBAP v1.1b3 §7), waiting for it instead of judging a silence that is then
+// answered late. Every MUST passes, given (gateway=1) or detected.
+TEST(RunCli, ThroughARetryingGateway) {
+  TempDir dir;
+  ServeProcess serve({"--device", "modbus-standard@1", "--rtu-tcp", "127.0.0.1:0"});
+  ASSERT_TRUE(serve.wait_listening(1)) << serve.log();
+  std::string gw_script = std::string(MBCONFORM_SOURCE_DIR) + "/conformance/tests/runner/retrying_gateway.py";
+  FILE* gw = popen((std::string(PYTHON3) + " " + quote(gw_script) + " " + std::to_string(serve.endpoint("rtu-tcp")->port()) +
+                    " --try-ms 40 --retries 2 & echo $!").c_str(), "r");
+  ASSERT_NE(gw, nullptr);
+  char line[256] = {0};
+  std::string pid, listening;
+  if (fgets(line, sizeof line, gw)) pid = line;
+  // The gateway prints "listening tcp 127.0.0.1:PORT" on the same pipe.
+  if (fgets(line, sizeof line, gw)) listening = line;
+  ASSERT_NE(listening.find("listening tcp 127.0.0.1:"), std::string::npos) << listening;
+  std::string port = listening.substr(listening.rfind(':') + 1);
+  while (!port.empty() && (port.back() == '\n' || port.back() == '\r')) port.pop_back();
+  for (const char* mode : {"&gateway=1", ""}) {
+    std::string out = dir / (std::string("r") + (*mode ? "-given" : "-detected"));
+    Out o = run({"run", "--quiet", "--target", "tcp://127.0.0.1:" + port + "?unit=1" + mode, "--device", "modbus-standard",
+                 "--out", out});
+    EXPECT_EQ(o.rc, 0) << mode << "\n" << o.text;
+    auto j = nlohmann::json::parse(slurp(out + "/report.json"));
+    const auto& d = j["devices"][0];
+    EXPECT_EQ(d["counts"]["must_failed"], 0) << o.text;
+    std::string notes = d["notes"].dump();
+    EXPECT_NE(notes.find("a gateway is in front of the device"), std::string::npos) << notes;
+    EXPECT_NE(notes.find(*mode ? "gateway=1" : "detected from a 0A/0B reply"), std::string::npos) << notes;
+    // The listen-only example: the gateway's 0B stands for the device's silence.
+    bool listen_only = false;
+    for (const auto& c : d["cases"])
+      if (c["id"].get<std::string>().find("/listen-only") != std::string::npos && c.contains("extra") && c["extra"].contains("gateway"))
+        listen_only = c["outcome"] == "pass";
+    EXPECT_TRUE(listen_only) << o.text;
+  }
+  if (!pid.empty()) kill(pid_t(std::stoi(pid)), SIGTERM);
+  pclose(gw);
   EXPECT_EQ(serve.stop(SIGTERM).value_or(-1), 0);
 }
 
