@@ -366,7 +366,9 @@ class HostProcess {
       // The session's end comes on the control socket even when a process the
       // plugin forked holds the response pipe open.
       pollfd pf[2] = {{from_, POLLIN, 0}, {exited_ || !alive_ ? -1 : ctl_, POLLIN, 0}};
-      int rc = left > 0 ? ::poll(pf, 2, int(left)) : 0;
+      // Once the session ended, what it wrote before is read without waiting.
+      bool ended_already = exited_ || !alive_;
+      int rc = left > 0 || ended_already ? ::poll(pf, 2, ended_already ? 0 : int(left)) : 0;
       if (rc < 0 && errno == EINTR) continue;
       if (rc == 0) {
         if (exited_ || !alive_) {
@@ -383,8 +385,6 @@ class HostProcess {
       if (pf[1].revents && !(pf[0].revents)) {
         host::Control c;
         take_control(c);
-        // Ended: what it wrote before is still read; then nothing more comes.
-        deadline = std::min(deadline, live::Clock::now() + std::chrono::milliseconds(1));
         continue;
       }
       if (!pf[0].revents) continue;
