@@ -78,8 +78,18 @@ namespace {
 
 std::string strerr() { return std::strerror(errno); }
 
+// A file a user names must be a regular file: a FIFO or a device would hang
+// the reader. Throws naming the option.
+void check_regular(const std::string& path, const std::string& name) {
+  struct stat st{};
+  if (::stat(path.c_str(), &st) != 0) throw std::runtime_error(fmt::format("{} {}: {}", name, path, strerr()));
+  if (!S_ISREG(st.st_mode))
+    throw std::runtime_error(fmt::format("{} {}: not a regular file (a device or a pipe has no end to read to)", name, path));
+}
+
 // A PEM file's first certificate; throws naming the option.
 void check_pem_cert(const std::string& path, const std::string& name) {
+  check_regular(path, name);
   FILE* f = std::fopen(path.c_str(), "r");
   if (!f) throw std::runtime_error(fmt::format("{} {}: {}", name, path, strerr()));
   X509* x = PEM_read_X509(f, nullptr, nullptr, nullptr);
@@ -102,6 +112,8 @@ void check_files(const Files& f, const std::string& cert_name, const std::string
   struct stat st{};
   if (::stat(f.key.c_str(), &st) != 0) throw std::runtime_error(fmt::format("{} {}: {}", key_name, f.key, strerr()));
   // A private key others can read is no longer private (as ssh refuses one).
+  if (!S_ISREG(st.st_mode))
+    throw std::runtime_error(fmt::format("{} {}: not a regular file (a device or a pipe has no end to read to)", key_name, f.key));
   if (st.st_mode & (S_IRWXG | S_IRWXO))
     throw std::runtime_error(fmt::format("{} {}: readable by group or others (mode {:04o}); chmod 600 it", key_name,
                                          f.key, unsigned(st.st_mode & 07777)));
@@ -198,6 +210,7 @@ Roles Roles::load(const std::string& path) {
     return fmt::format("{}:{}:{}: error: roles: ", path, m.line + 1, m.column + 1);
   };
   YAML::Node root;
+  check_regular(path, "--roles");
   try {
     root = YAML::LoadFile(path);
   } catch (const YAML::BadFile&) {
