@@ -136,8 +136,8 @@ int run_import(const std::string& csv_file, const std::string& wb_file, std::str
   if (id.empty()) throw std::runtime_error("--id ID is needed (the new spec's id, [a-z0-9][a-z0-9-]*)");
   if (!valid_id(id)) throw std::runtime_error("--id '" + id + "': a spec id is [a-z0-9][a-z0-9-]*");
   auto r = wb_file.empty() ? exchange::import_csv(text, csv, id) : exchange::import_wb_template(text, csv, id);
-  for (const auto& w : r.warnings) std::cerr << w << "\n";
-  for (const auto& e : r.errors) std::cerr << e << "\n";
+  print_capped(r.warnings, "warnings");
+  print_capped(r.errors, "errors");
   if (!r.errors.empty()) {
     std::cerr << fmt::format("{}: {} error{}; nothing written\n", csv, r.error_count, r.error_count == 1 ? "" : "s");
     return kExitFailed;
