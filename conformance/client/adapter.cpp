@@ -8,6 +8,8 @@
 
 #include <cerrno>
 #include <cstring>
+#include <algorithm>
+#include <string_view>
 #include <stdexcept>
 #include <vector>
 
@@ -20,6 +22,44 @@ void close_fd(int& fd) {
 }
 
 }  // namespace
+
+bool json_depth_ok(std::string_view text, size_t max) {
+  size_t depth = 0;
+  bool in_string = false, escaped = false;
+  for (char c : text) {
+    if (in_string) {
+      if (escaped) escaped = false;
+      else if (c == '\\') escaped = true;
+      else if (c == '"') in_string = false;
+      continue;
+    }
+    if (c == '"') in_string = true;
+    else if (c == '[' || c == '{') {
+      if (++depth > max) return false;
+    } else if ((c == ']' || c == '}') && depth) {
+      --depth;
+    }
+  }
+  return true;
+}
+
+void Adapter::append_log(std::string_view text) {
+  size_t keep = std::min(text.size(), kMaxLog - std::min(kMaxLog, logged_));
+  log_.append(text.substr(0, keep));
+  logged_ += keep;
+  log_dropped_ += text.size() - keep;
+}
+
+std::string Adapter::take_log() {
+  drain_stderr();
+  std::string out = std::exchange(log_, std::string());
+  if (log_dropped_) {
+    out += "[mbconform] the adapter's output past " + std::to_string(kMaxLog) + " bytes was dropped (" +
+           std::to_string(log_dropped_) + " bytes)\n";
+    log_dropped_ = 0;
+  }
+  return out;
+}
 
 Adapter::Adapter(std::string command) : command_(std::move(command)) {}
 
@@ -65,10 +105,13 @@ bool Adapter::send(const nlohmann::json& message) {
   return true;
 }
 
+// Bounded: an adapter that writes stderr without end does not keep this
+// loop (and the scenario server waiting on it) from the rest.
 void Adapter::drain_stderr() {
   char buf[4096];
   ssize_t n;
-  while (err_ >= 0 && (n = ::read(err_, buf, sizeof buf)) > 0) log_.append(buf, size_t(n));
+  for (int i = 0; i < 64 && err_ >= 0 && (n = ::read(err_, buf, sizeof buf)) > 0; ++i)
+    append_log(std::string_view(buf, size_t(n)));
 }
 
 std::optional<nlohmann::json> Adapter::next(Clock::time_point deadline, ScenarioServer* server) {
@@ -77,9 +120,21 @@ std::optional<nlohmann::json> Adapter::next(Clock::time_point deadline, Scenario
     for (size_t nl; (nl = out_buf_.find('\n')) != std::string::npos;) {
       std::string line = out_buf_.substr(0, nl);
       out_buf_.erase(0, nl + 1);
+      if (std::exchange(skipping_line_, false)) continue;  // the end of a line too long to keep
+      if (!json_depth_ok(line, kMaxDepth)) {
+        log_note("a JSON line on stdout nested deeper than " + std::to_string(kMaxDepth) + " levels: ignored (" +
+                 std::to_string(line.size()) + " bytes)");
+        continue;
+      }
       auto j = nlohmann::json::parse(line, nullptr, false);
       if (!j.is_discarded() && j.is_object()) return j;
-      if (!line.empty()) log_ += "[mbconform] not a JSON object on stdout: " + line + "\n";
+      if (!line.empty()) log_note("not a JSON object on stdout: " + line.substr(0, 200) + (line.size() > 200 ? "..." : ""));
+    }
+    if (out_buf_.size() > kMaxLine) {
+      if (!skipping_line_)
+        log_note("a line on stdout longer than " + std::to_string(kMaxLine) + " bytes: ignored");
+      skipping_line_ = true;
+      out_buf_.clear();
     }
     if (out_ < 0) return std::nullopt;
     auto now = Clock::now();
@@ -120,6 +175,29 @@ void Adapter::kill() {
   close_fd(in_);
   close_fd(out_);
   close_fd(err_);
+}
+
+std::string Adapter::exited(std::chrono::milliseconds grace) {
+  if (pid_ <= 0 || out_ >= 0) return "";  // stdout still open: it did not end
+  auto deadline = Clock::now() + grace;
+  for (;;) {
+    int status = 0;
+    pid_t r = waitpid(pid_, &status, WNOHANG);
+    if (r == pid_) {
+      pid_ = -1;
+      drain_stderr();
+      close_fd(in_);
+      close_fd(out_);
+      close_fd(err_);
+      if (WIFSIGNALED(status)) {
+        const char* abbrev = sigabbrev_np(WTERMSIG(status));
+        return "killed by SIG" + std::string(abbrev ? abbrev : std::to_string(WTERMSIG(status)));
+      }
+      return "exited with status " + std::to_string(WIFEXITED(status) ? WEXITSTATUS(status) : -1);
+    }
+    if (r < 0 || Clock::now() >= deadline) return "";
+    usleep(2000);
+  }
 }
 
 int Adapter::finish(std::chrono::milliseconds grace) {

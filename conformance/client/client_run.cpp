@@ -195,6 +195,11 @@ class Session {
     Answer hang;
     hang.kind = "hang";
     hang.detail = "no answer within the time-out; the adapter was killed and restarted";
+    // An adapter that closed its stdout has not hung: it ended, and says how.
+    if (std::string how = adapter_->exited(milliseconds(500)); !how.empty()) {
+      hang.kind = "exited";
+      hang.detail = "the adapter " + how + " before answering; it was restarted";
+    }
     keep_log();
     ++out_.restarts;
     restarted_ = start() && connect();
@@ -217,8 +222,15 @@ class Session {
   const std::string& error() const { return out_.error; }
   void set_error(std::string e) { out_.error = std::move(e); }
 
+  // The run's adapter log stays bounded across restarts too.
   void keep_log() {
-    if (adapter_) out_.adapter_log += adapter_->take_log();
+    if (!adapter_) return;
+    std::string more = adapter_->take_log();
+    if (out_.adapter_log.size() + more.size() <= 4 * Adapter::kMaxLog) out_.adapter_log += more;
+    else if (!log_full_) {
+      out_.adapter_log += "[mbconform] the adapter log is full: the rest of the run's adapter output was dropped\n";
+      log_full_ = true;
+    }
   }
 
   bool restarted() {
@@ -235,6 +247,7 @@ class Session {
   std::set<std::string> ops_;
   int id_ = 0;
   bool restarted_ = false;
+  bool log_full_ = false;
 };
 
 // One step for the report: the master's request, the outcomes that pass, what
@@ -473,7 +486,7 @@ ClientRun run_client(const ClientOptions& o, const std::vector<Scenario>& list) 
           out.run.frames_sent++;
           out.run.bytes_sent += f.bytes.size();
         }
-        if (a.kind == "hang") break;
+        if (a.kind == "hang" || a.kind == "exited") break;
       }
       r.extra["answers"] = answers;
       if (!session.restarted()) session.disconnect();

@@ -47,7 +47,7 @@ const char* to_string(Fault);
 
 // An adapter's answer to one request, reduced to what is judged.
 struct Answer {
-  std::string kind;  // ok | exception | timeout | invalid_reply | refused | unsupported | other | hang
+  std::string kind;  // ok | exception | timeout | invalid_reply | refused | unsupported | other | hang | exited
   int code = 0;      // exception code
   nlohmann::json values;
   std::string detail;

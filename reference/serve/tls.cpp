@@ -15,6 +15,8 @@
 #include <poll.h>
 #include <pthread.h>
 #include <signal.h>
+#include <sys/epoll.h>
+#include <sys/resource.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -76,8 +78,18 @@ namespace {
 
 std::string strerr() { return std::strerror(errno); }
 
+// A file a user names must be a regular file: a FIFO or a device would hang
+// the reader. Throws naming the option.
+void check_regular(const std::string& path, const std::string& name) {
+  struct stat st{};
+  if (::stat(path.c_str(), &st) != 0) throw std::runtime_error(fmt::format("{} {}: {}", name, path, strerr()));
+  if (!S_ISREG(st.st_mode))
+    throw std::runtime_error(fmt::format("{} {}: not a regular file (a device or a pipe has no end to read to)", name, path));
+}
+
 // A PEM file's first certificate; throws naming the option.
 void check_pem_cert(const std::string& path, const std::string& name) {
+  check_regular(path, name);
   FILE* f = std::fopen(path.c_str(), "r");
   if (!f) throw std::runtime_error(fmt::format("{} {}: {}", name, path, strerr()));
   X509* x = PEM_read_X509(f, nullptr, nullptr, nullptr);
@@ -100,6 +112,8 @@ void check_files(const Files& f, const std::string& cert_name, const std::string
   struct stat st{};
   if (::stat(f.key.c_str(), &st) != 0) throw std::runtime_error(fmt::format("{} {}: {}", key_name, f.key, strerr()));
   // A private key others can read is no longer private (as ssh refuses one).
+  if (!S_ISREG(st.st_mode))
+    throw std::runtime_error(fmt::format("{} {}: not a regular file (a device or a pipe has no end to read to)", key_name, f.key));
   if (st.st_mode & (S_IRWXG | S_IRWXO))
     throw std::runtime_error(fmt::format("{} {}: readable by group or others (mode {:04o}); chmod 600 it", key_name,
                                          f.key, unsigned(st.st_mode & 07777)));
@@ -196,6 +210,7 @@ Roles Roles::load(const std::string& path) {
     return fmt::format("{}:{}:{}: error: roles: ", path, m.line + 1, m.column + 1);
   };
   YAML::Node root;
+  check_regular(path, "--roles");
   try {
     root = YAML::LoadFile(path);
   } catch (const YAML::BadFile&) {
@@ -458,11 +473,34 @@ void expect_host(SSL* ssl, const std::string& host) {
 namespace {
 
 // A TLS handshake that has not finished after this long is dropped (a peer
-// that connects and says nothing must not hold a slot forever).
-constexpr std::chrono::seconds kHandshakeLimit{10};
+// that connects and says nothing must not hold a slot for long).
+constexpr std::chrono::seconds kHandshakeLimit{5};
+// Handshakes under way at once, in all and from one peer address: past
+// either cap the oldest such handshake makes room for the newcomer.
+constexpr size_t kMaxHandshakes = 256;
+constexpr size_t kMaxPeerHandshakes = 32;
+// Descriptors kept free of TLS connections: listeners, the epoll set, wake
+// pipes, stdio, and what the serve loop opens beside them.
+constexpr size_t kReservedFds = 64;
+// An established server-side connection holds three descriptors: its TCP
+// socket and both ends of the socketpair to the serve loop.
+constexpr size_t kFdsPerConnection = 3;
 // Decrypted bytes held for the plain side at once; past it, nothing more is
 // read from the TLS side until they are written.
 constexpr size_t kBufferBound = 64 * 1024;
+// Keys of the epoll set that are no connection (a connection's key is the
+// address of its Watch, far below these).
+constexpr uint64_t kWakeKey = uint64_t(1) << 62;
+constexpr uint64_t kListenerKey = uint64_t(1) << 61;
+
+struct Pipe;
+// One descriptor of a connection in the epoll set.
+struct Watch {
+  Pipe* pipe = nullptr;
+  bool plain = false;
+  uint32_t armed = 0;
+  bool registered = false;
+};
 
 struct Pipe {
   int net = -1;    // the TCP connection carrying TLS
@@ -472,11 +510,23 @@ struct Pipe {
   Clock::time_point started;
   std::function<int(const Peer&)> inner;  // server side: where the plain side comes from
   std::string to_plain, to_tls;
-  bool tls_eof = false;     // close_notify (or EOF) from the TLS peer
+  bool tls_eof = false;     // close_notify from the TLS peer
   bool plain_eof = false;   // EOF from the plain side
   bool want_write = false;  // the last SSL call wanted to write
   bool done = false;
+  bool doomed = false;      // queued for removal this round
+  bool queued = false;      // queued for a step this round
+  std::string peer;         // the peer's address without the port (the per-peer cap)
+  Watch net_watch, plain_watch;
+  std::list<Pipe>::iterator self;                // in Impl::pipes, least recently active first
+  std::list<Pipe*>::iterator shaking;            // in Impl::handshakes while handshaking
+  bool counted = false;                          // in the handshake counts
 
+  Pipe() {
+    net_watch.pipe = plain_watch.pipe = this;
+    plain_watch.plain = true;
+  }
+  Pipe(const Pipe&) = delete;
   ~Pipe() {
     if (ssl) SSL_free(ssl);
     if (net >= 0) ::close(net);
@@ -494,12 +544,31 @@ struct TlsListener {
   int timeout_ms = 1000;
 };
 
+std::string host_of(const sockaddr_storage& ss) {
+  char buf[INET6_ADDRSTRLEN] = "";
+  if (ss.ss_family == AF_INET) inet_ntop(AF_INET, &reinterpret_cast<const sockaddr_in*>(&ss)->sin_addr, buf, sizeof buf);
+  else if (ss.ss_family == AF_INET6) inet_ntop(AF_INET6, &reinterpret_cast<const sockaddr_in6*>(&ss)->sin6_addr, buf, sizeof buf);
+  return buf;
+}
+
 }  // namespace
 
+// One thread, one epoll set (no limit on the number of descriptors), level
+// triggered: a round costs the connections that are ready. Every SSL call
+// starts with an empty error queue (OpenSSL's error queue is per thread: an
+// error one connection left behind made SSL_get_error report it for the next
+// connection, which was then dropped).
 struct Relay::Impl {
   std::vector<Ctx> ctxs;
   std::vector<TlsListener> listeners;
-  std::list<Pipe> pipes;
+  std::list<Pipe> pipes;         // least recently active first
+  std::list<Pipe*> handshakes;   // oldest first
+  std::map<std::string, size_t> peer_handshakes;
+  std::vector<Pipe*> doomed;
+  size_t fds_used = 0;           // by the connections (kFdsPerConnection once established)
+  size_t fd_budget = 0;
+  int spare = -1;                // a descriptor given up to refuse a connection cleanly at the file limit
+  int epfd = -1;
   int wake[2] = {-1, -1};
   std::thread thread;
   std::atomic<bool> stop{false};
@@ -517,6 +586,8 @@ struct Relay::Impl {
     for (auto& l : listeners) ::close(l.fd);
     if (wake[0] >= 0) ::close(wake[0]);
     if (wake[1] >= 0) ::close(wake[1]);
+    if (epfd >= 0) ::close(epfd);
+    if (spare >= 0) ::close(spare);
   }
 
   void set_error(std::string e) {
@@ -524,12 +595,92 @@ struct Relay::Impl {
     last_error = std::move(e);
   }
 
-  void accept_tls(TlsListener& l) {
-    for (;;) {
+  // ---- bookkeeping ----
+
+  void arm(Watch& w, int fd, uint32_t want) {
+    if (fd < 0) return;
+    if (w.registered && w.armed == want) return;
+    epoll_event e{};
+    e.events = want;
+    e.data.u64 = reinterpret_cast<uintptr_t>(&w);
+    if (epoll_ctl(epfd, w.registered ? EPOLL_CTL_MOD : EPOLL_CTL_ADD, fd, &e) == 0) {
+      w.registered = true;
+      w.armed = want;
+    }
+  }
+
+  // Registers the connection for what it can use now.
+  void update(Pipe& p) {
+    if (p.done) return;
+    uint32_t net = (p.to_plain.size() < kBufferBound && !p.tls_eof ? uint32_t(EPOLLIN) : 0u) | (p.want_write ? uint32_t(EPOLLOUT) : 0u);
+    if (p.handshaking) net = uint32_t(EPOLLIN) | (p.want_write ? uint32_t(EPOLLOUT) : 0u);
+    arm(p.net_watch, p.net, net);
+    if (!p.handshaking && p.plain >= 0) {
+      uint32_t plain = (p.to_tls.size() < kBufferBound && !p.plain_eof ? uint32_t(EPOLLIN) : 0u) | (!p.to_plain.empty() ? uint32_t(EPOLLOUT) : 0u);
+      arm(p.plain_watch, p.plain, plain);
+    }
+  }
+
+  void uncount(Pipe& p) {
+    if (!p.counted) return;
+    p.counted = false;
+    handshakes.erase(p.shaking);
+    if (auto it = peer_handshakes.find(p.peer); it != peer_handshakes.end() && --it->second == 0) peer_handshakes.erase(it);
+  }
+
+  // Closes the connection now (its descriptors come free at once) and queues
+  // it for removal at the end of the round.
+  void doom(Pipe& p) {
+    if (p.doomed) return;
+    p.done = p.doomed = true;
+    uncount(p);
+    size_t held = size_t(p.net >= 0) + (p.plain >= 0 ? kFdsPerConnection - 1 : 0);
+    fds_used -= std::min(fds_used, held);
+    if (p.ssl) SSL_free(p.ssl);
+    p.ssl = nullptr;
+    if (p.net >= 0) ::close(p.net);
+    if (p.plain >= 0) ::close(p.plain);
+    p.net = p.plain = -1;
+    doomed.push_back(&p);
+  }
+
+  void bury() {
+    for (Pipe* p : doomed) pipes.erase(p->self);
+    doomed.clear();
+  }
+
+  // The connection unused the longest (Modbus Messaging on TCP/IP
+  // Implementation Guide V1.0b §4.2.1.2) makes room, `except` kept.
+  bool make_room(const Pipe* except) {
+    for (auto& p : pipes)
+      if (!p.doomed && &p != except) {
+        doom(p);
+        return true;
+      }
+    return false;
+  }
+
+  // ---- accepting ----
+
+  void accept_tls(TlsListener& l, Clock::time_point now) {
+    for (int n = 0; n < 256; ++n) {  // bounded: the others are served between bursts
       sockaddr_storage ss{};
       socklen_t len = sizeof ss;
       int fd = accept4(l.fd, reinterpret_cast<sockaddr*>(&ss), &len, SOCK_NONBLOCK | SOCK_CLOEXEC);
-      if (fd < 0) return;
+      if (fd < 0) {
+        if ((errno == EMFILE || errno == ENFILE) && spare >= 0) {
+          // At the file limit: refuse the newcomer cleanly (accept and close
+          // it with the descriptor kept for this) and make room for the next.
+          ::close(spare);
+          spare = -1;
+          int refused = accept4(l.fd, nullptr, nullptr, SOCK_CLOEXEC);
+          if (refused >= 0) ::close(refused);
+          spare = ::open("/dev/null", O_RDONLY | O_CLOEXEC);
+          make_room(nullptr);
+          continue;
+        }
+        return;  // EAGAIN, or an aborted connection
+      }
       int one = 1;
       setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
       if (!l.tls) {
@@ -537,13 +688,38 @@ struct Relay::Impl {
         continue;
       }
       Pipe& p = pipes.emplace_back();
+      p.self = std::prev(pipes.end());
       p.net = fd;
+      ++fds_used;
+      p.peer = host_of(ss);
+      p.started = now;
+      p.inner = l.inner;
+      // The caps: the oldest handshake of this peer, else the oldest of all,
+      // else the connection unused the longest, makes room.
+      size_t& mine = peer_handshakes[p.peer];
+      if (mine >= kMaxPeerHandshakes)
+        for (Pipe* q : handshakes)
+          if (q->peer == p.peer) {
+            doom(*q);
+            break;
+          }
+      if (handshakes.size() >= kMaxHandshakes) doom(*handshakes.front());
+      while (fds_used + kFdsPerConnection - 1 > fd_budget && make_room(&p)) {
+      }
+      ++peer_handshakes[p.peer];
+      handshakes.push_back(&p);
+      p.shaking = std::prev(handshakes.end());
+      p.counted = true;
       p.ssl = SSL_new(l.ctx);
+      if (!p.ssl) {
+        doom(p);
+        continue;
+      }
       SSL_set_fd(p.ssl, fd);
       SSL_set_accept_state(p.ssl);
-      p.started = Clock::now();
-      p.inner = l.inner;
       step(p);
+      if (p.done) doom(p);
+      else update(p);
     }
   }
 
@@ -562,6 +738,7 @@ struct Relay::Impl {
       ::close(fd);
       return;
     }
+    ERR_clear_error();
     SSL* ssl = SSL_new(l.ctx);
     SSL_set_fd(ssl, net);
     expect_host(ssl, l.remote_host);
@@ -578,36 +755,44 @@ struct Relay::Impl {
     set_error("");
     set_nonblocking(net);
     Pipe& p = pipes.emplace_back();
+    p.self = std::prev(pipes.end());
     p.net = net;
     p.plain = fd;
     p.ssl = ssl;
     p.handshaking = false;
+    fds_used += kFdsPerConnection;
     step(p);
+    if (p.done) doom(p);
+    else update(p);
   }
+
+  // ---- one connection ----
 
   // Does everything that can be done without blocking.
   void step(Pipe& p) {
+    if (p.done || !p.ssl) return;
     if (p.handshaking) {
+      ERR_clear_error();
       int rc = SSL_do_handshake(p.ssl);
       if (rc != 1) {
         int e = SSL_get_error(p.ssl, rc);
+        ERR_clear_error();
         if (e == SSL_ERROR_WANT_READ || e == SSL_ERROR_WANT_WRITE) {
           p.want_write = e == SSL_ERROR_WANT_WRITE;
-          if (Clock::now() - p.started > kHandshakeLimit) p.done = true;
           return;
         }
-        ERR_clear_error();
         // Refused: the alert went out with the failure. Close the write side
         // and read what the client already sent, so that closing does not
         // reset the connection and drop the alert before the client reads it.
         ::shutdown(p.net, SHUT_WR);
         char sink[4096];
-        while (::recv(p.net, sink, sizeof sink, 0) > 0) {
+        for (int i = 0; i < 16 && ::recv(p.net, sink, sizeof sink, 0) > 0; ++i) {
         }
         p.done = true;
         return;
       }
       p.handshaking = false;
+      uncount(p);
       Peer peer;
       sockaddr_storage ss{};
       socklen_t len = sizeof ss;
@@ -619,30 +804,38 @@ struct Relay::Impl {
       X509_free(cert);
       p.plain = p.inner ? p.inner(peer) : -1;
       if (p.plain < 0) {
+        ERR_clear_error();
         SSL_shutdown(p.ssl);
+        ERR_clear_error();
         p.done = true;
         return;
       }
+      fds_used += kFdsPerConnection - 1;
       set_nonblocking(p.plain);
     }
     // TLS -> plain
     while (!p.tls_eof && p.to_plain.size() < kBufferBound) {
       char buf[4096];
+      ERR_clear_error();
       int n = SSL_read(p.ssl, buf, sizeof buf);
       if (n > 0) {
         p.to_plain.append(buf, size_t(n));
         continue;
       }
       int e = SSL_get_error(p.ssl, n);
+      ERR_clear_error();
       if (e == SSL_ERROR_WANT_READ) break;
       if (e == SSL_ERROR_WANT_WRITE) {
         p.want_write = true;
         break;
       }
-      // SSL_ERROR_ZERO_RETURN: close_notify; anything else: the peer is gone.
-      ERR_clear_error();
+      // SSL_ERROR_ZERO_RETURN: close_notify; anything else (a FIN without
+      // close_notify, a reset): this connection is gone, and only this one.
       p.tls_eof = true;
-      if (e != SSL_ERROR_ZERO_RETURN) p.done = true;
+      if (e != SSL_ERROR_ZERO_RETURN) {
+        p.done = true;
+        return;
+      }
     }
     while (!p.to_plain.empty()) {
       ssize_t n = ::send(p.plain, p.to_plain.data(), p.to_plain.size(), MSG_NOSIGNAL);
@@ -670,55 +863,91 @@ struct Relay::Impl {
     }
     p.want_write = false;
     while (!p.to_tls.empty()) {
+      ERR_clear_error();
       int n = SSL_write(p.ssl, p.to_tls.data(), int(p.to_tls.size()));
       if (n > 0) {
         p.to_tls.erase(0, size_t(n));
         continue;
       }
       int e = SSL_get_error(p.ssl, n);
+      ERR_clear_error();
       if (e == SSL_ERROR_WANT_WRITE || e == SSL_ERROR_WANT_READ) {
         p.want_write = e == SSL_ERROR_WANT_WRITE;
         return;
       }
-      ERR_clear_error();
       p.done = true;
       return;
     }
     // The plain side ended and everything it said went out: close_notify.
     if (p.plain_eof) {
+      ERR_clear_error();
       SSL_shutdown(p.ssl);
+      ERR_clear_error();
       p.done = true;
     }
   }
 
+  // ---- the loop ----
+
   void run() {
     NoSigpipe no_sigpipe;  // a peer that closed must not kill the process
-    std::vector<pollfd> fds;
+    rlimit nofile{};
+    getrlimit(RLIMIT_NOFILE, &nofile);
+    size_t limit = nofile.rlim_cur == RLIM_INFINITY ? size_t(1) << 20 : size_t(nofile.rlim_cur);
+    fd_budget = limit > 2 * kReservedFds ? limit - kReservedFds : limit / 2;
+    spare = ::open("/dev/null", O_RDONLY | O_CLOEXEC);
+    epfd = epoll_create1(EPOLL_CLOEXEC);
+    if (epfd < 0) return;
+    epoll_event e{};
+    e.events = EPOLLIN;
+    e.data.u64 = kWakeKey;
+    epoll_ctl(epfd, EPOLL_CTL_ADD, wake[0], &e);
+    for (size_t i = 0; i < listeners.size(); ++i) {
+      e.data.u64 = kListenerKey | i;
+      epoll_ctl(epfd, EPOLL_CTL_ADD, listeners[i].fd, &e);
+    }
+    std::vector<epoll_event> ready(256);
+    std::vector<Pipe*> stepped;
     while (!stop) {
-      fds.clear();
-      fds.push_back({wake[0], POLLIN, 0});
-      for (const auto& l : listeners) fds.push_back({l.fd, POLLIN, 0});
-      for (const auto& p : pipes) {
-        short net = short((p.to_plain.size() < kBufferBound && !p.tls_eof ? POLLIN : 0) | (p.want_write ? POLLOUT : 0));
-        if (p.handshaking) net = short(POLLIN | (p.want_write ? POLLOUT : 0));
-        fds.push_back({p.net, net, 0});
-        short plain = short((p.to_tls.size() < kBufferBound && !p.plain_eof ? POLLIN : 0) | (!p.to_plain.empty() ? POLLOUT : 0));
-        fds.push_back({p.handshaking ? -1 : p.plain, plain, 0});
+      // Wake for the oldest handshake's time limit, at the latest.
+      int timeout_ms = 1000;
+      if (!handshakes.empty()) {
+        auto due = handshakes.front()->started + kHandshakeLimit - Clock::now();
+        timeout_ms = int(std::clamp<int64_t>(std::chrono::duration_cast<std::chrono::milliseconds>(due).count() + 1, 0, 1000));
       }
-      int rc = poll(fds.data(), fds.size(), 200);
-      if (rc < 0 && errno != EINTR) break;
+      int n = epoll_wait(epfd, ready.data(), int(ready.size()), timeout_ms);
       if (stop) break;
-      size_t i = 1;
-      for (auto& l : listeners)
-        if (fds[i++].revents & POLLIN) accept_tls(l);
-      // Pipes accepted just now were stepped already and are not in `fds`.
-      size_t polled = (fds.size() - 1 - listeners.size()) / 2;
-      size_t k = 0;
-      for (auto it = pipes.begin(); it != pipes.end() && k < polled; ++it, ++k) {
-        short a = fds[i++].revents, b = fds[i++].revents;
-        if (a || b || it->handshaking) step(*it);
+      auto now = Clock::now();
+      stepped.clear();
+      for (int i = 0; i < std::max(n, 0); ++i) {
+        uint64_t key = ready[size_t(i)].data.u64;
+        if (key == kWakeKey) continue;
+        if (key & kListenerKey) {
+          accept_tls(listeners[size_t(key & 0xFFFFFFFF)], now);
+          continue;
+        }
+        auto* w = reinterpret_cast<Watch*>(uintptr_t(key));
+        Pipe& p = *w->pipe;
+        if (p.doomed || p.queued) continue;
+        p.queued = true;
+        stepped.push_back(&p);
       }
-      pipes.remove_if([](const Pipe& p) { return p.done; });
+      for (Pipe* p : stepped) {
+        p->queued = false;
+        if (p->doomed) continue;
+        bool was_established = !p->handshaking;
+        step(*p);
+        if (p->done) {
+          doom(*p);
+          continue;
+        }
+        // Used now: last in line for make_room.
+        if (was_established || !p->handshaking) pipes.splice(pipes.end(), pipes, p->self);
+        update(*p);
+      }
+      // Handshakes past their time limit.
+      while (!handshakes.empty() && now - handshakes.front()->started > kHandshakeLimit) doom(*handshakes.front());
+      bury();
     }
   }
 };

@@ -113,7 +113,13 @@ struct Peer {
 // the connection). Client side (`listen_plain`): accepts plain connections on
 // a loopback port, opens a TLS connection to `remote` for each, and relays.
 // close_notify: a peer's close_notify half-closes the plain side; the plain
-// side's end sends close_notify and closes.
+// side's end sends close_notify and closes. A FIN without close_notify ends
+// that connection only. The loop is one epoll set (no limit on descriptors);
+// a handshake has 5 s and at most 256 run at once, 32 per peer address (past
+// a cap the oldest makes room); the connections fit RLIMIT_NOFILE (three
+// descriptors each), the one unused the longest making room for a newcomer,
+// and at the file limit a newcomer is refused cleanly (accepted and closed
+// with a descriptor kept for it), never by a loop that spins.
 class Relay {
  public:
   Relay();

@@ -50,8 +50,11 @@ int check_capture(const CaptureArgs& a) {
     fmt::print(stderr, "{}: error: {}\n", me, e.what());
     return kExitUsage;
   }
-  if (!std::filesystem::exists(a.file)) {
-    fmt::print(stderr, "{}: error: {}: no such file\n", me, a.file);
+  try {
+    // A capture may be large, but it must be a file: a FIFO or a device hangs the reader.
+    check_readable(a.file, UINTMAX_MAX, "capture");
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "{}: error: {}\n", me, e.what());
     return kExitUsage;
   }
   const std::string out = a.out.empty() ? default_out_dir("check-capture") : a.out;

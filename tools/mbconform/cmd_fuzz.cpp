@@ -51,7 +51,6 @@ struct FuzzArgs {
 // --duration's bounds: shorter sends no batch of frames; longer than a
 // month is a typo (9999999h once overflowed the clock and sent nothing).
 constexpr std::chrono::milliseconds kMinDuration{100};
-constexpr std::chrono::hours kMaxDuration{24 * 31};
 // After --duration: the reduction of a last finding and the restore, so the
 // command ends within --duration + 10 s even when the target is gone.
 constexpr std::chrono::seconds kAfterDuration{6};
@@ -70,11 +69,9 @@ fs::path save(const fs::path& dir, const conf::blackbox::Plan& plan, const conf:
 int run_fuzz(FuzzArgs& a) {
   const std::string uri = a.t.targets.front();
   if (!a.replay.empty()) return replay_file(a.replay, uri, a.t, "fuzz");
-  auto duration = parse_duration(a.duration);
-  if (duration && (*duration < kMinDuration || *duration > kMaxDuration)) duration.reset();
+  auto duration = parse_duration(a.duration, kMinDuration, kMaxDuration);
   if (!duration) {
-    fmt::print(stderr, "mbconform fuzz: error: --duration '{}': expected {} ms to {} days, e.g. 500ms, 20s, 5m, 1h\n",
-               a.duration, kMinDuration.count(), kMaxDuration.count() / 24);
+    fmt::print(stderr, "mbconform fuzz: error: {}\n", duration_error("--duration", a.duration, kMinDuration, kMaxDuration));
     return kExitUsage;
   }
   if (a.t.out.empty()) a.t.out = default_out_dir("fuzz");

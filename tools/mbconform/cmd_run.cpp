@@ -173,8 +173,8 @@ int run(RunArgs& a) {
   std::optional<std::chrono::steady_clock::time_point> deadline;
   if (!a.deadline.empty()) {
     auto d = parse_duration(a.deadline);
-    if (!d || d->count() == 0) {
-      fmt::print(stderr, "mbconform run: error: --deadline '{}': expected 1ms to 31 days, e.g. 90s, 10m, 2h\n", a.deadline);
+    if (!d) {
+      fmt::print(stderr, "mbconform run: error: {}\n", duration_error("--deadline", a.deadline));
       return kExitUsage;
     }
     deadline = std::chrono::steady_clock::now() + *d;

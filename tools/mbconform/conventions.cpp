@@ -19,26 +19,55 @@ std::string default_out_dir(const std::string& command) {
   return conf::claim_new_dir("reports/" + command, fmt::format("{:%Y%m%dT%H%M%SZ}", utc));
 }
 
-std::optional<std::chrono::milliseconds> parse_duration_text(const std::string& text) {
+std::optional<std::chrono::milliseconds> parse_duration(const std::string& text, std::chrono::milliseconds min,
+                                                        std::chrono::milliseconds max) {
   size_t used = 0;
   double v = 0;
+  if (text.empty() || std::isspace(static_cast<unsigned char>(text.front()))) return std::nullopt;
   try {
     v = std::stod(text, &used);
   } catch (...) {
     return std::nullopt;
   }
   std::string unit = text.substr(used);
-  double ms = unit == "ms" ? v : unit == "" || unit == "s" ? v * 1e3 : unit == "m" ? v * 60e3 : unit == "h" ? v * 3600e3 : -1;
-  if (ms <= 0 || v <= 0) return std::nullopt;
+  double scale = unit == "ms" ? 1 : unit == "" || unit == "s" ? 1e3 : unit == "m" ? 60e3 : unit == "h" ? 3600e3 : -1;
+  double ms = v * scale;
+  // NaN and infinities fail both comparisons; the range check comes before
+  // the conversion, so no value overflows.
+  if (scale < 0 || !(ms >= double(min.count())) || !(ms <= double(max.count()))) return std::nullopt;
   return std::chrono::milliseconds(int64_t(ms));
+}
+
+namespace {
+
+std::string duration_text(std::chrono::milliseconds d) {
+  auto ms = d.count();
+  if (ms % (24 * 3600000) == 0) return fmt::format("{} days", ms / (24 * 3600000));
+  if (ms % 3600000 == 0) return fmt::format("{} h", ms / 3600000);
+  if (ms % 1000 == 0) return fmt::format("{} s", ms / 1000);
+  return fmt::format("{} ms", ms);
+}
+
+}  // namespace
+
+std::string duration_error(const std::string& option, const std::string& text, std::chrono::milliseconds min,
+                           std::chrono::milliseconds max) {
+  return fmt::format("{} '{}': expected a duration from {} to {}, e.g. 500ms, 90s, 10m, 2h", option, text,
+                     duration_text(min), duration_text(max));
+}
+
+void print_capped(const std::vector<std::string>& lines, const char* what) {
+  for (size_t i = 0; i < lines.size() && i < kShownDiagnostics; ++i) std::fprintf(stderr, "%s\n", lines[i].c_str());
+  if (lines.size() > kShownDiagnostics)
+    std::fprintf(stderr, "... and %zu more %s\n", lines.size() - kShownDiagnostics, what);
 }
 
 void add_map_time_option(CLI::App* cmd, std::optional<std::chrono::milliseconds>& into) {
   cmd->add_option_function<std::string>(
          "--map-time",
          [&into](const std::string& text) {
-           auto d = parse_duration_text(text);
-           if (!d) throw CLI::ValidationError("--map-time", "'" + text + "': expected e.g. 500ms, 90s, 2m");
+           auto d = parse_duration(text);
+           if (!d) throw CLI::ValidationError(duration_error("--map-time", text));
            into = *d;
          },
          "the longest the map probe runs (e.g. 90s, 2m); default: until --map-budget runs out")

@@ -27,8 +27,26 @@ inline constexpr const char* kVersionLine = "mbconform " MBCONFORM_VERSION;
 // writes when no --out is given; call it only when the command will write.
 std::string default_out_dir(const std::string& command);
 
-// "500ms", "20s", "2m", "1h" (a bare number is seconds); nullopt when not a duration.
-std::optional<std::chrono::milliseconds> parse_duration_text(const std::string& text);
+// The one duration parser of every option that takes a time (--duration,
+// --deadline, --map-time, ...): "500ms", "20s", "5m", "1h" (a bare number is
+// seconds); nullopt when malformed, not finite, or outside [min, max]. No
+// option takes more than kMaxDuration: a deadline added to the clock must
+// not overflow it (9999999h once wrapped --map-time to "nothing mapped").
+inline constexpr std::chrono::milliseconds kMaxDuration{31LL * 24 * 3600 * 1000};
+std::optional<std::chrono::milliseconds> parse_duration(const std::string& text,
+                                                        std::chrono::milliseconds min = std::chrono::milliseconds(1),
+                                                        std::chrono::milliseconds max = kMaxDuration);
+// The one line for a bad one: "--deadline '9999999h': expected a duration
+// from 1 ms to 31 days, e.g. 500ms, 90s, 10m, 2h".
+std::string duration_error(const std::string& option, const std::string& text,
+                           std::chrono::milliseconds min = std::chrono::milliseconds(1),
+                           std::chrono::milliseconds max = kMaxDuration);
+
+// Diagnostics printed in a loop (warnings of an import, ...): the first
+// kShownDiagnostics lines on stderr, then one line counting the rest
+// ("... and 143,980 more warnings"); a 16 MB template once printed 144k.
+inline constexpr size_t kShownDiagnostics = 20;
+void print_capped(const std::vector<std::string>& lines, const char* what);
 
 // --map-time DURATION: the longest the map probe runs.
 void add_map_time_option(CLI::App* cmd, std::optional<std::chrono::milliseconds>& into);

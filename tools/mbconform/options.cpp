@@ -123,6 +123,7 @@ const std::vector<std::string>& targets_or_default(TargetOptions& o) {
 
 std::optional<spec::Spec> named_spec(const TargetOptions& o) {
   if (!o.spec_file.empty()) {
+    check_readable(o.spec_file, kMaxTextFileBytes, "--spec");  // a FIFO or a device would hang the reader
     auto lr = spec::load_spec_file(o.spec_file);
     if (!lr.ok()) {
       for (const auto& d : lr.diagnostics) fmt::print(stderr, "{}\n", d.str());
@@ -152,20 +153,6 @@ void check_readable(const std::string& path, uintmax_t cap, const char* what) {
   if (ec) throw std::runtime_error(fmt::format("{} {}: cannot read: {}", what, path, ec.message()));
   if (size > cap)
     throw std::runtime_error(fmt::format("{} {}: {} bytes, more than the {} such a file may have", what, path, size, cap));
-}
-
-std::optional<std::chrono::milliseconds> parse_duration(const std::string& text) {
-  size_t used = 0;
-  double v = 0;
-  try {
-    v = std::stod(text, &used);
-  } catch (...) {
-    return std::nullopt;
-  }
-  std::string unit = text.substr(used);
-  double ms = unit == "ms" ? v : unit == "" || unit == "s" ? v * 1e3 : unit == "m" ? v * 60e3 : unit == "h" ? v * 3600e3 : -1;
-  if (!(ms >= 0) || !(ms <= 31.0 * 24 * 3600e3)) return std::nullopt;
-  return std::chrono::milliseconds(int64_t(ms));
 }
 
 std::string utc_now(const char* format) {

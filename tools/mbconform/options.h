@@ -90,10 +90,6 @@ inline constexpr uintmax_t kMaxTextFileBytes = 16u << 20;
 // at most `cap` bytes; `what` names it ("--quirks").
 void check_readable(const std::string& path, uintmax_t cap, const char* what);
 
-// "500ms", "20s", "5m", "1h" (a bare number is seconds); nullopt when
-// malformed, negative or longer than 31 days.
-std::optional<std::chrono::milliseconds> parse_duration(const std::string& text);
-
 // The time now in UTC, strftime-formatted (report names, report headers).
 std::string utc_now(const char* format);
 

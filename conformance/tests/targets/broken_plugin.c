@@ -9,7 +9,10 @@
  *   8 forks a child on create that sleeps for ever, its pid written to the
  *     file named by the config (it must not outlive the run)
  *   9 allocates and touches 2 GiB on FC 0x41 (the memory limit stops it)
- *  10 loops forever on every FC 06 */
+ *  10 loops forever on every FC 06
+ *  11 like 8, but the child leaves the process group (setsid) and forks a
+ *     grandchild that sleeps for ever (a daemon), its pid in the file
+ *  12 segfault on every write (FC 05, 06, 15, 16, 22, 23) */
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -35,6 +38,21 @@ static void* create(const char* config, char* error, size_t error_size) {
       fclose(f);
     }
   }
+  if (BROKEN_MODE == 11 && config && *config) {
+    if (fork() == 0) {
+      setsid();
+      pid_t grandchild = fork();
+      if (grandchild == 0) {
+        for (;;) pause();
+      }
+      FILE* f = fopen(config, "a");
+      if (f) {
+        fprintf(f, "%d\n", (int)grandchild);
+        fclose(f);
+      }
+      _exit(0);
+    }
+  }
   return &instance_token;
 }
 
@@ -44,6 +62,11 @@ static int handle_pdu(void* instance, uint8_t unit, const uint8_t* pdu, size_t l
   (void)instance;
   (void)unit;
   if (len >= 1 && pdu[0] == 0x06 && BROKEN_MODE == 6) {
+    volatile int* nowhere = NULL;
+    *nowhere = 1;
+  }
+  if (len >= 1 && BROKEN_MODE == 12 &&
+      (pdu[0] == 0x05 || pdu[0] == 0x06 || pdu[0] == 0x0F || pdu[0] == 0x10 || pdu[0] == 0x16 || pdu[0] == 0x17)) {
     volatile int* nowhere = NULL;
     *nowhere = 1;
   }

@@ -1,0 +1,66 @@
+#!/usr/bin/python3
+"""`mbconform client` against a hostile adapter (hostile_adapter.py), each
+attack with the figures it must keep: no crash (exit 1: the case the attack
+met fails), mbconform's peak RSS under 300 MB (a flood of stderr once grew it
+to 2 GB), report.json under 8 MB (once 671 MB), done within 120 s (bounds
+for a loaded 2-core machine), and what happened said in one line.
+
+usage: hostile_adapter_test.py MBCONFORM HOSTILE_ADAPTER WORK_DIR MODE
+"""
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+
+failures = []
+
+
+def check(ok, what):
+    print(("ok   " if ok else "FAIL ") + what, flush=True)
+    if not ok:
+        failures.append(what)
+
+
+def main():
+    mbconform, adapter, work, mode = sys.argv[1:5]
+    os.makedirs(work, exist_ok=True)
+    out = os.path.join(work, mode)
+    t0 = time.time()
+    p = subprocess.run([mbconform, "client", "--quiet", "--adapter", f"/usr/bin/python3 {adapter} {mode}",
+                        "--filter", "client/request/read_coils", "--timeout-ms", "200", "--out", out],
+                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, timeout=300, check=False)
+    seconds = time.time() - t0
+    rss_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    text = (p.stdout + p.stderr).decode("utf-8", "replace")
+    print(f"     {mode}: exit {p.returncode}, {seconds:.1f} s, peak RSS {rss_mb:.0f} MB, output {len(text)} bytes")
+    check(p.returncode == 1, f"{mode}: exit 1, no crash ({p.returncode})")
+    check(rss_mb < 300, f"{mode}: peak RSS {rss_mb:.0f} MB < 300 MB")
+    check(seconds < 120, f"{mode}: done in {seconds:.1f} s < 120 s")
+    check(len(text) < 8 << 20, f"{mode}: the terminal output is bounded ({len(text)} bytes)")
+    path = os.path.join(out, "report.json")
+    size = os.path.getsize(path) if os.path.exists(path) else -1
+    check(0 < size < 8 << 20, f"{mode}: report.json {size} bytes < 8 MB")
+    if size <= 0:
+        return 1
+    with open(path, encoding="utf-8") as f:
+        report = json.load(f)
+    case = {c["id"]: c for c in report["devices"][0]["cases"]}.get("client/request/read_coils", {})
+    log = report["adapter"]["log"]
+    check(case.get("outcome") == "fail", f"{mode}: the case the attack met fails ({case.get('outcome')})")
+    if mode == "stderr-flood":
+        check("bytes was dropped" in log, f"{mode}: the log says how much of the flood was dropped")
+    elif mode == "deep-json":
+        check("nested deeper than" in log, f"{mode}: the log names the nesting")
+    elif mode == "long-line":
+        check("longer than" in log, f"{mode}: the log names the long line")
+    elif mode == "exit":
+        msg = case.get("message", "") + json.dumps(case.get("extra", {}))
+        check("exited with status 3" in msg and "hang" not in msg,
+              f"{mode}: the adapter is reported as exited with its status, not as hung")
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
