@@ -532,13 +532,6 @@ std::string ranges_line(std::vector<std::tuple<spec::Table, std::string, uint16_
   return out;
 }
 
-// A write of `words` to `r`, as the gate would judge it.
-Bytes write_of(const spec::Register& r, int words) {
-  if (r.table == spec::Table::coil) return write_single_coil(r.address, false);
-  if (words == 1) return write_single_register(r.address, 0);
-  return write_multiple_registers(r.address, std::vector<uint16_t>(size_t(words), 0));
-}
-
 }  // namespace
 
 void Session::keep() {

@@ -32,11 +32,12 @@ int run_scan(const ScanArgs& a) {
   conf::scan::Options o;
   o.uri = a.uri;
   o.all_settings = a.all_settings;
-  auto budget = parse_duration_text(a.budget);
-  auto timeout = parse_duration_text(a.timeout);
-  if (!budget || budget->count() <= 0) throw CLI::ValidationError("--budget", "'" + a.budget + "': expected a duration (90s, 10m)");
-  if (!timeout || timeout->count() <= 0 || timeout->count() > 60000)
-    throw CLI::ValidationError("--timeout", "'" + a.timeout + "': expected a duration up to 60s (100ms)");
+  auto budget = parse_duration(a.budget);
+  auto timeout = parse_duration(a.timeout, std::chrono::milliseconds(1), std::chrono::milliseconds(60000));
+  if (!budget) throw CLI::ValidationError("--budget", duration_error("--budget", a.budget));
+  if (!timeout)
+    throw CLI::ValidationError("--timeout", duration_error("--timeout", a.timeout, std::chrono::milliseconds(1),
+                                                           std::chrono::milliseconds(60000)));
   o.budget = *budget;
   o.timeout = *timeout;
   if (auto dash = a.units.find('-'); dash != std::string::npos) {
