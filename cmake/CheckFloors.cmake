@@ -37,7 +37,7 @@ set(roots_fuzz "${SOURCE_DIR}/fuzz")
 set(roots_bench "${SOURCE_DIR}/bench")
 
 # conformance/<part>/ may include these parts (its own included).
-set(conf_parts targets report plugin policy session safety check cases map blackbox properties runner client peers)
+set(conf_parts targets report plugin policy session safety check cases map blackbox properties runner client peers scan)
 set(conf_may_targets targets)
 set(conf_may_report report)
 set(conf_may_plugin plugin)
@@ -48,9 +48,10 @@ set(conf_may_check check policy session targets report)
 set(conf_may_cases cases policy check safety targets report)
 set(conf_may_map map policy cases check safety targets report)
 set(conf_may_blackbox blackbox policy check session safety targets report)
-set(conf_may_properties properties policy check session safety targets report)
+set(conf_may_properties properties policy cases check session safety targets report)  # cases/facts.h: the one classifier
 set(conf_may_runner runner policy check session targets report)
 set(conf_may_client client report targets)
+set(conf_may_scan scan policy session targets)
 set(conf_may_peers peers client)  # the broken master is built on the client's model
 
 # The floor a file under SOURCE_DIR belongs to, or "" outside the floors.

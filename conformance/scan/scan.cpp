@@ -188,16 +188,26 @@ class Scanner {
       if (!decided) {
         auto readable = stated_readable(*sp);
         if (readable.empty()) continue;
-        const size_t samples = std::min<size_t>(8, readable.size());
+        // A register matches when it is answered and, where the spec states
+        // its range, holds a value inside it: two drives that both answer
+        // the same addresses are told apart by what they hold there.
+        const size_t samples = std::min<size_t>(16, readable.size());
         size_t read = 0;
         for (size_t k = 0; k < samples; ++k) {
           const spec::Register& r = *readable[k * readable.size() / samples];
           const uint8_t fc = r.table == spec::Table::holding ? 3 : 4;
           auto got = ask(session, f.unit, read_request(fc, r.address, uint16_t(r.words)), at);
-          if (got && got->pdu && got->pdu->size() == size_t(2 + 2 * r.words) && (*got->pdu)[0] == fc) ++read;
+          if (!got || !got->pdu || got->pdu->size() != size_t(2 + 2 * r.words) || (*got->pdu)[0] != fc) continue;
+          if (r.words == 1 && r.range && r.basis_of(spec::Fact::range).basis == spec::Basis::stated &&
+              r.type != spec::DataType::f32) {
+            const uint16_t w = uint16_t((*got->pdu)[2] << 8 | (*got->pdu)[3]);
+            const double v = r.is_signed() ? double(int16_t(w)) : double(w);
+            if (v < r.range->min || v > r.range->max) continue;
+          }
+          ++read;
         }
         m.score = double(read) / double(samples);
-        m.evidence = fmt::format("{} of {} registers the spec states readable read", read, samples);
+        m.evidence = fmt::format("{} of {} registers the spec states readable read, in their stated ranges", read, samples);
       }
       // The spec's own line settings agreeing is a small point more.
       if (f.setting && sp->serial.baud_default == f.setting->baud) m.score = std::min(1.0, m.score + 0.01);
