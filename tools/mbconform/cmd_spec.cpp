@@ -151,10 +151,11 @@ int run_import(const std::string& csv_file, const std::string& wb_file, std::str
                              "rename it, or import with --id {}\n",
                              out, id, id, valid_id(out_stem) ? out_stem : "ID");
   auto r = wb_file.empty() ? exchange::import_csv(text, csv, id) : exchange::import_wb_template(text, csv, id);
-  print_capped(r.warnings, "warnings");
+  // The importer caps its own lists (the first 20, then a count: exchange.h).
+  for (const auto& w : r.warnings) std::cerr << w << "\n";
   // What each register's name made of it: the roles a live run guards.
   if (r.errors.empty()) std::cerr << exchange::classification_table(r);
-  print_capped(r.errors, "errors");
+  for (const auto& e : r.errors) std::cerr << e << "\n";
   if (!r.errors.empty()) {
     std::cerr << fmt::format("{}: {} error{}; nothing written\n", csv, r.error_count, r.error_count == 1 ? "" : "s");
     return kExitFailed;

@@ -56,12 +56,6 @@ std::string duration_error(const std::string& option, const std::string& text, s
                      duration_text(min), duration_text(max));
 }
 
-void print_capped(const std::vector<std::string>& lines, const char* what) {
-  for (size_t i = 0; i < lines.size() && i < kShownDiagnostics; ++i) std::fprintf(stderr, "%s\n", lines[i].c_str());
-  if (lines.size() > kShownDiagnostics)
-    std::fprintf(stderr, "... and %zu more %s\n", lines.size() - kShownDiagnostics, what);
-}
-
 void add_map_time_option(CLI::App* cmd, std::optional<std::chrono::milliseconds>& into) {
   cmd->add_option_function<std::string>(
          "--map-time",

@@ -42,11 +42,6 @@ std::string duration_error(const std::string& option, const std::string& text,
                            std::chrono::milliseconds min = std::chrono::milliseconds(1),
                            std::chrono::milliseconds max = kMaxDuration);
 
-// Diagnostics printed in a loop (warnings of an import, ...): the first
-// kShownDiagnostics lines on stderr, then one line counting the rest
-// ("... and 143,980 more warnings"); a 16 MB template once printed 144k.
-inline constexpr size_t kShownDiagnostics = 20;
-void print_capped(const std::vector<std::string>& lines, const char* what);
 
 // --map-time DURATION: the longest the map probe runs.
 void add_map_time_option(CLI::App* cmd, std::optional<std::chrono::milliseconds>& into);

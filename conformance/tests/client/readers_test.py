@@ -63,9 +63,9 @@ def main():
     template = os.path.join(work, "template.json")
     with open(template, "w", encoding="utf-8") as f:
         json.dump({"title": "x", "device_type": "x", "device": {"name": "x", "id": "x", "channels": channels}}, f)
-    rc, out = mb(mbconform, "spec", "import", "--wb-template", template, "--id", "x-dev", "--out", os.path.join(work, "x.yaml"))
+    rc, out = mb(mbconform, "spec", "import", "--wb-template", template, "--id", "x-dev", "--out", os.path.join(work, "x-dev.yaml"))
     warnings = [l for l in out.splitlines() if ": warning: " in l]
-    check(len(warnings) == 20 and "... and 30 more warnings" in out,
+    check(len(warnings) == 20 and "30 more warnings" in out,
           f"50 warnings: the first 20, then a count ({len(warnings)} printed)")
     return 1 if failures else 0
 

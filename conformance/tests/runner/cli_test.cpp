@@ -501,7 +501,8 @@ TEST(RunCli, ThroughARetryingGateway) {
   while (!port.empty() && (port.back() == '\n' || port.back() == '\r')) port.pop_back();
   for (const char* mode : {"&gateway=1", ""}) {
     std::string out = dir / (std::string("r") + (*mode ? "-given" : "-detected"));
-    Out o = run({"run", "--quiet", "--target", "tcp://127.0.0.1:" + port + "?unit=1" + mode, "--device", "modbus-standard",
+    // --allow-disruptive: the listen-only and restart examples are what a gateway answers for the device.
+    Out o = run({"run", "--quiet", "--allow-disruptive", "--target", "tcp://127.0.0.1:" + port + "?unit=1" + mode, "--device", "modbus-standard",
                  "--out", out});
     EXPECT_EQ(o.rc, 0) << mode << "\n" << o.text;
     auto j = nlohmann::json::parse(slurp(out + "/report.json"));

@@ -639,7 +639,7 @@ TEST(RestoreCommand, AFullDiskStopsTheCommandBeforeTheWriteItCannotJournal) {
   // First without a limit: where the unmapped address's record starts.
   std::string text;
   const std::string free_out = dir / "free";
-  ASSERT_NE(mbconform({"replay", dir / "script.txt", "--target", uri, "--device", "hsc60", "--out", free_out}, &text), 2) << text;
+  ASSERT_NE(mbconform({"replay", dir / "script.txt", "--target", uri, "--device", "hsc60", "--allow-writes", "--out", free_out}, &text), 2) << text;
   std::string journal;
   for (const auto& e : std::filesystem::directory_iterator(free_out))
     if (e.path().filename().string().rfind("journal", 0) == 0) journal = e.path();
@@ -652,7 +652,7 @@ TEST(RestoreCommand, AFullDiskStopsTheCommandBeforeTheWriteItCannotJournal) {
   EXPECT_EQ(holding_points(*t, s), before);
   // Then with the disk full inside that record.
   const std::string full_out = dir / "full";
-  int rc = mbconform({"replay", dir / "script.txt", "--target", uri, "--device", "hsc60", "--out", full_out}, &text, rlim_t(at + 8));
+  int rc = mbconform({"replay", dir / "script.txt", "--target", uri, "--device", "hsc60", "--allow-writes", "--out", full_out}, &text, rlim_t(at + 8));
   EXPECT_EQ(rc, 2) << text;
   EXPECT_NE(text.find("the journal could not be written"), std::string::npos) << text;
   EXPECT_NE(text.find("the journal could not record"), std::string::npos) << text;
