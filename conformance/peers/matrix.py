@@ -3,7 +3,7 @@
 
 Runs every library of conformance/peers/matrix.yaml
   - as a server: its server glue started here, then
-    `mbconform run --map auto --device modbus-standard --allow-writes` over each
+    `mbconform run --map auto --device modbus-standard --allow-writes --allow-disruptive` over each
     transport it serves (tcp, rtu-tcp, and RTU on a pty pair made by socat);
   - as a master: `mbconform client` with its adapter over each transport;
 and writes OUT/matrix.json, a self-contained OUT/matrix.html (one row per
@@ -210,12 +210,12 @@ def run_server(lib, transport, cmd, ctx, args, row, run_dir):
             target = "%s://127.0.0.1:%d?unit=1" % (scheme, ctx["port"])
         server = Server(fill(cmd, ctx), log)
         quirks = os.path.join(SOURCE, "conformance/peers/quirks", lib["server"].get("quirks", "-") + ".yaml")
-        mb = [args.mbconform, "run", "--map", "auto", "--device", DEVICE, "--allow-writes", "--target", target,
+        mb = [args.mbconform, "run", "--map", "auto", "--device", DEVICE, "--allow-writes", "--allow-disruptive", "--target", target,
               "--out", run_dir, "--quiet"]
         shown = ("rtu://PTY?baud=%d" % BAUD if transport == "pty" else
                  "mbtls://127.0.0.1:PORT?cert=operator.crt&key=operator.key&ca=ca.crt" if transport == "tls" else
                  "%s://127.0.0.1:PORT" % target.split(":")[0])
-        row["command"] = "mbconform run --map auto --device %s --allow-writes --target '%s'" % (DEVICE, shown)
+        row["command"] = "mbconform run --map auto --device %s --allow-writes --allow-disruptive --target '%s'" % (DEVICE, shown)
         with open(os.path.join(run_dir, "mbconform.log"), "w", encoding="utf-8") as f:
             p = subprocess.Popen(mb, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
             running = True
@@ -439,7 +439,7 @@ def write_html(matrix, path):
     page = """<!DOCTYPE html><html><head><meta charset="utf-8"><title>Modbus conformance matrix</title><style>%s</style></head><body>
 <h1>Modbus conformance matrix</h1>
 <p>Real Modbus libraries, both directions, judged by mbconform against the Modbus standard (MBAP v1.1b3,
-MB-SL v1.02, the TCP Implementation Guide). As a server: <code>mbconform run --map auto --device %s --allow-writes</code>
+MB-SL v1.02, the TCP Implementation Guide). As a server: <code>mbconform run --map auto --device %s --allow-writes --allow-disruptive</code>
 against the library's server (200 coils, discrete inputs, input and holding registers); as a master:
 <code>mbconform client</code> with the library's adapter. Cells: passed &#10003;, failed &#10007;, observed (what the
 standard leaves to the implementation); &ldquo;unsup&rdquo;: a function code the library lacks. RTU on a pty runs at
