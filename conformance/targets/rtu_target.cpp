@@ -414,15 +414,16 @@ class RtuTarget final : public Target {
 
   // Strips the adapter's echo of `adu` from the front of the frame read;
   // whether it did. A frame that is the request alone is the device's reply
-  // where a reply may equal its request (FC 05, 06, 08: MBAP v1.1b3 §6.5,
-  // §6.6, §6.8), unless an echo was seen before or echo=1.
+  // where a reply may equal its request (FC 05, 06, 08, 22: MBAP v1.1b3 §6.5,
+  // §6.6, §6.8, §6.16), unless echo=1.
   bool strip_echo(const Bytes& adu, Reply& r) {
     const bool starts = r.frame.size() >= adu.size() && std::equal(adu.begin(), adu.end(), r.frame.begin());
     if (!starts) return false;
     const uint8_t fc = adu.size() > 1 ? adu[1] : 0;
-    const bool may_equal = fc == 0x05 || fc == 0x06 || fc == 0x08;
-    if (r.frame.size() == adu.size() && may_equal && echo_ == Echo::automatic && !echo_seen_) return false;
-    echo_seen_ = true;
+    const bool may_equal = fc == 0x05 || fc == 0x06 || fc == 0x08 || fc == 0x16;
+    // Found by itself, a frame that is the request alone is an echo only
+    // where no reply could be the request: FC 05/06/08/22 need echo=1.
+    if (r.frame.size() == adu.size() && may_equal && echo_ == Echo::automatic) return false;
     r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(adu.size()));
     return true;
   }
@@ -568,7 +569,6 @@ class RtuTarget final : public Target {
   milliseconds timeout_{kDefaultTimeout};
   microseconds frame_gap_{0}, end_silence_{0}, split_gap_{0};
   enum class Echo { off, on, automatic } echo_ = Echo::off;
-  bool echo_seen_ = false;
   bool gap_fixed_ = false;  // the user set `gap=`: kept as given
   std::optional<microseconds> split_set_;  // set_split_gap's
   microseconds last_line_{0};  // the line time the last window was computed for

@@ -44,7 +44,7 @@ TEST(AdapterEcho, FoundByItselfOnASerialLine) {
     ASSERT_TRUE(r.pdu) << k << ": " << r.framing_error;
     EXPECT_EQ(r.pdu->size(), 4u);
   }
-  // FC 06's reply is its request: once the echo is known, the second copy is the reply.
+  // FC 06's reply is its request: echo and reply come back to back, the second copy is the reply.
   Reply w = t->transact(write_single_register(0x0000, 5000));
   ASSERT_TRUE(w.pdu) << w.framing_error;
   EXPECT_EQ((*w.pdu)[0] & 0x80, 0);
