@@ -84,8 +84,10 @@ bool run_failed(const conf::RunReport& report) {
 }
 
 const char* exit_codes_footer() {
-  return "Exit codes: 0 success; 1 the check failed (spec errors, a failing MUST case, a falsified property, a fuzz "
-         "finding); 2 the command could not run (bad arguments, bad target, bad spec, unreadable files, interrupted).";
+  return "Exit codes: 0 success (PASS, or PARTIAL: MUST cases skipped for want of an opt-in, named); 1 the check failed "
+         "(spec errors, a failing MUST case, a falsified property, a fuzz finding); 2 the command could not run (bad "
+         "arguments, bad target, bad spec, unreadable files, interrupted, a lost target); 3 PARTIAL under "
+         "--require-complete.";
 }
 
 namespace {
