@@ -34,6 +34,7 @@ packages=(
   chromium poppler-utils  # Debian: report.html rendered, printed to PDF and its pages counted (conformance/tests/report)
   fonts-wqy-zenhei        # Debian: a CJK font, so the manuals' Chinese names render in the report
   libre2-dev  # run --filter: a linear-time regex matcher (Debian)
+  man-db      # the man page is opened with `man -l` in the manual and install tests (Debian)
 )
 # Node for the npm peers (conformance/peers: npm ci into the build tree).
 # Debian's nodejs and npm only where no node is installed: a node from
