@@ -564,6 +564,14 @@ Bytes read_write_registers(uint16_t read_address, uint16_t read_quantity, uint16
                         .registers = std::vector<uint16_t>(values.begin(), values.end())});
 }
 
+std::map<int, std::string> device_identification(std::span<const uint8_t> pdu) {
+  std::map<int, std::string> out;
+  auto parsed = parse_reply(pdu);
+  if (!parsed.ok() || parsed.reply->exception || parsed.reply->function != 0x2B || parsed.reply->mei_type != 0x0E) return out;
+  for (const auto& o : parsed.reply->objects) out[o.id] = std::string(o.value.begin(), o.value.end());
+  return out;
+}
+
 Bytes read_device_identification(uint8_t read_device_id_code, uint8_t object_id) {
   return build_request({.function = fc::encapsulated_interface,
                         .mei_type = kMeiReadDeviceId,

@@ -9,6 +9,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <span>
 #include <string>
@@ -95,6 +96,10 @@ struct ParsedReply {
 // The layout alone; judge.h judges a reply against its request.
 ParsedReply parse_reply(std::span<const uint8_t> pdu);
 Bytes build_reply(const Reply& r);
+// The objects of a Read Device Identification reply (FC 2B / MEI 0E, §6.21)
+// by id, as text (00 VendorName, 01 ProductCode, 02 Revision); empty when
+// `pdu` is not a well-formed one.
+std::map<int, std::string> device_identification(std::span<const uint8_t> pdu);
 
 // ---- named request builders (counts computed) ----
 Bytes read_request(uint8_t fc, uint16_t address, uint16_t quantity);  // FC 01-04

@@ -28,21 +28,6 @@ std::optional<Setting> setting_of(int baud, const std::string& format) {
   return Setting{baud, format[0] - '0', p, format[2] - '0'};
 }
 
-// The FC 43/14 basic objects of a reply (MBAP v1.1b3 §6.21), empty when it is not one.
-std::map<int, std::string> identification_objects(const Reply& r) {
-  std::map<int, std::string> objects;
-  if (!r.pdu || r.pdu->size() < 7 || (*r.pdu)[0] != 0x2B || (*r.pdu)[1] != 0x0E) return objects;
-  const Bytes& p = *r.pdu;
-  size_t at = 7;
-  for (int k = 0; k < p[6] && at + 2 <= p.size(); ++k) {
-    int oid = p[at], len = p[at + 1];
-    if (at + 2 + size_t(len) > p.size()) break;
-    objects[oid] = std::string(p.begin() + long(at) + 2, p.begin() + long(at) + 2 + len);
-    at += 2 + size_t(len);
-  }
-  return objects;
-}
-
 bool answers_fc43_14(const spec::Spec& s) {
   const auto* f = s.profile.function(43);
   return f && std::find(f->mei_types.begin(), f->mei_types.end(), 14) != f->mei_types.end() &&
@@ -174,7 +159,7 @@ class Scanner {
       bool decided = false;
       if (answers_fc43_14(*sp)) {
         if (auto r = ask(session, f.unit, read_device_identification(1, 0), at)) {
-          auto objects = identification_objects(*r);
+          auto objects = r->pdu ? device_identification(*r->pdu) : std::map<int, std::string>{};
           if (!objects.empty()) {
             const auto& id = sp->device.identification;
             bool same = objects[0] == id.vendor_name && objects[1] == id.product_code;

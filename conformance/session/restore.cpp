@@ -152,17 +152,7 @@ std::string journal_identity(Target& t, const spec::Spec& s) {
     // Read Device Identification, basic stream (MBAP v1.1b3 §6.21): 00 VendorName, 01 ProductCode, 02 Revision.
     Reply r = t.transact(t.info().unit, read_device_identification(1, 0));
     t.set_wait(kept_wait);
-    std::map<int, std::string> objects;
-    if (r.pdu && r.pdu->size() >= 7 && (*r.pdu)[0] == 0x2B && (*r.pdu)[1] == 0x0E) {
-      const Bytes& p = *r.pdu;
-      size_t at = 7;
-      for (int k = 0; k < p[6] && at + 2 <= p.size(); ++k) {
-        int oid = p[at], len = p[at + 1];
-        if (at + 2 + size_t(len) > p.size()) break;
-        objects[oid] = std::string(p.begin() + long(at) + 2, p.begin() + long(at) + 2 + len);
-        at += 2 + size_t(len);
-      }
-    }
+    std::map<int, std::string> objects = r.pdu ? device_identification(*r.pdu) : std::map<int, std::string>{};
     if (objects.empty()) return "FC 43/14: no identification";
     return fmt::format("FC 43/14: VendorName \"{}\", ProductCode \"{}\", Revision \"{}\"", objects[0], objects[1], objects[2]);
   }

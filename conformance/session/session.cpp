@@ -423,17 +423,7 @@ std::string Session::preflight(std::string& identity) {
     // Read Device Identification, basic stream (MBAP v1.1b3 §6.21): objects 00 VendorName, 01 ProductCode, 02 Revision.
     inner_->set_wait(Target::Wait::reply);
     Reply r = inner_->transact(inner_->info().unit, read_device_identification(1, 0));
-    std::map<int, std::string> objects;
-    if (r.pdu && r.pdu->size() >= 7 && (*r.pdu)[0] == 0x2B && (*r.pdu)[1] == 0x0E) {
-      const Bytes& p = *r.pdu;
-      size_t at = 7;
-      for (int k = 0; k < p[6] && at + 2 <= p.size(); ++k) {
-        int oid = p[at], len = p[at + 1];
-        if (at + 2 + size_t(len) > p.size()) break;
-        objects[oid] = std::string(p.begin() + long(at) + 2, p.begin() + long(at) + 2 + len);
-        at += 2 + size_t(len);
-      }
-    }
+    std::map<int, std::string> objects = r.pdu ? device_identification(*r.pdu) : std::map<int, std::string>{};
     if (objects.empty())
       return fmt::format("--device {}: unit {} does not answer Read Device Identification (FC 43/14), which the spec says it "
                          "does: is it a {}? (--no-preflight skips this check)",

@@ -246,5 +246,20 @@ TEST(FunctionCodes, NamesFromTheStandard) {
   EXPECT_STREQ(exception_name(0x07), "non-standard");
 }
 
+// MBAP v1.1b3 §6.21: 2B 0E, read code 01, conformity 01, more 00, next 00,
+// 3 objects, each id, length, text.
+TEST(DeviceIdentification, ObjectsOfABasicStreamByIdAndNothingFromOtherReplies) {
+  Bytes pdu{0x2B, 0x0E, 0x01, 0x01, 0x00, 0x00, 0x03, 0x00, 0x03, 'A', 'C', 'M', 0x01, 0x02, 'X', '1', 0x02, 0x03, '1', '.', '0'};
+  auto objects = device_identification(pdu);
+  ASSERT_EQ(objects.size(), 3u);
+  EXPECT_EQ(objects[0], "ACM");
+  EXPECT_EQ(objects[1], "X1");
+  EXPECT_EQ(objects[2], "1.0");
+  EXPECT_TRUE(device_identification(Bytes{0xAB, 0x01}).empty());  // exception 01
+  EXPECT_TRUE(device_identification(Bytes{0x03, 0x02, 0x00, 0x01}).empty());
+  Bytes cut(pdu.begin(), pdu.end() - 2);  // the last object's text cut short
+  EXPECT_TRUE(device_identification(cut).empty());
+}
+
 }  // namespace
 }  // namespace mbc
