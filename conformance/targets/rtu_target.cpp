@@ -23,8 +23,10 @@
 #include <deque>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <stdexcept>
 #include <thread>
+#include <utility>
 
 #include "modbus/crc16.h"
 #include "modbus/function_codes.h"
@@ -391,10 +393,11 @@ class RtuTarget final : public Target {
     // that answers one of them as well may have been theirs: then this
     // request's own reply is owed, and may come with the next one (for that
     // next exchange only; a device that answers twice is still caught).
-    owed_ = false;
+    owed_.reset();
     if (!r.frame.empty()) {
       if (auto n = whole_frame(r.frame); n && *n == r.frame.size())
-        for (const auto& u : unanswered_) owed_ = owed_ || answers(u.request, r.frame);
+        for (const auto& u : unanswered_)
+          if (answers(u.request, r.frame)) owed_ = Unanswered{adu, t0};
       unanswered_.clear();
     }
     else unanswered_.push_back({adu, t0});
@@ -478,19 +481,21 @@ class RtuTarget final : public Target {
     return n;
   }
 
-  // The length of the frame at the front of `frame` when it is the late
-  // reply to one of the requests that went unanswered since the last reply
-  // (answered_by, `which`) and does not answer `request` (else it is taken
-  // as request's own, as before). Else 0.
+  // The length of the frame at the front of `frame` when it is a late reply
+  // (`which`) and does not answer `request` (else it is taken as request's
+  // own, as before); else 0. Late: it answers one of the requests that went
+  // unanswered since the last reply (answered_by), or the one owed (owed_:
+  // the last reply taken answered an earlier request too, so that request's
+  // own came after it, here after the next request went out).
   size_t late_reply_at_front(const Bytes& frame, const Bytes& request, Unanswered& which) {
-    if (unanswered_.empty()) return 0;
+    if (unanswered_.empty() && !owed_) return 0;
     auto n = whole_frame(frame);
     if (!n) return 0;
     auto reply = std::span(frame).first(*n);
     if (answers(request, reply)) return 0;
-    auto u = answered_by(reply, false);
-    if (!u) return 0;
-    which = *u;
+    if (auto u = answered_by(reply, false)) which = *u;
+    else if (owed_ && answers(owed_->request, reply)) which = *std::exchange(owed_, std::nullopt);
+    else return 0;
     return *n;
   }
 
@@ -508,7 +513,7 @@ class RtuTarget final : public Target {
     if (!m || !answers(request, rest.first(*m))) return;
     Bytes first(r.frame.begin(), r.frame.begin() + ptrdiff_t(*n));
     if (auto u = answered_by(first, false)) count_late(*u, std::move(first), r);
-    else if (owed_) count_late_unknown(std::move(first), std::nullopt, r);
+    else if (owed_) count_late(*std::exchange(owed_, std::nullopt), std::move(first), r);
     else return;
     r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(*n));
   }
@@ -579,7 +584,9 @@ class RtuTarget final : public Target {
     Clock::time_point sent;
   };
   std::deque<Unanswered> unanswered_;
-  bool owed_ = false;  // the last reply taken answered an unanswered request too: this one's may follow
+  // The request of the last exchange when the reply it took answered an
+  // earlier, unanswered request too: its own reply may follow.
+  std::optional<Unanswered> owed_;
   Wait wait_ = Wait::automatic;
 };
 

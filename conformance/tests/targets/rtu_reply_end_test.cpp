@@ -303,9 +303,48 @@ TEST(RtuReplyEnd, ALateReplyThatAnswersThisRequestTooIsItsReply) {
   // is late and the second is its own. Either way one reply is late once the
   // line is quiet again, and nothing is a framing error.
   EXPECT_LE(target->late_replies(), 1u);
+  // Quiet again: the slave has written both replies (on a busy host the
+  // second may still be on its way when the next request goes out; that
+  // case is OwedReplyAfterTheNextRequestIsLate's).
+  for (int i = 0; i < 1000 && slave.answered.load() < 22; ++i) std::this_thread::sleep_for(5ms);
+  ASSERT_EQ(slave.answered.load(), 22);
   Reply next = target->transact(1, read_request(3, 0, 1));
   ASSERT_TRUE(next.pdu) << next.framing_error << " " << to_hex(next.frame);
   EXPECT_EQ(target->late_replies(), 1u);
+}
+
+// As above, but the second request's own reply comes only after the next
+// request, another one, went out (a slave or host held up): it answers the
+// request owed, not this one, so it is late, and this request waits for its
+// own, not "function code 0x03, request was 0x06" (a fuzz run on a busy host).
+TEST(RtuReplyEnd, OwedReplyAfterTheNextRequestIsLate) {
+  std::atomic<int64_t> hold_us{0};
+  std::atomic<int> n{0};
+  ScriptedSlave slave([&](const Bytes& req) {
+    int i = n++;
+    auto hold = std::chrono::microseconds(hold_us.exchange(0));
+    if (i == 21) hold = 150ms;  // the second read's own reply: after the write went out
+    if (req[1] == 6) return std::vector<Part>{{req, 30ms}};  // not read in the same chunk as the late one
+    return std::vector<Part>{{kRegisterReply, hold}};
+  });
+  auto target = open_target(slave.uri());
+  target->set_wait(Target::Wait::reply);
+  for (int i = 0; i < 20; ++i) ASSERT_TRUE(target->transact(1, read_request(3, 0, 1)).pdu) << i;
+  hold_us = std::chrono::duration_cast<std::chrono::microseconds>(target->silence_window() + 100ms).count();
+  target->set_wait(Target::Wait::window);
+  ASSERT_TRUE(target->transact(1, read_request(3, 0, 1)).silent());
+  target->set_wait(Target::Wait::reply);
+  Reply r = target->transact(1, read_request(3, 0, 1));  // takes the first read's reply
+  ASSERT_TRUE(r.pdu) << r.framing_error << " " << to_hex(r.frame);
+  EXPECT_EQ(target->late_replies(), 0u);
+  Bytes write = hex("06 00 01 00 03");
+  Reply w = target->transact(1, write);
+  ASSERT_TRUE(w.pdu) << w.framing_error << " " << to_hex(w.frame);
+  EXPECT_EQ(*w.pdu, write);
+  EXPECT_EQ(target->late_replies(), 1u);
+  ASSERT_EQ(w.late.size(), 1u);
+  EXPECT_EQ(w.late[0].frame, kRegisterReply);
+  EXPECT_EQ(w.late[0].request, rtu_frame(1, read_request(3, 0, 1)));
 }
 
 // Both replies in one read while the first request is unanswered: the first
