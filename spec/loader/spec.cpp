@@ -183,4 +183,38 @@ bool Erratum::contests_fact(const std::string& what) const {
     if (c == what) return true;
   return false;
 }
+const char* to_string(Trigger t) {
+  switch (t) {
+    case Trigger::level: return "level";
+    case Trigger::edge: return "edge";
+    case Trigger::write: return "write";
+  }
+  return "?";
+}
+
+const ControlState* Control::state(const std::string& id) const {
+  for (const auto& s : states)
+    if (s.id == id) return &s;
+  return nullptr;
+}
+
+const ControlCommand* Control::command(const std::string& id) const {
+  for (const auto& c : commands)
+    if (c.id == id) return &c;
+  return nullptr;
+}
+
+const ControlMode* Control::mode(const std::string& id) const {
+  for (const auto& m : modes)
+    if (m.id == id) return &m;
+  return nullptr;
+}
+
+std::vector<const ControlTransition*> Control::transitions_on(const std::string& from, const std::string& cmd) const {
+  std::vector<const ControlTransition*> out;
+  for (const auto& t : transitions)
+    if (t.command == cmd && (t.from == from || t.from == "*")) out.push_back(&t);
+  return out;
+}
+
 }  // namespace mbc::spec

@@ -379,6 +379,150 @@ struct MotionOperations {
   SourceLoc loc;
 };
 
+// ---- Control ----
+// A drive's control as a state machine (`control:` in the language,
+// spec/README.md "Control"): the states and the status reading that names
+// each, the commands and the register write that gives each, the transitions
+// between states, and the modes of operation with their set-points and what
+// proves them. Plain data, resolved by the loader: a device that names a
+// library profile (`control: {profile: cia402, registers: {...}}`) gets the
+// profile's states, commands and transitions with its own register keys.
+//
+// Every entry carries its section and its basis (stated, inferred, either):
+// a MUST verdict on a transition rests on a stated entry only.
+
+// A reading of one register that holds when (word & mask) == value.
+struct StatusMatch {
+  std::string register_key;  // a register of the device (after the profile's mapping)
+  uint16_t mask = 0xFFFF;
+  uint16_t value = 0;
+  bool matches(uint16_t word) const { return (word & mask) == value; }
+};
+
+struct ControlState {
+  std::string id;  // "switch_on_disabled"; unique in the section
+  Name name;       // as printed ("Switch on disabled")
+  // Every reading must hold (CiA 402: statusword & 0x4F or 0x6F).
+  std::vector<StatusMatch> status;
+  bool motion = false;  // the axis may move (or be held under torque) in this state
+  bool fault = false;   // a fault state (left by a fault reset only)
+  std::string section;
+  FactBasis basis;
+  SourceLoc loc;
+};
+
+// How a written word gives a command.
+//  level: the word's bits select it (CiA 402 Shutdown, 0xxx x110): written
+//         again, the same word gives the same command;
+//  edge:  the bits in `edge_mask` rising from 0 to 1 between the last word
+//         written and this one (CiA 402 Fault reset, bit 7 0 -> 1);
+//  write: every write of a matching word acts, whatever was there before
+//         (a start register: 57HS-R 0x0027).
+enum class Trigger { level, edge, write };
+const char* to_string(Trigger);
+
+struct ControlCommand {
+  std::string id;  // "shutdown"
+  Name name;
+  std::string register_key;
+  // The word selects the command when (word & mask) == value. To give the
+  // command, a master writes `value` (bits outside `mask` cleared) unless
+  // `write` is given.
+  uint16_t mask = 0xFFFF;
+  uint16_t value = 0;
+  std::optional<uint16_t> write;
+  Trigger trigger = Trigger::level;
+  uint16_t edge_mask = 0;  // edge: the bits whose 0 -> 1 change acts
+  // May set the axis moving (with the set-points of the active mode); a
+  // motion-free walk sends it only where `moves_only_with` holds nothing.
+  bool motion = false;
+  // Stops the axis from every moving state (quick stop, emergency stop).
+  bool stops = false;
+  std::optional<double> stop_within_ms;  // stated: stopped within this time from the stated top speed
+  std::string section;
+  FactBasis basis;
+  SourceLoc loc;
+
+  uint16_t word() const { return write.value_or(value); }
+  bool selected_by(uint16_t word) const { return (word & mask) == value; }
+};
+
+// A condition on a register's value (a transition taken only for some
+// quick stop option codes: CiA 402 transitions 12 and 16).
+struct ValueCondition {
+  std::string register_key;
+  std::vector<int64_t> values;  // one of these
+};
+
+struct ControlTransition {
+  std::string id;       // as the source numbers it ("2", "3+4"); unique in the section
+  std::string from;     // a state id, or "*" for every state
+  std::string command;  // a command id; empty for an automatic step
+  // Automatic steps: what ends them. "power_on" (after power-up),
+  // "motion_done" (the axis stopped: quick stop complete), "fault" (a fault
+  // the drive detects), "reaction_done" (its fault reaction completed), "time".
+  std::string event;
+  std::string to;
+  std::optional<double> within_ms;  // an automatic step's stated time
+  std::vector<ValueCondition> when;  // all must hold
+  bool motion = false;  // taking it may move the axis
+  std::string section;
+  FactBasis basis;
+  SourceLoc loc;
+
+  bool automatic() const { return command.empty(); }
+};
+
+// A mode of operation: how it is selected, its set-points, what starts it
+// and what proves it.
+struct ControlMode {
+  std::string id;  // position | speed | torque | homing
+  std::optional<RegisterWrite> select;  // the write that selects it (CiA 402 6060h = 1)
+  std::string display_key;  // the register that shows the active mode (6061h), if any
+  std::vector<std::string> setpoint_keys;  // target position, target velocity, ...
+  std::string actual_key;  // what proves it: the position or speed actual register
+  std::string start_command;  // a command id that starts it (CiA 402 bit 4 new set-point), if any
+  std::optional<StatusMatch> done;  // target reached, in position, homing attained
+  // States in which selecting the mode is accepted; empty: every state.
+  std::vector<std::string> select_in;
+  std::string section;
+  FactBasis basis;
+  SourceLoc loc;
+};
+
+// What a command not defined in a state does (the profile says): ignored
+// (state unchanged, the write is stored) or refused with an exception.
+struct UndefinedCommand {
+  enum class Kind { ignored, exception } kind = Kind::ignored;
+  int code = 0;
+  std::string section;
+  FactBasis basis;
+};
+
+struct Control {
+  std::string profile;  // the library profile it was built from (spec/profiles/<id>.yaml), if any
+  std::string section;
+  std::vector<ControlState> states;
+  std::vector<ControlCommand> commands;
+  std::vector<ControlTransition> transitions;
+  std::vector<ControlMode> modes;
+  std::string initial;  // the state after power-on, once its automatic steps ran
+  std::string safe;     // where a restore goes first (no motion, no torque)
+  UndefinedCommand undefined;
+  // The stated top speed the stop times assume (pulses or units per s), when stated.
+  std::optional<double> top_speed;
+  // A position move, set up, started, stopped and watched (the motion
+  // properties' facts): `operations.motion` in this section's terms.
+  std::optional<MotionOperations> motion;
+  SourceLoc loc;
+
+  const ControlState* state(const std::string& id) const;
+  const ControlCommand* command(const std::string& id) const;
+  const ControlMode* mode(const std::string& id) const;
+  // The transitions out of `state` given by `command` (including "*" ones).
+  std::vector<const ControlTransition*> transitions_on(const std::string& state, const std::string& command) const;
+};
+
 // Device operations: which write saves, which restores factory defaults,
 // how a move is made (`operations:`; absent when the manual documents none).
 struct Operations {
@@ -409,6 +553,8 @@ struct Spec {
   std::vector<Example> examples;
   std::vector<Erratum> errata;
   Operations operations;
+  // The drive's control state machine (`control:`); absent when the spec has none.
+  std::optional<Control> control;
   Timing timing;
 
   const Register* find_register(uint16_t address, Table table = Table::holding) const;
