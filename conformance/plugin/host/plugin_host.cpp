@@ -209,7 +209,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   const char* config = argv[2];
-  const rlim_t mem_mib = rlim_t(std::strtoull(argv[3], nullptr, 10));
+  [[maybe_unused]] const rlim_t mem_mib = rlim_t(std::strtoull(argv[3], nullptr, 10));  // unused under ASan
   const rlim_t cpu_seconds = rlim_t(std::strtoull(argv[4], nullptr, 10));
   // Orphans of the plugin's processes come here, so none outlives the run.
   prctl(PR_SET_CHILD_SUBREAPER, 1);
