@@ -566,6 +566,12 @@ struct Builder {
     } else if (!transitions.empty() || !commands.empty()) {
       error(device("/control"), "", "control-initial-safe", "control: has commands or transitions but no states: a state machine names its states");
     }
+    // A state in which the axis may move has a command that stops it.
+    bool moving = std::any_of(states.begin(), states.end(), [](const auto& e) { return e.value.motion; });
+    bool stop = std::any_of(commands.begin(), commands.end(), [](const auto& e) { return e.value.stops; });
+    if (moving && !stop)
+      error(device("/control"), "", "control-stop-command",
+            "a state moves the axis (motion: true) but no command stops it: mark the command that stops the axis from every moving state (stops: true)");
     if (c.undefined.kind == UndefinedCommand::Kind::exception && c.undefined.code == 0)
       error(undefined_o, "", "control-undefined", "undefined: {kind: exception} names the exception code (code: N)");
     if (undefined_o.doc) basis(undefined_o, c.undefined.basis, "undefined");
