@@ -22,6 +22,8 @@
 //   build/bin/mbc_bench_gateway [path/to/mbconform] [--baud 19200] [--device ID]
 //                               [--gw TRY_MS:RETRIES]...   (default 500:3, mbusd's; a try shorter than the
 //                               line's longest reply, 40 ms at 19200, retries what was answered)
+//                               [--timeout MS]   (the gateway URIs' timeout=: a gateway that gives up after
+//                               longer than the target's timeout, 1 s by default, answers its 0B late)
 // (from the source root: the gateway script is read from conformance/tests/runner/)
 #include <fmt/core.h>
 #include <signal.h>
@@ -101,12 +103,13 @@ nlohmann::json run(const std::string& exe, const std::string& device, const std:
 
 int main(int argc, char** argv) {
   std::string exe = "build/bin/mbconform", device = "modbus-standard";
-  int baud = 19200;
+  int baud = 19200, timeout_ms = 0;
   std::vector<std::pair<int, int>> gateways;
   for (int i = 1; i < argc; ++i) {
     std::string a = argv[i];
     if (a == "--baud" && i + 1 < argc) baud = std::atoi(argv[++i]);
     else if (a == "--device" && i + 1 < argc) device = argv[++i];
+    else if (a == "--timeout" && i + 1 < argc) timeout_ms = std::atoi(argv[++i]);
     else if (a == "--gw" && i + 1 < argc) {
       int t = 0, r = 0;
       if (std::sscanf(argv[++i], "%d:%d", &t, &r) != 2 || t <= 0 || r < 0) {
@@ -139,12 +142,15 @@ int main(int argc, char** argv) {
       Server gw({"/usr/bin/python3", script, std::to_string(serve.port()), "--try-ms", std::to_string(try_ms), "--retries",
                  std::to_string(retries)});
       for (const char* mode : {"&gateway=1", ""}) {
-        auto d = run(exe, device, fmt::format("tcp://127.0.0.1:{}?unit=1{}", gw.port(), mode),
+        std::string extra = timeout_ms > 0 ? fmt::format("&timeout={}", timeout_ms) : "";
+        auto d = run(exe, device, fmt::format("tcp://127.0.0.1:{}?unit=1{}{}", gw.port(), mode, extra),
                      fmt::format("{}/gw-{}-{}{}", dir, try_ms, retries, *mode ? "-given" : "-detected"));
         double w = d["wall_seconds"].get<double>();
         int m = d["counts"]["must_failed"].get<int>();
         fmt::print("{:<34} {:>8.2f} {:>11} {:>12.2f} {:>11.2f}\n",
-                   fmt::format("gateway {} ms x {}, {}", try_ms, 1 + retries, *mode ? "given" : "detected"), w, m, w / wire,
+                   fmt::format("gateway {} ms x {}, {}{}", try_ms, 1 + retries, *mode ? "given" : "detected",
+                               timeout_ms > 0 ? fmt::format(", timeout={}", timeout_ms) : ""),
+                   w, m, w / wire,
                    w / wall);
         for (const auto& c : d["cases"])
           if (c["outcome"] == "fail" && c.value("level", "") == "MUST")
