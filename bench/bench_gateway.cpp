@@ -134,9 +134,9 @@ int main(int argc, char** argv) {
     double wire = direct["wire_time_bound_seconds"].get<double>(), wall = direct["wall_seconds"].get<double>();
     int must = direct["counts"]["must_failed"].get<int>();
     fmt::print("{} at {} baud, {} cases\n", device, baud, direct["cases"].size());
-    fmt::print("{:<34} {:>8} {:>11} {:>12} {:>11}\n", "run", "wall s", "MUST fails", "/ wire time", "/ direct");
-    fmt::print("{:<34} {:>8.2f} {:>11} {:>12.2f} {:>11.2f}\n", "served directly (rtu-tcp)", wall, must, wall / wire, 1.0);
-    fmt::print("{:<34} {:>8.2f}\n", "  its wire-time bound", wire);
+    fmt::print("{:<46} {:>8} {:>11} {:>12} {:>11}\n", "run", "wall s", "MUST fails", "/ wire time", "/ direct");
+    fmt::print("{:<46} {:>8.2f} {:>11} {:>12.2f} {:>11.2f}\n", "served directly (rtu-tcp)", wall, must, wall / wire, 1.0);
+    fmt::print("{:<46} {:>8.2f}\n", "  its wire-time bound", wire);
     if (must) rc = 1;
     for (auto [try_ms, retries] : gateways) {
       Server gw({"/usr/bin/python3", script, std::to_string(serve.port()), "--try-ms", std::to_string(try_ms), "--retries",
@@ -147,7 +147,7 @@ int main(int argc, char** argv) {
                      fmt::format("{}/gw-{}-{}{}", dir, try_ms, retries, *mode ? "-given" : "-detected"));
         double w = d["wall_seconds"].get<double>();
         int m = d["counts"]["must_failed"].get<int>();
-        fmt::print("{:<34} {:>8.2f} {:>11} {:>12.2f} {:>11.2f}\n",
+        fmt::print("{:<46} {:>8.2f} {:>11} {:>12.2f} {:>11.2f}\n",
                    fmt::format("gateway {} ms x {}, {}{}", try_ms, 1 + retries, *mode ? "given" : "detected",
                                timeout_ms > 0 ? fmt::format(", timeout={}", timeout_ms) : ""),
                    w, m, w / wire,
