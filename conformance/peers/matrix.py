@@ -13,6 +13,8 @@ report in OUT/runs/<row>/report.html.
 usage: conformance/peers/matrix.py [--build DIR] [--out DIR] [--only NAME,...] [--mbconform BIN]
        conformance/peers/matrix.py --check docs/matrix/matrix.json [--out DIR] ...
   --out    where to write (default docs/matrix)
+  --only   run only these libraries; without --check their rows replace theirs
+           in OUT/matrix.json and every other library's rows are kept
   --check  regenerate into --out (default build/matrix) and compare the
            verdicts with a committed matrix.json: per row its status, counts
            per family and failing cases (not timings, not messages, not HTML).
@@ -201,10 +203,12 @@ def run_server(lib, transport, cmd, ctx, args, row, run_dir):
             target = "rtu://%s?baud=%d&parity=N&unit=1" % (pty.client, BAUD)
         elif transport == "tls":
             # Modbus/TCP Security: a test PKI made for this run (no key is
-            # ever committed); mbconform presents the operator certificate.
+            # ever committed); mbconform presents the operator certificate, and
+            # clients= holds the untrusted, expired, two-role, PrintableString-role
+            # and role-less certificates the security checks offer.
             ctx["pki"] = make_pki(tmp)
-            target = "mbtls://127.0.0.1:%d?unit=1&cert=%s/operator.crt&key=%s/operator.key&ca=%s/ca.crt" % (
-                ctx["port"], ctx["pki"], ctx["pki"], ctx["pki"])
+            target = "mbtls://127.0.0.1:%d?unit=1&cert=%s/operator.crt&key=%s/operator.key&ca=%s/ca.crt&clients=%s" % (
+                ctx["port"], ctx["pki"], ctx["pki"], ctx["pki"], ctx["pki"])
         else:
             scheme = "tcp" if transport == "tcp" else "rtu-tcp"
             target = "%s://127.0.0.1:%d?unit=1" % (scheme, ctx["port"])
@@ -213,7 +217,7 @@ def run_server(lib, transport, cmd, ctx, args, row, run_dir):
         mb = [args.mbconform, "run", "--map", "auto", "--device", DEVICE, "--allow-writes", "--allow-disruptive", "--target", target,
               "--out", run_dir, "--quiet"]
         shown = ("rtu://PTY?baud=%d" % BAUD if transport == "pty" else
-                 "mbtls://127.0.0.1:PORT?cert=operator.crt&key=operator.key&ca=ca.crt" if transport == "tls" else
+                 "mbtls://127.0.0.1:PORT?cert=operator.crt&key=operator.key&ca=ca.crt&clients=pki/" if transport == "tls" else
                  "%s://127.0.0.1:PORT" % target.split(":")[0])
         row["command"] = "mbconform run --map auto --device %s --allow-writes --allow-disruptive --target '%s'" % (DEVICE, shown)
         with open(os.path.join(run_dir, "mbconform.log"), "w", encoding="utf-8") as f:
@@ -489,12 +493,26 @@ def main():
     os.makedirs(args.out, exist_ok=True)
     t0 = time.monotonic()
     rows = make_rows(libs, args, ctx, args.out)
+    libraries = [{"name": l["name"], "version": l["version_found"], "language": l["language"], "from": l["from"],
+                  "server_quirks": l.get("server", {}).get("quirks"),
+                  "master_deviations": l.get("master", {}).get("deviations", {})} for l in libs]
+    seconds = round(time.monotonic() - t0, 1)
+    committed_path = os.path.join(args.out, "matrix.json")
+    if args.only and not args.check and os.path.exists(committed_path):
+        # --only rewrites those libraries' rows in OUT/matrix.json and keeps every
+        # other library's, in matrix.yaml's order (the time: the kept rows' and these).
+        with open(committed_path, encoding="utf-8") as f:
+            kept = json.load(f)
+        order = [l["name"] for l in config["libraries"]]
+        rank = {n: i for i, n in enumerate(order)}
+        rows = sorted([r for r in kept["rows"] if r["library"] not in names] + rows,
+                      key=lambda r: rank.get(r["library"], len(order)))
+        libraries = sorted([l for l in kept["libraries"] if l["name"] not in names] + libraries,
+                           key=lambda l: rank.get(l["name"], len(order)))
+        seconds = round(sum(r.get("seconds", 0) for r in rows), 1)
     families = {side: sorted({f for r in rows if r["side"] == side for f in r.get("cells", {})}) for side in SIDES}
-    matrix = {"matrix": 1, "device": DEVICE, "pty_baud": BAUD,
-              "libraries": [{"name": l["name"], "version": l["version_found"], "language": l["language"], "from": l["from"],
-                             "server_quirks": l.get("server", {}).get("quirks"),
-                             "master_deviations": l.get("master", {}).get("deviations", {})} for l in libs],
-              "families": families, "rows": rows, "seconds": round(time.monotonic() - t0, 1)}
+    matrix = {"matrix": 1, "device": DEVICE, "pty_baud": BAUD, "libraries": libraries,
+              "families": families, "rows": rows, "seconds": seconds}
     with open(os.path.join(args.out, "matrix.json"), "w", encoding="utf-8") as f:
         json.dump(matrix, f, indent=1, sort_keys=True)
         f.write("\n")
