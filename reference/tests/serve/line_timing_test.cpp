@@ -200,8 +200,10 @@ TEST(LineTiming, AnEchoingAdapterHearsTheRequestPacedThenTheReply) {
 }
 
 // 600 baud: the pause leaves 2.5 character times (46 ms) between the halves
-// on the wire, over t1.5 (27 ms) and under t3.5 (64 ms) by a margin of
-// character times a sleep's overshoot keeps.
+// on the wire, over t1.5 (27 ms) and under t3.5 (64 ms). A pty carries no
+// write times: serve times its reads, so a server that reads the first half
+// a character time late sees a shorter silence, and a sleep that overshoots
+// one makes two frames. Up to three tries, each told apart by the trace.
 TEST(LineTiming, ARequestWithASilenceOverT15InsideIsDiscardedUnlessTheFaultKeepsIt) {
   const std::vector<uint8_t> a(kRead.begin(), kRead.begin() + 4), b(kRead.begin() + 4, kRead.end());
   const auto c = LineFormat{600, 8, 'E', 1}.char_time();
@@ -209,17 +211,25 @@ TEST(LineTiming, ARequestWithASilenceOverT15InsideIsDiscardedUnlessTheFaultKeeps
   {
     Line line("600-8E1", B600, {});
     ASSERT_GE(line.fd, 0) << line.serve->log();
-    Heard h = exchange(line.fd, {a, b}, kReplyBytes, std::chrono::milliseconds(800), pause);
-    EXPECT_TRUE(h.all().empty()) << line.serve->log();
-    EXPECT_NE(line.serve->log().find("a silence over t1.5"), std::string::npos) << line.serve->log();
-    h = exchange(line.fd, {kRead}, kReplyBytes, std::chrono::milliseconds(800));
+    bool dropped = false;
+    for (int k = 0; k < 3 && !dropped; ++k) {
+      Heard h = exchange(line.fd, {a, b}, kReplyBytes, std::chrono::milliseconds(800), pause);
+      dropped = line.serve->log().find("a silence over t1.5") != std::string::npos;
+      if (dropped) {
+        EXPECT_TRUE(h.all().empty()) << line.serve->log();
+      }
+    }
+    EXPECT_TRUE(dropped) << line.serve->log();
+    Heard h = exchange(line.fd, {kRead}, kReplyBytes, std::chrono::milliseconds(800));
     EXPECT_EQ(h.all().size(), kReplyBytes) << "the whole request is answered\n" << line.serve->log();
   }
   {
     Line line("600-8E1", B600, {"--fault", "keep-gapped-request"});
     ASSERT_GE(line.fd, 0) << line.serve->log();
-    Heard h = exchange(line.fd, {a, b}, kReplyBytes, std::chrono::milliseconds(800), pause);
-    EXPECT_EQ(h.all().size(), kReplyBytes) << line.serve->log();
+    bool answered = false;
+    for (int k = 0; k < 3 && !answered; ++k)
+      answered = exchange(line.fd, {a, b}, kReplyBytes, std::chrono::milliseconds(800), pause).all().size() == kReplyBytes;
+    EXPECT_TRUE(answered) << line.serve->log();
   }
 }
 
