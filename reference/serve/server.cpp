@@ -137,6 +137,12 @@ struct Link {
   Bytes in;
   size_t overflow = 0;  // bytes past kMaxRtuAdu in the current RTU frame
   Clock::time_point last_rx;
+  // The modelled line (--line): when the request's last character has been
+  // clocked in, whether a silence over t1.5 split it, and until when the
+  // master-ward direction is busy (echo, noise, reply).
+  Clock::time_point wire_end{};
+  bool gapped = false;
+  Clock::time_point tx_end{};
   // An RTU frame past kMaxRtuAdu is noise until the line falls silent (MB-SL
   // v1.02 §2.5.1.1): such a stream is read once per frame gap, so a client
   // flooding bytes costs bounded time, not the loop's every round.
@@ -422,9 +428,6 @@ struct Server::Impl {
     } else {
       // A master at another baud rate than the served line's: what the
       // line's UART makes of its characters (uart.h), both ways.
-      // A 2-wire adapter on the master's side hears its own request: the
-      // master reads it back first, as it went out (serve --echo).
-      if (opt.echo && l.transport == Transport::pty) l.out.insert(l.out.end(), l.in.begin(), l.in.end());
       std::optional<LineFormat> master = master_line(l);
       if (master) {
         Bytes sent = l.in;
@@ -433,24 +436,35 @@ struct Server::Impl {
           return fmt::format("{} bytes sent at {} baud to a {} line, read as {} bytes", sent.size(), master->baud, opt.line->text(), l.in.size());
         });
       }
+      // MB-SL v1.02 §2.5.1.1: a frame with a silence over t1.5 inside it
+      // is incomplete and is discarded.
+      if (l.gapped && !opt.behaviour.has(LineFault::keep_gapped_request)) {
+        trace(l, "rx", l.in, "dropped: a silence over t1.5 inside the frame");
+        l.in.clear();
+        l.gapped = false;
+        return;
+      }
       trace(l, "rx", l.in, [&] { return describe_rtu(l.in, Direction::request); });
       auto reply = answer_into(l, [&](std::span<uint8_t> out) { return bus.handle_rtu_into(l.in, out); });
       if (reply) {
         trace(l, "tx", *reply, [&] { return describe_rtu(*reply, Direction::reply); });
         size_t begin = l.out.size();
-        if (master) {
-          Bytes heard = resample(*reply, *opt.line, *master);
-          l.out.insert(l.out.end(), heard.begin(), heard.end());
+        Bytes heard;
+        if (master) heard = resample(*reply, *opt.line, *master);
+        std::span<const uint8_t> out = master ? std::span<const uint8_t>(heard) : *reply;
+        if (modelled(l)) {
+          send_reply_on_line(l, out);
         } else {
-          l.out.insert(l.out.end(), reply->begin(), reply->end());
+          l.out.insert(l.out.end(), out.begin(), out.end());
+          pace_reply(l, l.in.size(), begin, now);
         }
-        pace_reply(l, l.in.size(), begin, now);
       } else {
         trace(l, "--", {}, "no reply");
       }
     }
     l.in.clear();
     l.overflow = 0;
+    l.gapped = false;
   }
 
   // Modbus TCP: frames are delimited by the MBAP length, never by timing.
@@ -500,7 +514,56 @@ struct Server::Impl {
     l.in.erase(l.in.begin(), l.in.begin() + ptrdiff_t(at));
   }
 
+  // The line is modelled on this link: bytes take their character time (--line).
+  bool modelled(const Link& l) const { return opt.line && l.transport == Transport::pty; }
+
+  // When a byte whose last bit arrives at `t` reaches the master: then, or
+  // when the master's USB adapter's latency timer next runs out.
+  Clock::time_point delivered(Clock::time_point t) const {
+    const auto tick = duration_cast<Clock::duration>(opt.behaviour.latency_timer);
+    if (tick.count() <= 0) return t;
+    auto since = t.time_since_epoch();
+    return Clock::time_point(((since + tick - Clock::duration(1)) / tick) * tick);
+  }
+
+  // Queues `bytes` for the master on a modelled line, the first starting on
+  // the wire at `start` (or when the line is free), each released when its
+  // last bit has arrived. Returns when the last one ends.
+  Clock::time_point send_paced(Link& l, std::span<const uint8_t> bytes, Clock::time_point start) {
+    const microseconds c = opt.line->char_time();
+    Clock::time_point t = std::max(start, l.tx_end);
+    size_t begin = l.out.size();
+    l.out.insert(l.out.end(), bytes.begin(), bytes.end());
+    for (size_t k = 0; k < bytes.size(); ++k) {
+      t += c;
+      l.held.push_back({begin + k, delivered(t)});
+    }
+    l.tx_end = t;
+    return t;
+  }
+
+  // A reply on a modelled line: t3.5 after the request ended (one character
+  // time with early-reply), plus the turnaround delay; noise first with
+  // line-noise; a silence between t1.5 and t3.5 halfway with reply-gap.
+  void send_reply_on_line(Link& l, std::span<const uint8_t> reply) {
+    const LineFormat& f = *opt.line;
+    const LineBehaviour& b = opt.behaviour;
+    Clock::time_point start = l.wire_end + (b.has(LineFault::early_reply) ? f.char_time() : f.t35()) + b.turnaround;
+    if (b.has(LineFault::line_noise)) {
+      static constexpr uint8_t kNoise[] = {0x00, 0xFF, 0x5A};
+      start = send_paced(l, kNoise, start) + f.t35();
+    }
+    if (b.has(LineFault::reply_gap) && reply.size() >= 2) {
+      size_t half = reply.size() / 2;
+      Clock::time_point end = send_paced(l, reply.first(half), start);
+      send_paced(l, reply.subspan(half), end + (f.t15() + f.t35()) / 2);
+      return;
+    }
+    send_paced(l, reply, start);
+  }
+
   microseconds rtu_gap(const Link& l) const {
+    if (modelled(l)) return opt.line->t35();
     microseconds gap = frame_gap(opt.baud);
     return l.transport == Transport::rtu_tcp ? std::max<microseconds>(gap, kTcpFrameGap) : gap;
   }
@@ -510,6 +573,10 @@ struct Server::Impl {
   bool rtu_frame_complete(const Link& l, Clock::time_point now) const {
     if (l.in.empty() && !l.overflow) return false;
     if (now - l.last_rx >= rtu_gap(l)) return true;
+    // early-reply: the device takes a request whose length and CRC are
+    // whole as soon as its last character is in.
+    if (modelled(l) && opt.behaviour.has(LineFault::early_reply) && !l.overflow && now >= l.wire_end)
+      return rtu_adu_complete(l.in, Direction::request);
     if (l.transport != Transport::rtu_tcp || l.overflow) return false;
     return rtu_adu_complete(l.in, Direction::request);
   }
@@ -557,7 +624,20 @@ struct Server::Impl {
           handle_rtu_frame(l, now);
           save_changed_images();
         }
-        l.last_rx = now;
+        // A 2-wire adapter on the master's side hears its own request as it
+        // goes out: the master reads it back first (serve --echo).
+        if (modelled(l)) {
+          // The line clocks the bytes in one character time each, after
+          // what it still carries; a silence over t1.5 splits the frame.
+          const Clock::time_point start = std::max(now, l.wire_end);
+          if (!l.in.empty() && start - l.wire_end > opt.line->t15()) l.gapped = true;
+          if (opt.echo) send_paced(l, std::span<const uint8_t>(buf, size_t(n)), start);
+          l.wire_end = start + opt.line->char_time() * n;
+          l.last_rx = l.wire_end;
+        } else {
+          if (opt.echo && l.transport == Transport::pty) l.out.insert(l.out.end(), buf, buf + n);
+          l.last_rx = now;
+        }
         budget -= size_t(n);
         size_t keep = size_t(n);
         if (l.rtu()) {
@@ -691,6 +771,8 @@ struct Server::Impl {
     Clock::time_point wake = now + kMaxSleep;
     for (const auto& l : links) {
       if (l.rtu() && (!l.in.empty() || l.overflow)) wake = std::min(wake, l.last_rx + rtu_gap(l));
+      if (modelled(l) && opt.behaviour.has(LineFault::early_reply) && !l.in.empty() && l.wire_end > now)
+        wake = std::min(wake, l.wire_end);
       if (l.rest_until > now) wake = std::min(wake, l.rest_until);
       // A reply already due waits for EPOLLOUT, not for a timer: a client that
       // does not read must not turn the loop into a busy one.

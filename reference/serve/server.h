@@ -49,7 +49,14 @@ struct Options {
   // baud rate reads and sends what a UART at the wrong rate would (uart.h).
   // Sets baud and line_rate to its rate.
   std::optional<LineFormat> line;
-  // The master's adapter echoes its request back on the pty before the reply
+  // With `line`: a USB adapter's latency timer, the device's turnaround
+  // delay, and the line faults (uart.h). Every byte then takes its character
+  // time both ways: a request reaches the device as the line clocks it in
+  // (a silence over t1.5 inside it makes it discarded, MB-SL v1.02
+  // §2.5.1.1), and each byte of a reply reaches the master when its last bit
+  // would have.
+  LineBehaviour behaviour;
+  // The master's adapter echoes its request back on the pty as it goes out
   // (2-wire RS-485 adapters without echo suppression).
   bool echo = false;
   bool trace = false;            // every frame to stderr, timestamped (trace.h)

@@ -28,6 +28,26 @@ std::optional<LineFormat> parse_line_format(std::string_view text) {
   return f;
 }
 
+const std::vector<LineFaultInfo>& line_faults() {
+  static const std::vector<LineFaultInfo> all = {
+      {LineFault::reply_gap, "reply-gap",
+       "--line: every reply has a silence halfway between t1.5 and t3.5 in its middle (MB-SL v1.02 §2.5.1.1: at most t1.5)"},
+      {LineFault::early_reply, "early-reply",
+       "--line: replies one character time after the request ends, without the t3.5 silence before a frame"},
+      {LineFault::line_noise, "line-noise",
+       "--line: three noise bytes reach the master before every reply, t3.5 apart from it (a line without bias)"},
+      {LineFault::keep_gapped_request, "keep-gapped-request",
+       "--line: answers a request with a silence over t1.5 inside it, which MB-SL v1.02 §2.5.1.1 says to discard"},
+  };
+  return all;
+}
+
+std::optional<LineFault> line_fault_named(std::string_view name) {
+  for (const auto& f : line_faults())
+    if (name == f.name) return f.fault;
+  return std::nullopt;
+}
+
 int baud_of_speed(unsigned speed) {
   static const std::pair<speed_t, int> table[] = {
       {B50, 50},         {B75, 75},         {B110, 110},       {B134, 134},       {B150, 150},

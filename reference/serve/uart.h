@@ -12,6 +12,7 @@
 // parity is not modelled; the line's own format still sets its timing.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <optional>
 #include <span>
@@ -29,6 +30,53 @@ struct LineFormat {
   // Start bit, data bits, parity bit and stop bits.
   int bits_per_char() const { return 1 + data_bits + (parity == 'N' ? 0 : 1) + stop_bits; }
   std::string text() const;  // "19200-8E1"
+  // One character's time on the wire.
+  std::chrono::microseconds char_time() const {
+    return std::chrono::microseconds(int64_t(double(bits_per_char()) * 1e6 / baud + 0.5));
+  }
+  // t1.5 and t3.5 in this format's character times; above 19200 baud the
+  // fixed 750 us and 1.75 ms MB-SL v1.02 §2.5.1.1 recommends.
+  std::chrono::microseconds t15() const {
+    return baud > 19200 ? std::chrono::microseconds(750) : std::chrono::microseconds(char_time().count() * 3 / 2);
+  }
+  std::chrono::microseconds t35() const {
+    return baud > 19200 ? std::chrono::microseconds(1750) : std::chrono::microseconds(char_time().count() * 7 / 2);
+  }
+};
+
+// What the line does besides carrying characters, as real hardware does
+// (serve --latency-timer, --turnaround, and the line faults --fault takes).
+// Only with a modelled line (--line): every byte then takes its character
+// time both ways.
+enum class LineFault : uint8_t {
+  reply_gap,           // a silence between t1.5 and t3.5 in the middle of every reply
+  early_reply,         // replies one character time after the request, before t3.5
+  line_noise,          // three noise bytes, then t3.5, before every reply
+  keep_gapped_request, // answers a request with a silence over t1.5 inside it
+};
+struct LineFaultInfo {
+  LineFault fault;
+  const char* name;
+  const char* description;
+};
+const std::vector<LineFaultInfo>& line_faults();
+// The line fault named `name`, nullopt when it is none.
+std::optional<LineFault> line_fault_named(std::string_view name);
+
+struct LineBehaviour {
+  // The master's USB adapter hands what it received to the host when its
+  // latency timer runs out (FTDI: 16 ms by default, 1..255): bytes reach the
+  // master in batches at multiples of it. 0: each byte at its time.
+  std::chrono::milliseconds latency_timer{0};
+  // The device waits this long after t3.5 before it replies (a drive's
+  // response delay parameter).
+  std::chrono::microseconds turnaround{0};
+  std::vector<LineFault> faults;
+  bool has(LineFault f) const {
+    for (auto x : faults)
+      if (x == f) return true;
+    return false;
+  }
 };
 
 // "19200-8E1", "9600-8N2", "115200" (8E1, MB-SL v1.02 §2.5.1's default

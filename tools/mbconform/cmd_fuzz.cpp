@@ -102,6 +102,7 @@ int run_fuzz(FuzzArgs& a) {
   conf::Session& session = *opened.session;
   const spec::Spec& s = *opened.spec;
   const conf::TargetInfo info = session.info();
+  for (const auto& n : info.notes) fmt::print(stderr, "note: {}\n", n);  // how it was opened (a USB latency timer, ...)
   conf::blackbox::Open open = [&] { return session.open_another(true); };
   std::vector<std::string> notes;
   if (std::string why = prepare_live(session, a.t, notes); !why.empty()) {

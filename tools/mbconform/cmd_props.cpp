@@ -170,6 +170,7 @@ int run(PropsArgs& a) {
     }
     conf::Session& session = *opened.session;
     const conf::TargetInfo info = session.info();
+    for (const auto& n : info.notes) fmt::print(stderr, "note: {}\n", n);  // how it was opened (a USB latency timer, ...)
     src.uri = info.uri;
     src.spec = opened.spec.get();
     // In-process targets start each generated case at power-on; a live one is the same drive throughout.

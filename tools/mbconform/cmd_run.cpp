@@ -217,6 +217,7 @@ int run(RunArgs& a) {
                      session->journal_path());
         target = &session->target();
         info = target->info();
+        for (const auto& n : info.notes) fmt::print(stderr, "note: {}\n", n);  // how it was opened (a USB latency timer, ...)
       } else {
         info = planned_info(conf::line_settings(uri, &s).uri, s);
       }

@@ -19,6 +19,8 @@ struct ServeArgs {
   std::optional<int> baud, line_rate;
   std::string line;  // --line 19200-8E1
   bool echo = false;
+  int latency_timer_ms = 0;
+  double turnaround_ms = 0;
   bool trace = false, quiet = false;
   std::string pcap;
   std::vector<std::string> faults;  // --fault NAME[,NAME], repeatable
@@ -45,9 +47,19 @@ serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_
   o.idle_timeout_s = a.idle_timeout_s;
   o.max_connections = a.max_connections;
   o.tls = a.tls_options;
+  // One --fault for both kinds: the line's (serve/uart.h) and the devices' (faults.h).
   try {
-    for (const auto& f : a.faults)
-      for (auto x : faults::parse_faults(f).list()) o.faults.add(x);
+    for (const auto& f : a.faults) {
+      std::string device_faults;
+      for (size_t at = 0; at <= f.size();) {
+        size_t comma = std::min(f.find(',', at), f.size());
+        std::string name = f.substr(at, comma - at);
+        if (auto lf = serve::line_fault_named(name)) o.behaviour.faults.push_back(*lf);
+        else device_faults += (device_faults.empty() ? "" : ",") + name;
+        at = comma + 1;
+      }
+      for (auto x : faults::parse_faults(device_faults).list()) o.faults.add(x);
+    }
   } catch (const std::invalid_argument& e) {
     throw CLI::ValidationError("--fault", e.what());
   }
@@ -62,6 +74,10 @@ serve::Options options_from(const ServeArgs& a, std::optional<int> first_device_
     o.baud = o.line->baud;
     if (!o.line_rate) o.line_rate = o.line->baud;
   }
+  o.behaviour.latency_timer = std::chrono::milliseconds(a.latency_timer_ms);
+  o.behaviour.turnaround = std::chrono::microseconds(int64_t(a.turnaround_ms * 1000));
+  if (!o.line && (a.latency_timer_ms || a.turnaround_ms > 0 || !o.behaviour.faults.empty()))
+    throw CLI::ValidationError("--line", "--latency-timer, --turnaround and the line faults need --line BAUD-FORMAT");
   return o;
 }
 
@@ -113,6 +129,12 @@ void add_serve_command(CLI::App& app, int& exit_code) {
                   "UART at the wrong rate makes of it (garbage or silence); replies paced at its rate");
   cmd->add_flag("--echo", a.echo, "--pty: echo each request back before its reply, as a 2-wire RS-485 adapter without echo "
                                   "suppression does to its master");
+  cmd->add_option("--latency-timer", a.latency_timer_ms,
+                  "MS: --line: the master's USB adapter hands received bytes over when its latency timer runs out "
+                  "(FTDI: 16 by default): replies arrive in batches")
+      ->check(CLI::Range(1, 255));
+  cmd->add_option("--turnaround", a.turnaround_ms, "MS: --line: the device waits this long after t3.5 before it replies")
+      ->check(CLI::Range(0.0, 10000.0));
   cmd->add_flag("--trace", a.trace, "log every frame to stderr, timestamped (the serial log format check-capture reads)");
   cmd->add_option("--pcap", a.pcap, "FILE: also write every frame as pcapng (Wireshark; conformance/capture/README.md)");
   cmd->add_option("--fault", a.faults,
@@ -129,6 +151,7 @@ void add_serve_command(CLI::App& app, int& exit_code) {
   cmd->callback([&exit_code, cmd, tcp, rtu_tcp, pty, tls] {
     if (a.list_faults) {
       for (const auto& f : faults::all_faults()) fmt::print("{:<22} {}\n", f.name, f.description);
+      for (const auto& f : serve::line_faults()) fmt::print("{:<22} {}\n", f.name, f.description);
       exit_code = 0;
       return;
     }
