@@ -55,6 +55,7 @@
 #include <vector>
 
 #include "engine/device.h"
+#include "targets/percentile.h"
 #include "loader.h"
 
 namespace {
@@ -415,10 +416,9 @@ PollStats poll_run(int port) {
     lat.push_back(ok ? ms : std::chrono::duration<double, std::milli>(kPollTimeout).count());
   }
   close(s);
-  std::sort(lat.begin(), lat.end());
   if (!lat.empty()) {
-    st.p50_ms = lat[lat.size() / 2];
-    st.p99_ms = lat[std::min(lat.size() - 1, size_t(double(lat.size()) * 0.99))];
+    st.p50_ms = mbc::conf::percentile(std::span(lat), 50);
+    st.p99_ms = mbc::conf::percentile(std::span(lat), 99);
   }
   return st;
 }

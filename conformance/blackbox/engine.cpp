@@ -19,6 +19,7 @@
 #include "modbus/pdu.h"
 #include "modbus/rtu.h"
 #include "policy/policy.h"
+#include "targets/percentile.h"
 
 namespace mbc::conf::blackbox {
 
@@ -721,10 +722,8 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
   }
   out.seconds = std::chrono::duration<double>(Clock::now() - started - reducing).count();
   if (!out.reply_latencies.empty()) {
-    auto& v = out.reply_latencies;
-    size_t at = std::min(v.size() - 1, size_t(double(v.size()) * 0.99));
-    std::nth_element(v.begin(), v.begin() + ptrdiff_t(at), v.end());
-    out.reply_latency_p99_seconds = std::chrono::duration<double>(v[at]).count();
+    out.reply_latency_p99_seconds =
+        std::chrono::duration<double>(percentile(std::span(out.reply_latencies), 99)).count();
   }
   return out;
 }

@@ -14,6 +14,7 @@
 #include "modbus/pdu.h"
 #include "safety/safety.h"
 #include "session/signals.h"
+#include "report/utc_now.h"
 
 namespace mbc::conf {
 namespace {
@@ -23,15 +24,6 @@ using Clock = std::chrono::steady_clock;
 // MB-SL v1.02 §2.5.1: the default line is 19200 baud, 8 data bits, even parity, 1 stop bit.
 constexpr int kStandardBaud = 19200;
 constexpr const char* kStandardFrame = "8E1";
-
-std::string utc_now() {
-  std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[32];
-  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return buf;
-}
 
 // Whether the target answers at all: the first item the profile can read,
 // one item, three tries with reconnects; any reply, even an exception, is

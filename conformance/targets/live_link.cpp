@@ -11,6 +11,8 @@
 #include <cstring>
 #include <stdexcept>
 
+#include "targets/percentile.h"
+
 namespace mbc::conf::live {
 
 int int_param(const Uri& u, const std::string& uri, const std::string& key, int fallback, int lo, int hi) {
@@ -45,9 +47,7 @@ void SilenceWindow::Estimate::record(microseconds latency) {
   size_t n = std::min(count, kMaxSamples);
   if (n < kMinSamples) return;
   std::vector<int64_t> v(ring.begin(), ring.begin() + ptrdiff_t(n));
-  size_t at = std::min(n - 1, size_t(double(n) * 0.99));
-  std::nth_element(v.begin(), v.begin() + ptrdiff_t(at), v.end());
-  p99 = microseconds(v[at]);
+  p99 = microseconds(percentile(std::span(v), 99));
 }
 
 void SilenceWindow::record(microseconds latency, bool exception, microseconds line) {

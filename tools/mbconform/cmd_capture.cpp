@@ -19,6 +19,7 @@
 #include "map/map.h"
 #include "options.h"
 #include "report/report.h"
+#include "report/utc_now.h"
 
 namespace mbc::cli {
 namespace {
@@ -69,7 +70,7 @@ int check_capture(const CaptureArgs& a) {
 
   conf::RunReport report;
   report.command = "check-capture";
-  report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
+  report.started_at = conf::utc_now();
   report.version = kVersionLine;
   report.devices.push_back(r.run);
   try {

@@ -25,6 +25,7 @@
 #include "report/quirks.h"
 #include "report/report.h"
 #include "session/progress.h"
+#include "report/utc_now.h"
 
 namespace mbc::cli {
 namespace {
@@ -40,13 +41,6 @@ struct ClientArgs {
 bool keep(const std::string& filter, const std::string& id) {
   if (filter.find_first_of("*?[") != std::string::npos) return fnmatch(filter.c_str(), id.c_str(), 0) == 0;
   return id.find(filter) != std::string::npos;
-}
-
-std::string stamp(const char* format) {
-  std::time_t t = std::time(nullptr);
-  char buf[64];
-  std::strftime(buf, sizeof buf, format, std::gmtime(&t));
-  return buf;
 }
 
 int run(const ClientArgs& a) {
@@ -125,7 +119,7 @@ int run(const ClientArgs& a) {
   };
   conf::RunReport report;
   report.command = "client";
-  report.started_at = stamp("%Y-%m-%dT%H:%M:%SZ");
+  report.started_at = conf::utc_now();
   report.version = kVersionLine;
   report.fail_on_should = a.fail_on_should;
   client::ClientRun cr = client::run_client(o, list);

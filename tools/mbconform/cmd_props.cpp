@@ -36,6 +36,7 @@
 #include "session/session.h"
 #include "session/progress.h"
 #include "session/signals.h"
+#include "report/utc_now.h"
 
 namespace mbc::cli {
 namespace {
@@ -141,7 +142,7 @@ int run(PropsArgs& a) {
 
   conf::RunReport report;
   report.command = "props";
-  report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
+  report.started_at = conf::utc_now();
   report.version = kVersionLine;
   std::string out = a.t.out.empty() ? default_out_dir("props") : a.t.out;
   if (!conf::out_dir_ok(out, "mbconform props")) return kExitUsage;

@@ -39,6 +39,7 @@
 #include "session/progress.h"
 #include "session/signals.h"
 #include "targets/target.h"
+#include "report/utc_now.h"
 
 namespace mbc::cli {
 namespace {
@@ -165,7 +166,7 @@ int run(RunArgs& a) {
   conf::RunReport report;
   std::vector<std::string> quirks_gone;  // declared quirks whose cases ran and passed (in the notes too)
   report.command = "run";
-  report.started_at = utc_now("%Y-%m-%dT%H:%M:%SZ");
+  report.started_at = conf::utc_now();
   report.version = kVersionLine;
   report.fail_on_should = a.fail_on_should;
 

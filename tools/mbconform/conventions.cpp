@@ -9,14 +9,12 @@
 #include <ctime>
 
 #include "report/report.h"
+#include "report/utc_now.h"
 
 namespace mbc::cli {
 
 std::string default_out_dir(const std::string& command) {
-  std::time_t now = std::time(nullptr);
-  std::tm utc{};
-  gmtime_r(&now, &utc);
-  return conf::claim_new_dir("reports/" + command, fmt::format("{:%Y%m%dT%H%M%SZ}", utc));
+  return conf::claim_new_dir("reports/" + command, conf::utc_now("%Y%m%dT%H%M%SZ"));
 }
 
 std::optional<std::chrono::milliseconds> parse_duration(const std::string& text, std::chrono::milliseconds min,

@@ -155,13 +155,4 @@ void check_readable(const std::string& path, uintmax_t cap, const char* what) {
     throw std::runtime_error(fmt::format("{} {}: {} bytes, more than the {} such a file may have", what, path, size, cap));
 }
 
-std::string utc_now(const char* format) {
-  std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[64];
-  std::strftime(buf, sizeof buf, format, &tm);
-  return buf;
-}
-
 }  // namespace mbc::cli

@@ -90,7 +90,4 @@ inline constexpr uintmax_t kMaxTextFileBytes = 16u << 20;
 // at most `cap` bytes; `what` names it ("--quirks").
 void check_readable(const std::string& path, uintmax_t cap, const char* what);
 
-// The time now in UTC, strftime-formatted (report names, report headers).
-std::string utc_now(const char* format);
-
 }  // namespace mbc::cli
