@@ -23,7 +23,10 @@ std::unique_ptr<Behaviour> make_behaviour(const spec::Spec& spec, std::shared_pt
   };
   auto it = registry.find(spec.device.id);
   std::unique_ptr<Behaviour> own = it == registry.end() ? nullptr : it->second();
-  if (spec.control) return std::make_unique<ControlExecutor>(*spec.control, std::move(own), std::move(tweak));
+  // A control: section with states is a state machine to run (one with
+  // only `motion:` states none).
+  if (spec.control && !spec.control->states.empty())
+    return std::make_unique<ControlExecutor>(*spec.control, std::move(own), std::move(tweak));
   return own ? std::move(own) : std::make_unique<Behaviour>();
 }
 

@@ -360,7 +360,7 @@ FaultyBus::FaultyBus(ref::Bus bus, FaultSet faults) : faults_(faults) {
   }
   for (auto& d : bus.devices()) {
     std::shared_ptr<const ref::ControlTweak> tweak;
-    if (control_level(faults) && d->spec().control) tweak = std::make_shared<ControlFaults>(faults, *d->spec().control);
+    if (control_level(faults) && d->spec().control && !d->spec().control->states.empty()) tweak = std::make_shared<ControlFaults>(faults, *d->spec().control);
     auto behaviour = std::make_unique<FaultyBehaviour>(ref::make_behaviour(d->spec(), tweak), faults);
     auto nd = std::make_unique<ref::Device>(d->spec(), d->slave_id(), std::move(behaviour));
     nd->load_stored_image(d->stored_image());

@@ -6,7 +6,6 @@
 // transitions 0..16; never read from the executor or the spec's model.
 #include <gtest/gtest.h>
 
-#include <algorithm>
 #include <cmath>
 #include <functional>
 #include <map>
@@ -49,136 +48,10 @@ constexpr uint16_t kControlword = 0x0000, kStatusword = 0x0001, kModes = 0x0002,
                    kTargetVelocity = 0x0004, kVelocityActual = 0x0006, kTargetPosition = 0x0008,
                    kPositionActual = 0x000A;
 
-// Until spec/devices/cia402-modbus.yaml is on this branch: the same layout
-// and the profile's model, built here (removed once the spec file lands).
-spec::Spec interim_cia402() {
-  spec::Spec s = spec::load_spec_by_id("modbus-standard");
-  s.device.id = "cia402-modbus";
-  s.registers.clear();
-  s.examples.clear();
-  auto reg = [&](uint16_t a, const char* key, spec::DataType t, spec::Access acc, std::optional<double> def = {}) {
-    spec::Register r;
-    r.address = a;
-    r.key = key;
-    r.type = t;
-    r.access = acc;
-    r.words = (t == spec::DataType::s32 || t == spec::DataType::u32) ? 2 : 1;
-    if (r.words == 2) r.word_order = spec::WordOrder::high_first;
-    r.default_value = def;
-    s.registers.push_back(r);
-  };
-  using spec::Access;
-  using spec::DataType;
-  reg(0, "controlword", DataType::u16, Access::rw);
-  reg(1, "statusword", DataType::u16, Access::ro);
-  reg(2, "mode_of_operation", DataType::s16, Access::rw, 1);
-  reg(3, "mode_display", DataType::s16, Access::ro);
-  reg(4, "target_velocity", DataType::s32, Access::rw);
-  reg(6, "velocity_actual", DataType::s32, Access::ro);
-  reg(8, "target_position", DataType::s32, Access::rw);
-  reg(10, "position_actual", DataType::s32, Access::ro);
-  reg(12, "error_code", DataType::u16, Access::ro);
-  reg(13, "quick_stop_option", DataType::u16, Access::rw, 2);
-  spec::Control c;
-  auto state = [&](const char* id, uint16_t mask, uint16_t value, bool motion, bool fault) {
-    spec::ControlState st;
-    st.id = id;
-    st.status.push_back(spec::StatusMatch{"statusword", mask, value});
-    st.motion = motion;
-    st.fault = fault;
-    c.states.push_back(st);
-  };
-  state("not_ready", 0x4F, 0x00, false, false);
-  state("switch_on_disabled", 0x4F, 0x40, false, false);
-  state("ready_to_switch_on", 0x6F, 0x21, false, false);
-  state("switched_on", 0x6F, 0x23, false, false);
-  state("operation_enabled", 0x6F, 0x27, true, false);
-  state("quick_stop_active", 0x6F, 0x07, true, false);
-  state("fault_reaction_active", 0x4F, 0x0F, true, true);
-  state("fault", 0x4F, 0x08, false, true);
-  auto command = [&](const char* id, uint16_t mask, uint16_t value, spec::Trigger t = spec::Trigger::level,
-                     uint16_t edge = 0, bool stops = false) {
-    spec::ControlCommand cm;
-    cm.id = id;
-    cm.register_key = "controlword";
-    cm.mask = mask;
-    cm.value = value;
-    cm.trigger = t;
-    cm.edge_mask = edge;
-    cm.stops = stops;
-    c.commands.push_back(cm);
-  };
-  command("shutdown", 0x87, 0x06);
-  command("switch_on", 0x8F, 0x07);
-  command("enable_operation", 0x8F, 0x0F);
-  command("disable_voltage", 0x82, 0x00);
-  command("quick_stop", 0x86, 0x02, spec::Trigger::level, 0, true);
-  command("fault_reset", 0x80, 0x80, spec::Trigger::edge, 0x80);
-  command("new_setpoint", 0x10, 0x10, spec::Trigger::edge, 0x10);
-  auto tr = [&](const char* id, const char* from, const char* cmd, const char* to, const char* event = "",
-                std::vector<int64_t> when = {}) {
-    spec::ControlTransition t;
-    t.id = id;
-    t.from = from;
-    t.command = cmd;
-    t.to = to;
-    t.event = event;
-    if (!when.empty()) t.when = {{"quick_stop_option", when}};
-    c.transitions.push_back(t);
-  };
-  tr("0", "*", "", "not_ready", "power_on");
-  tr("1", "not_ready", "", "switch_on_disabled", "time");
-  tr("2", "switch_on_disabled", "shutdown", "ready_to_switch_on");
-  tr("3", "ready_to_switch_on", "switch_on", "switched_on");
-  tr("3+4", "ready_to_switch_on", "enable_operation", "operation_enabled");
-  tr("4", "switched_on", "enable_operation", "operation_enabled");
-  tr("5", "operation_enabled", "switch_on", "switched_on");
-  tr("6", "switched_on", "shutdown", "ready_to_switch_on");
-  tr("7", "ready_to_switch_on", "disable_voltage", "switch_on_disabled");
-  tr("7q", "ready_to_switch_on", "quick_stop", "switch_on_disabled");
-  tr("8", "operation_enabled", "shutdown", "ready_to_switch_on");
-  tr("9", "operation_enabled", "disable_voltage", "switch_on_disabled");
-  tr("10", "switched_on", "disable_voltage", "switch_on_disabled");
-  tr("10q", "switched_on", "quick_stop", "switch_on_disabled");
-  tr("11", "operation_enabled", "quick_stop", "quick_stop_active");
-  tr("12", "quick_stop_active", "", "switch_on_disabled", "motion_done", {0, 1, 2, 3, 4});
-  tr("12d", "quick_stop_active", "disable_voltage", "switch_on_disabled");
-  tr("13", "*", "", "fault_reaction_active", "fault");
-  tr("14", "fault_reaction_active", "", "fault", "reaction_done");
-  tr("15", "fault", "fault_reset", "switch_on_disabled");
-  tr("16", "quick_stop_active", "enable_operation", "operation_enabled", "", {5, 6, 7, 8});
-  auto mode = [&](const char* id, int value, const char* setpoint, const char* actual, const char* start,
-                  uint16_t done) {
-    spec::ControlMode m;
-    m.id = id;
-    m.select.emplace();
-    m.select->key = "mode_of_operation";
-    m.select->value = value;
-    m.display_key = "mode_display";
-    m.setpoint_keys = {setpoint};
-    m.actual_key = actual;
-    m.start_command = start;
-    m.done = spec::StatusMatch{"statusword", done, done};
-    c.modes.push_back(m);
-  };
-  mode("position", 1, "target_position", "position_actual", "new_setpoint", 0x0400);
-  mode("speed", 3, "target_velocity", "velocity_actual", "", 0x0400);
-  mode("homing", 6, "target_position", "position_actual", "new_setpoint", 0x1000);
-  c.initial = "switch_on_disabled";
-  c.safe = "switch_on_disabled";
-  s.control = c;
-  return s;
-}
-
 const spec::Spec& cia402() {
-  static const spec::Spec s = [] {
-    auto ids = spec::spec_ids();
-    if (std::find(ids.begin(), ids.end(), "cia402-modbus") == ids.end()) return interim_cia402();
-    return spec::load_spec_by_id("cia402-modbus");
-  }();
+  static const spec::Spec s = spec::load_spec_by_id("cia402-modbus");
   return s;
 }
-
 // A CiA 402 device, correct or with faults, spoken to by PDUs as a master would.
 class Drive {
  public:
@@ -309,7 +182,7 @@ TEST(Control, Transition16OnlyForOptionCodes5To8) {
   d.advance_ms(10);
   EXPECT_TRUE(In(d, kSwitchOnDisabled));
 
-  // Option code 6 (the layout refuses it over the bus; set directly): 16 applies, 12 does not.
+  // Option code 6 (this layout takes 2 only; set here past the bus): 16 applies, 12 does not.
   Drive e;
   e.device().set_value_of("quick_stop_option", 6);
   enable(e);
