@@ -250,8 +250,8 @@ spec::Role role_of(const spec::Spec& s, const Register& r) {
   const auto& ops = s.operations;
   if (ops.factory_reset && ops.factory_reset->key == r.key) return Role::factory_reset;
   if (ops.save && ops.save->key == r.key) return Role::save;
-  if (ops.motion) {
-    const auto& m = *ops.motion;
+  if (s.control && s.control->motion) {
+    const auto& m = *s.control->motion;
     for (const auto* w : {&m.start_forward, &m.start_reverse, &m.stop, &m.emergency_stop})
       if (*w && (*w)->key == r.key) return Role::motion;
     if (!m.position_command_key.empty() && m.position_command_key == r.key) return Role::motion;

@@ -91,7 +91,7 @@ std::vector<std::pair<uint8_t, Bytes>> frames_in(Framing framing, std::span<cons
 
 // The role the spec gives a register, in the spec language's own terms
 // (serial.settings, access: command with motion or eeprom, operations.save,
-// operations.factory_reset, operations.motion); for a spec no manual states,
+// operations.factory_reset, control.motion); for a spec no manual states,
 // the lexicon's role of its name (spec/roles/roles.h) where those say none.
 spec::Role role_of(const spec::Spec&, const spec::Register&);
 // Why a write moves the axis by the spec's control (`control:`), or empty:

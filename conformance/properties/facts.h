@@ -1,9 +1,9 @@
 // Device facts the properties need beyond the register table: which value of
-// which command register saves or factory-resets, and how a position move is
-// commanded and observed. They are the spec's `operations:` section
-// (spec/README.md, spec::Operations), registers named by key, each citing its
-// section; so a fifth drive gets the persistence and motion properties from
-// its spec alone.
+// which command register saves or factory-resets (the spec's `operations:`,
+// spec::Operations), and how a position move is commanded and observed (the
+// spec's `control.motion`, spec::MotionOperations); registers named by key,
+// each citing its section; so a fifth drive gets the persistence and motion
+// properties from its spec alone.
 #pragma once
 
 #include "spec.h"
@@ -18,7 +18,12 @@ using DeviceFacts = spec::Operations;
 // long as `spec`.
 inline const DeviceFacts* facts_for(const spec::Spec& spec) {
   const auto& o = spec.operations;
-  return o.save || o.factory_reset || o.motion ? &o : nullptr;
+  return o.save || o.factory_reset ? &o : nullptr;
+}
+
+// The spec's control.motion; nullptr when it states none.
+inline const MotionFacts* motion_facts(const spec::Spec& spec) {
+  return spec.control && spec.control->motion ? &*spec.control->motion : nullptr;
 }
 
 }  // namespace mbc::conf::props

@@ -69,7 +69,7 @@ bool running(const MotionFacts& m, const Sample& x) {
   return m.running_when_set ? bits : !bits;
 }
 
-const MotionFacts& facts_of(Session& s) { return *s.facts()->motion; }
+const MotionFacts& facts_of(Session& s) { return *motion_facts(s.spec()); }
 
 // The profile the facts assume, then the setup writes.
 void set_up(Session& s) {
@@ -239,9 +239,10 @@ void homing_gate(Session& s) {
 }
 
 std::function<std::string(const SpecView&, const TargetInfo&, const DeviceFacts*)> needs_motion(bool homing_gate = false) {
-  return [homing_gate](const SpecView& v, const TargetInfo& t, const DeviceFacts* f) -> std::string {
-    if (!f || !f->motion) return "the spec has no operations: motion: section (spec/README.md)";
-    if (homing_gate && !f->motion->positioning_needs_homing) return "the manual does not make positioning wait for homing";
+  return [homing_gate](const SpecView& v, const TargetInfo& t, const DeviceFacts*) -> std::string {
+    const MotionFacts* m = motion_facts(v.spec());
+    if (!m) return "the spec has no control: motion: section (spec/README.md)";
+    if (homing_gate && !m->positioning_needs_homing) return "the manual does not make positioning wait for homing";
     if (!t.virtual_clock) return "needs a target on a virtual clock (ref:); live motion is not sampled in real time yet";
     if (t.live) return "live target";
     return "";
@@ -252,16 +253,16 @@ std::function<std::string(const SpecView&, const TargetInfo&, const DeviceFacts*
 
 std::vector<Invariant> motion_invariants() {
   return {
-      {"motion-position-exact", "spec operations.motion; the manuals' position moves",
+      {"motion-position-exact", "spec control.motion; the manuals' position moves",
        "A completed position move ends exactly at the commanded position.", needs_motion(), position_exact},
-      {"motion-speed-limit", "spec operations.motion: the speed the setup configures",
+      {"motion-speed-limit", "spec control.motion: the speed the setup configures",
        "Between any two samples the axis never travels faster than the configured maximum speed.", needs_motion(),
        speed_limit},
-      {"motion-status-agrees", "spec operations.motion: the status word's running / in-position bits",
+      {"motion-status-agrees", "spec control.motion: the status word's running / in-position bits",
        "The status word says running while the position changes, never running and in position at once, and "
        "stopped (in position) once a move has ended.",
        needs_motion(), status_agrees},
-      {"motion-stops", "spec operations.motion: stop and emergency-stop commands",
+      {"motion-stops", "spec control.motion: stop and emergency-stop commands",
        "An emergency stop stops the axis at once; a normal stop ends within the deceleration time.", needs_motion(),
        stops},
       {"motion-homing-gate", "7TRSM5740Q §5.2", "A drive that needs homing refuses positioning until it is homed.",

@@ -45,8 +45,8 @@ Bytes write_pdu(spec::Table table, uint16_t address, const std::vector<uint16_t>
 
 // The spec's stop as the words of its register (2-word registers in the spec's word order).
 std::optional<std::pair<const spec::Register*, std::vector<uint16_t>>> stop_words(const spec::Spec& s) {
-  if (!s.operations.motion || !s.operations.motion->stop) return std::nullopt;
-  const auto& st = *s.operations.motion->stop;
+  if (!s.control || !s.control->motion || !s.control->motion->stop) return std::nullopt;
+  const auto& st = *s.control->motion->stop;
   const spec::Register* r = s.find_by_key(st.key);
   if (!r) return std::nullopt;
   const auto v = uint32_t(st.value);
@@ -476,7 +476,7 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
     auto stop = stop_words(s);
     if (!stop) {
       rep.not_restored.push_back(fmt::format("{}: a command register was written, and the spec names no stop operation "
-                                             "(operations.motion.stop) to undo it", what));
+                                             "(control.motion.stop) to undo it", what));
       note(fmt::format("not-restored command {}: the spec names no stop", what));
     } else {
       const auto& [reg, words] = *stop;
@@ -492,8 +492,8 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
         else if (j.kind == Judged::Kind::exception) why = fmt::format("exception {:02X}", j.exception_code);
         else if (!j.ok()) why = j.problems.empty() ? "malformed reply" : j.problems.front();
       }
-      const std::string op = fmt::format("{} = {} (operations.motion.stop, {})", register_label(*reg),
-                                         s.operations.motion->stop->value, s.operations.motion->stop->section);
+      const std::string op = fmt::format("{} = {} (control.motion.stop, {})", register_label(*reg),
+                                         s.control->motion->stop->value, s.control->motion->stop->section);
       if (why.empty()) {
         rep.notes.push_back(fmt::format("stopped: {} after writes to {}", op, what));
         note(fmt::format("stopped {} after {}", op, what));

@@ -10,7 +10,7 @@
 //   - Every write goes through the frame policy (restore_refusal, the one
 //     place): never a slave-id, baud or frame-format register, never a
 //     command; a command register written is undone by the spec's stop
-//     operation (operations.motion.stop), not by a write of an old value.
+//     operation (control.motion.stop), not by a write of an old value.
 //   - Read-only registers are not put back (they change by side effect).
 //   - An address an earlier restore put back and that changed since is left
 //     alone (the user changed it).
@@ -52,7 +52,7 @@ RestoreReport restore_journal(Target& target, const spec::Spec& spec, const Jour
 
 // Why `pdu` to `unit` may not go out as part of a restore, or nullopt: the
 // one place a restore asks the frame policy. `stop_operation`: the spec's
-// own stop (operations.motion.stop), the only command a restore sends.
+// own stop (control.motion.stop), the only command a restore sends.
 std::optional<Refusal> restore_refusal(const spec::Spec& spec, const TargetInfo& info, uint8_t unit,
                                        std::span<const uint8_t> pdu, bool stop_operation);
 

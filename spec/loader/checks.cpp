@@ -43,7 +43,7 @@ struct Checker {
     }
   }
 
-  // Every register an `operations:` entry names by key exists, and a write's
+  // Every register an `operations:` or `control.motion` entry names by key exists, and a write's
   // value is one the register can hold.
   void operations() {
     auto key = [&](const std::string& pointer, const std::string& k) -> const Register* {
@@ -61,9 +61,9 @@ struct Checker {
     if (ops.save) write("/operations/save", *ops.save);
     if (ops.factory_reset) write("/operations/factory_reset", *ops.factory_reset);
     for (size_t i = 0; i < ops.setup.size(); ++i) write("/operations/setup/" + std::to_string(i), ops.setup[i]);
-    if (!ops.motion) return;
-    const auto& m = *ops.motion;
-    const std::string mp = "/operations/motion";
+    if (!s.control || !s.control->motion) return;
+    const auto& m = *s.control->motion;
+    const std::string mp = "/control/motion";
     for (size_t i = 0; i < m.assumes.size(); ++i) key(mp + "/assumes/" + std::to_string(i) + "/register", m.assumes[i].key);
     for (size_t i = 0; i < m.setup.size(); ++i) write(mp + "/setup/" + std::to_string(i), m.setup[i]);
     key(mp + "/distance/register", m.distance_key);

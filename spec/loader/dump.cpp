@@ -16,17 +16,19 @@ nlohmann::json operations_json(const Operations& o) {
   nlohmann::json setup = nlohmann::json::array();
   for (const auto& w : o.setup) setup.push_back(write_json(w));
   j["setup"] = setup;
-  if (!o.motion) {
-    j["motion"] = nullptr;
-    return j;
-  }
-  const MotionOperations& m = *o.motion;
+  return j;
+}
+
+nlohmann::json motion_json(const std::optional<MotionOperations>& mo) {
+  if (!mo) return nullptr;
+  const MotionOperations& m = *mo;
+  nlohmann::json j;
   auto list = [](const std::vector<RegisterWrite>& v) {
     nlohmann::json a = nlohmann::json::array();
     for (const auto& w : v) a.push_back(write_json(w));
     return a;
   };
-  j["motion"] = {{"section", m.section},
+  j = {{"section", m.section},
                  {"assumes", list(m.assumes)},
                  {"setup", list(m.setup)},
                  {"distance", {{"register", m.distance_key}, {"reverse_register", m.reverse_distance_key},
@@ -136,6 +138,50 @@ json reg(const Register& r) {
   return j;
 }
 
+json match(const StatusMatch& m) { return {{"register", m.register_key}, {"mask", m.mask}, {"value", m.value}}; }
+
+// The resolved control: a profile's entries carry the device's register keys.
+json control(const std::optional<Control>& co) {
+  if (!co) return nullptr;
+  const Control& c = *co;
+  json j{{"profile", c.profile}, {"section", c.section}, {"initial", c.initial}, {"safe", c.safe}};
+  j["top_speed"] = c.top_speed ? json(*c.top_speed) : json(nullptr);
+  j["undefined"] = {{"kind", c.undefined.kind == UndefinedCommand::Kind::exception ? "exception" : "ignored"},
+                    {"code", c.undefined.code}, {"basis", basis(c.undefined.basis)}};
+  json states = json::array();
+  for (const auto& x : c.states) {
+    json st = json::array();
+    for (const auto& m : x.status) st.push_back(match(m));
+    states.push_back({{"id", x.id}, {"name", name(x.name)}, {"status", st}, {"motion", x.motion}, {"fault", x.fault},
+                      {"basis", basis(x.basis)}});
+  }
+  j["states"] = states;
+  json commands = json::array();
+  for (const auto& x : c.commands)
+    commands.push_back({{"id", x.id}, {"name", name(x.name)}, {"register", x.register_key}, {"mask", x.mask}, {"value", x.value},
+                        {"write", x.word()}, {"trigger", to_string(x.trigger)}, {"edge_mask", x.edge_mask}, {"motion", x.motion},
+                        {"stops", x.stops}, {"stop_within_ms", x.stop_within_ms ? json(*x.stop_within_ms) : json(nullptr)},
+                        {"basis", basis(x.basis)}});
+  j["commands"] = commands;
+  json transitions = json::array();
+  for (const auto& x : c.transitions) {
+    json when = json::array();
+    for (const auto& w : x.when) when.push_back({{"register", w.register_key}, {"values", w.values}});
+    transitions.push_back({{"id", x.id}, {"from", x.from}, {"command", x.command}, {"event", x.event}, {"to", x.to},
+                           {"within_ms", x.within_ms ? json(*x.within_ms) : json(nullptr)}, {"when", when},
+                           {"motion", x.motion}, {"basis", basis(x.basis)}});
+  }
+  j["transitions"] = transitions;
+  json modes = json::array();
+  for (const auto& x : c.modes)
+    modes.push_back({{"id", x.id}, {"select", write_json(x.select)}, {"display", x.display_key}, {"setpoints", x.setpoint_keys},
+                     {"actual", x.actual_key}, {"start", x.start_command}, {"done", x.done ? match(*x.done) : json(nullptr)},
+                     {"select_in", x.select_in}, {"basis", basis(x.basis)}});
+  j["modes"] = modes;
+  j["motion"] = motion_json(c.motion);
+  return j;
+}
+
 json values(const std::vector<RegisterValue>& v) {
   json a = json::array();
   for (const auto& x : v) a.push_back({{"address", x.address}, {"value", number(x.value)}, {"table", to_string(x.table)}});
@@ -237,6 +283,7 @@ nlohmann::json to_json(const Spec& s) {
     er.push_back({{"id", e.id}, {"section", e.section}, {"kind", e.kind}, {"printed", e.printed}, {"resolved", e.resolved}, {"why", e.why}});
   j["errata"] = er;
   j["operations"] = operations_json(s.operations);
+  j["control"] = control(s.control);
   auto opt = [](const std::optional<double>& v) { return v ? nlohmann::json(*v) : nlohmann::json(nullptr); };
   j["timing"] = {{"response_timeout_ms", opt(s.timing.response_timeout_ms)},
                  {"frame_timeout_ms", opt(s.timing.frame_timeout_ms)},

@@ -14,6 +14,7 @@
 #include <valijson/validator.hpp>
 
 #include "checks.h"
+#include "control.h"
 #include "erratum_extra.h"
 #include "modbus/crc16.h"
 #include "modbus/hex.h"
@@ -63,11 +64,27 @@ std::string pointer_to_path(const std::string& p) {
   return out.empty() ? "(document)" : out;
 }
 
-void validate_schema(const JsonDocument& doc, const std::string& file, Diagnostics& out) {
+// A library profile (spec/profiles/<id>.yaml): the same definitions, rooted
+// at control_profile.
+const valijson::Schema& profile_schema() {
+  static const valijson::Schema* schema = [] {
+    auto* s = new valijson::Schema;
+    json dev = json::parse(device_schema_text());
+    json doc = {{"$schema", dev["$schema"]}, {"$ref", "#/definitions/control_profile"}, {"definitions", dev["definitions"]}};
+    valijson::SchemaParser parser(valijson::SchemaParser::kDraft7);
+    valijson::adapters::NlohmannJsonAdapter adapter(doc);
+    parser.populateSchema(adapter, *s);
+    return s;
+  }();
+  return *schema;
+}
+
+void validate_schema(const JsonDocument& doc, const std::string& file, Diagnostics& out,
+                     const valijson::Schema& schema = device_schema()) {
   valijson::Validator validator;
   valijson::ValidationResults results;
   valijson::adapters::NlohmannJsonAdapter target(doc.root);
-  if (validator.validate(device_schema(), target, &results)) return;
+  if (validator.validate(schema, target, &results)) return;
   struct Err {
     std::string pointer;
     std::string description;
@@ -452,6 +469,7 @@ struct Builder {
     record_erratum_extras(s.path, extras);
     apply_errata_areas(s, extras);
     if (r.contains("operations")) build_operations(s, r["operations"]);
+    build_control(s, doc, file, out);
     if (r.contains("timing")) {
       const json& t = r["timing"];
       for (auto [key, field] : {std::pair{"response_timeout_ms", &Timing::response_timeout_ms},
@@ -575,41 +593,6 @@ struct Builder {
     if (o.contains("setup"))
       for (size_t i = 0; i < o["setup"].size(); ++i)
         s.operations.setup.push_back(register_write(o["setup"][i], p + "/setup/" + std::to_string(i)));
-    if (!o.contains("motion")) return;
-    const json& m = o["motion"];
-    const std::string mp = p + "/motion";
-    MotionOperations mo;
-    mo.loc = at(mp);
-    mo.section = str(m, "section");
-    for (const char* list : {"assumes", "setup"}) {
-      if (!m.contains(list)) continue;
-      auto& out = std::string(list) == "assumes" ? mo.assumes : mo.setup;
-      for (size_t i = 0; i < m[list].size(); ++i)
-        out.push_back(register_write(m[list][i], mp + "/" + list + "/" + std::to_string(i)));
-    }
-    const json& dist = m["distance"];
-    mo.distance_key = str(dist, "register");
-    mo.reverse_distance_key = str(dist, "reverse_register");
-    mo.signed_distance = dist.value("signed", false);
-    mo.max_distance = dist.value("max", int64_t(4000));
-    mo.start_forward = optional_write(m, "start_forward", mp);
-    mo.start_reverse = optional_write(m, "start_reverse", mp);
-    mo.stop = optional_write(m, "stop", mp);
-    mo.emergency_stop = optional_write(m, "emergency_stop", mp);
-    mo.position_key = str(m["position"], "register");
-    mo.position_high_key = str(m["position"], "high_register");
-    mo.max_speed_pulses_per_s = m["max_speed_pulses_per_s"].get<double>();
-    mo.decel_seconds = m["decel_seconds"].get<double>();
-    const json& st = m["status"];
-    mo.status_key = str(st, "register");
-    mo.running_mask = st["running_mask"].get<uint16_t>();
-    mo.running_when_set = st.value("running_when_set", true);
-    mo.in_position_mask = st.value("in_position_mask", uint16_t(0));
-    if (m.contains("positioning_needs_homing")) {
-      mo.positioning_needs_homing = true;
-      mo.position_command_key = str(m["positioning_needs_homing"], "position_command");
-    }
-    s.operations.motion = mo;
   }
 
   // A fact with no basis of its own in a spec no manual states:
@@ -782,6 +765,33 @@ LoadResult load_spec_text(std::string_view text, const std::string& file) {
     return std::pair(a.line, a.col) < std::pair(b.line, b.col);
   });
   return res;
+}
+
+std::optional<JsonDocument> load_profile_document(const std::string& path, Diagnostics& out) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    out.push_back({path, 0, 0, "io", "cannot open the profile"});
+    return std::nullopt;
+  }
+  std::string text;
+  YamlLimits limits;
+  text.resize(limits.max_bytes + 1);
+  in.read(text.data(), std::streamsize(text.size()));
+  text.resize(size_t(in.gcount()));
+  size_t before = out.size();
+  auto doc = yaml_to_json(text, path, out);
+  if (!doc) return std::nullopt;
+  if (!doc->root.is_object()) {
+    out.push_back({path, 1, 1, "schema", "(document): a profile is a mapping with profile, roles, states, commands, transitions"});
+    return std::nullopt;
+  }
+  try {
+    validate_schema(*doc, path, out, profile_schema());
+  } catch (const std::exception& e) {
+    out.push_back({path, 1, 1, "schema", std::string("validator failed: ") + e.what()});
+  }
+  if (out.size() != before) return std::nullopt;
+  return doc;
 }
 
 LoadResult load_spec_file(const std::string& path) {

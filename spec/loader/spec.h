@@ -355,7 +355,7 @@ struct RegisterWrite {
 };
 
 // How a position move is set up, started, stopped and watched: the facts
-// motion properties need that a register table cannot state (`operations:
+// motion properties need that a register table cannot state (`control:
 // motion:` in the language). Registers by key; values raw; distances and
 // positions in pulses.
 struct MotionOperations {
@@ -512,7 +512,7 @@ struct Control {
   // The stated top speed the stop times assume (pulses or units per s), when stated.
   std::optional<double> top_speed;
   // A position move, set up, started, stopped and watched (the motion
-  // properties' facts): `operations.motion` in this section's terms.
+  // properties' facts), `control.motion` in the language.
   std::optional<MotionOperations> motion;
   SourceLoc loc;
 
@@ -523,8 +523,9 @@ struct Control {
   std::vector<const ControlTransition*> transitions_on(const std::string& state, const std::string& command) const;
 };
 
-// Device operations: which write saves, which restores factory defaults,
-// how a move is made (`operations:`; absent when the manual documents none).
+// Device operations: which write saves, which restores factory defaults
+// (`operations:`; absent when the manual documents none). How a move is made
+// is the control's (`control.motion`).
 struct Operations {
   std::string section;
   // Writes a master makes, in order, before using the device (a template's
@@ -532,7 +533,6 @@ struct Operations {
   std::vector<RegisterWrite> setup;
   std::optional<RegisterWrite> save;
   std::optional<RegisterWrite> factory_reset;
-  std::optional<MotionOperations> motion;
 };
 
 // How long a master waits, as the source states it (`timing:`): for a

@@ -107,4 +107,29 @@ std::string spec_path(const std::string& id) {
                            "; add a directory with --spec-dir or $MBCONFORM_SPEC_DIR)");
 }
 
+std::string profile_path(const std::string& id, const std::string& spec_file) {
+  std::error_code ec;
+  const std::string name = id + ".yaml";
+  std::vector<fs::path> dirs;
+  if (!spec_file.empty()) {
+    fs::path here = fs::path(spec_file).parent_path();
+    if (here.empty()) here = ".";
+    dirs.push_back(here / ".." / "profiles");
+    dirs.push_back(here / "profiles");
+  }
+  for (const auto& d : user_dirs()) dirs.push_back(fs::path(d) / "profiles");
+  if (const char* env = std::getenv("MBCONFORM_SPEC_DIR"); env && *env) {
+    std::string list = env;
+    for (size_t pos = 0; pos <= list.size();) {
+      size_t end = std::min(list.find(':', pos), list.size());
+      if (end > pos) dirs.push_back(fs::path(list.substr(pos, end - pos)) / "profiles");
+      pos = end + 1;
+    }
+  }
+  dirs.push_back(fs::path(builtin_spec_dir().first) / "profiles");
+  for (const auto& d : dirs)
+    if (fs::is_regular_file(d / name, ec)) return (d / name).lexically_normal().string();
+  return "";
+}
+
 }  // namespace mbc::spec

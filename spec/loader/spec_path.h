@@ -35,4 +35,10 @@ std::vector<std::string> spec_ids();  // the ids of spec_files()
 // The file of spec `id`; throws std::runtime_error when there is none.
 std::string spec_path(const std::string& id);
 
+// The file of library profile `id` (spec/README.md, "Control") for the spec
+// in `spec_file`: <its folder>/../profiles/<id>.yaml, <its folder>/profiles/,
+// then DIR/profiles/ of every directory above, in the same order. Empty when
+// there is none.
+std::string profile_path(const std::string& id, const std::string& spec_file);
+
 }  // namespace mbc::spec

@@ -264,10 +264,11 @@ TEST(Policy, TheLexiconGuardsAMapNoManualStates) {
 
 TEST(Policy, RolesInTheSpecLanguagesOwnTerms) {
   spec::Spec s = the_spec();
-  s.operations.motion = spec::MotionOperations{};
-  s.operations.motion->start_forward = spec::RegisterWrite{"speed", 1, 0, "", {}};
+  s.control = spec::Control{};
+  s.control->motion = spec::MotionOperations{};
+  s.control->motion->start_forward = spec::RegisterWrite{"speed", 1, 0, "", {}};
   EXPECT_EQ(role_of(s, *s.find_register(0x10)), spec::Role::motion);
-  EXPECT_TRUE(refused_for(allowed(facts({}, &s), 1, w06(0x10)), "--allow-motion")) << "operations.motion start";
+  EXPECT_TRUE(refused_for(allowed(facts({}, &s), 1, w06(0x10)), "--allow-motion")) << "control.motion start";
   EXPECT_EQ(role_of(the_spec(), *the_spec().find_register(0x16)), spec::Role::save);
   EXPECT_EQ(role_of(the_spec(), *the_spec().find_register(0x17)), spec::Role::factory_reset);
   EXPECT_EQ(role_of(the_spec(), *the_spec().find_register(0x11)), spec::Role::baud);
