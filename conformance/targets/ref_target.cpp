@@ -106,6 +106,11 @@ class RefTarget final : public Target {
   void power_cycle() override {
     for (auto& d : bus_.devices()) d->power_cycle();
   }
+  bool trip_fault() override {
+    bool tripped = false;
+    for (auto& d : bus_.devices()) tripped = d->trip_fault() || tripped;
+    return tripped;
+  }
 
   ref::Device& device() { return *bus_.devices().front(); }
 

@@ -142,6 +142,11 @@ class Target {
   // when the info() flag is false.
   virtual void advance(std::chrono::microseconds dt) = 0;
   virtual void power_cycle() = 0;
+  // A fault the drive detects, caused out of band where the bus gives no way
+  // to cause one (a CiA 402 layout): ref targets take the control model's
+  // `fault` step (ref::Device::trip_fault()). False when the kind cannot, or
+  // the device's model has no fault step.
+  virtual bool trip_fault() { return false; }
 };
 
 // Opens a target by URI:

@@ -438,7 +438,7 @@ struct Engine {
 
 // ---- Device ----
 
-Device::Device(spec::Spec s, uint8_t slave_id) : Device(s, slave_id, make_behaviour(s.device.id)) {}
+Device::Device(spec::Spec s, uint8_t slave_id) : Device(s, slave_id, make_behaviour(s)) {}
 
 Device::Device(spec::Spec s, uint8_t slave_id, std::unique_ptr<Behaviour> behaviour)
     : spec_(std::move(s)),
@@ -747,6 +747,8 @@ void Device::power_cycle() {
   axis_.inputs = inputs;
   behaviour_->power_on(*this);
 }
+
+bool Device::trip_fault() { return behaviour_->trip_fault(*this); }
 
 void Device::factory_reset() {
   write_power_on_image();

@@ -48,11 +48,19 @@ class Behaviour {
   // After the engine restored registers on power-up (volatile = defaults,
   // persistent = stored image).
   virtual void power_on(Device&) {}
+  // A fault the device detects, caused out of band (Device::trip_fault()):
+  // true when the behaviour has a fault to enter (a control model with a
+  // `fault` step), false when it has none.
+  virtual bool trip_fault(Device&) { return false; }
 };
 
-// Creates the behaviour registered for a device id (reference/devices/),
-// or a no-op one.
-std::unique_ptr<Behaviour> make_behaviour(const std::string& device_id);
+class ControlTweak;
+
+// The behaviour of a device: the one registered for its id
+// (reference/devices/), or a no-op one; and, when its spec has `control:`,
+// the control executor around it (engine/control.h), which `tweak` (the
+// state-machine faults) may bend.
+std::unique_ptr<Behaviour> make_behaviour(const spec::Spec& spec, std::shared_ptr<const ControlTweak> tweak = nullptr);
 
 // Counters of MB over Serial Line v1.02 §6.1 (FC 08 sub-functions 11-18).
 struct DiagnosticCounters {
@@ -126,6 +134,10 @@ class Device {
   // Power cycle: volatile registers return to defaults, persistent ones keep
   // what was stored, "after power cycle" settings take effect.
   void power_cycle();
+  // A fault the drive detects, caused from outside the bus (a layout such as
+  // CiA 402's gives no way to cause one through Modbus): the control model's
+  // `fault` step is taken. False when the device has no such step.
+  bool trip_fault();
   // Restores every register to the spec's default (and clears the stored image).
   void factory_reset();
   // Copies current persistent registers into the stored image (a save command).

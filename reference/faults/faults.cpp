@@ -10,6 +10,7 @@
 #include "modbus/crc16.h"
 #include "modbus/limits.h"
 #include "modbus/rtu.h"
+#include "engine/control.h"
 
 namespace mbc::faults {
 
@@ -59,6 +60,23 @@ const std::vector<FaultInfo>& all_faults() {
       {Fault::silent_command_reads, "silent-command-reads",
        "never answers a read (FC 03/04) that covers an `access: command` register; Hanstar and Rieding print no "
        "exception reply for it, so a drive may stay silent (the printed examples write those registers without reading them)"},
+      {Fault::undefined_command_accepted, "undefined-command-accepted",
+       "control: a command not defined in the current state is taken as in the first state that defines it "
+       "(CiA 402: Switch on from Switch on disabled goes to Switched on) instead of what `undefined` says"},
+      {Fault::status_bit_wrong, "status-bit-wrong",
+       "control: in the first state with motion, the highest bit its status reading sets reads 0 "
+       "(CiA 402: quick stop bit 5 clear in Operation enabled)"},
+      {Fault::transition_missing, "transition-missing",
+       "control: the first command (in the model's order) that leaves the first state with motion is ignored there "
+       "(CiA 402: Shutdown ignored in Operation enabled, transition 8)"},
+      {Fault::transition_wrong_target, "transition-wrong-target",
+       "control: the first level command whose every transition goes to the safe state goes instead to the state "
+       "one command past it (CiA 402: Disable voltage goes to Ready to switch on)"},
+      {Fault::edge_as_level, "edge-as-level",
+       "control: an edge-triggered command of the state machine acts on every write that holds its bits, not on "
+       "their rising edge only (CiA 402: Fault reset by bit 7 written high again)"},
+      {Fault::stop_ignored, "stop-ignored",
+       "control: a stopping command (quick stop, emergency stop) is ignored while the axis moves"},
   };
   return list;
 }
@@ -108,7 +126,15 @@ constexpr double kOverspeedFactor = 1.5;
 constexpr double kSlowEstopSeconds = 0.5;
 constexpr int kCreepSteps = 5;
 
+bool control_level(const FaultSet& f) {
+  for (Fault x : {Fault::undefined_command_accepted, Fault::status_bit_wrong, Fault::transition_missing,
+                  Fault::transition_wrong_target, Fault::edge_as_level, Fault::stop_ignored})
+    if (f.has(x)) return true;
+  return false;
+}
+
 bool device_level(const FaultSet& f) {
+  if (control_level(f)) return true;
   for (Fault x : {Fault::forget_persistent, Fault::keep_volatile, Fault::overshoot, Fault::overspeed,
                   Fault::homing_gate_open, Fault::slow_estop, Fault::creep})
     if (f.has(x)) return true;
@@ -136,6 +162,99 @@ int quantity_limit(const ref::Device& d, uint8_t fc) {
   const spec::FunctionCode* f = d.spec().profile.function(fc);
   return f && f->max_quantity ? std::min(*f->max_quantity, standard) : standard;
 }
+
+// ---- state-machine faults: the control executor bent (ref::ControlTweak) ----
+// Each is chosen on the model, not on a profile's names, so that it applies
+// to every device with a control section; CiA 402 is the worked case in each
+// description.
+
+class ControlFaults final : public ref::ControlTweak {
+ public:
+  ControlFaults(FaultSet faults, const spec::Control& c) : faults_(faults) {
+    // The first state with motion that is not a fault state (CiA 402: Operation enabled).
+    for (const auto& s : c.states)
+      if (s.motion && !s.fault) {
+        motion_state_ = s.id;
+        if (!s.status.empty()) {
+          const spec::StatusMatch& m = s.status.front();
+          if (uint16_t set = m.value & m.mask) {
+            wrong_key_ = m.register_key;
+            wrong_bit_ = uint16_t(1u << (15 - std::countl_zero(set)));
+          }
+        }
+        break;
+      }
+    // transition-missing: the first command that leaves that state (CiA 402: Shutdown, 8).
+    for (const auto& cmd : c.commands) {
+      if (cmd.stops) continue;
+      bool leaves = std::any_of(c.transitions.begin(), c.transitions.end(), [&](const spec::ControlTransition& t) {
+        return t.command == cmd.id && t.from == motion_state_ && t.to != motion_state_;
+      });
+      if (leaves) {
+        missing_command_ = cmd.id;
+        break;
+      }
+    }
+    // transition-wrong-target: the first level command that only ever goes
+    // to the safe state (CiA 402: Disable voltage), sent instead to where the
+    // safe state's first command leads (Ready to switch on).
+    for (const auto& t : c.transitions)
+      if (t.from == c.safe && !t.automatic() && t.to != c.safe) {
+        wrong_target_ = t.to;
+        break;
+      }
+    for (const auto& cmd : c.commands) {
+      if (cmd.stops || cmd.trigger == spec::Trigger::edge || wrong_target_.empty()) continue;
+      bool any = false, all_safe = true;
+      for (const auto& t : c.transitions)
+        if (t.command == cmd.id) any = true, all_safe = all_safe && t.to == c.safe;
+      if (any && all_safe) {
+        for (const auto& t : c.transitions)
+          if (t.command == cmd.id) {
+            redirected_.push_back(t);
+            redirected_.back().to = wrong_target_;
+          }
+        break;
+      }
+    }
+    for (const auto& t : c.transitions) has_transition_.push_back(t.command);
+  }
+
+  const spec::ControlTransition* take(const ref::ControlExecutor& x, const spec::ControlCommand& c,
+                                      const spec::ControlTransition* model) const override {
+    if (faults_.has(Fault::stop_ignored) && c.stops && x.axis_moving()) return nullptr;
+    if (faults_.has(Fault::transition_missing) && model && c.id == missing_command_ && x.state() == motion_state_)
+      return nullptr;
+    if (faults_.has(Fault::transition_wrong_target) && model)
+      for (const auto& t : redirected_)
+        if (t.id == model->id) return &t;
+    if (faults_.has(Fault::undefined_command_accepted) && !model)
+      for (const auto& t : x.control().transitions)
+        if (t.command == c.id && t.from != "*") return &t;
+    return model;
+  }
+
+  bool selected(const ref::ControlExecutor&, const spec::ControlCommand& c, uint16_t, uint16_t word,
+                bool model) const override {
+    if (faults_.has(Fault::edge_as_level) && c.trigger == spec::Trigger::edge &&
+        std::find(has_transition_.begin(), has_transition_.end(), c.id) != has_transition_.end())
+      return c.selected_by(word);
+    return model;
+  }
+
+  uint16_t status(const ref::ControlExecutor& x, const std::string& key, uint16_t word) const override {
+    if (faults_.has(Fault::status_bit_wrong) && key == wrong_key_ && x.state() == motion_state_)
+      return uint16_t(word & ~wrong_bit_);
+    return word;
+  }
+
+ private:
+  FaultSet faults_;
+  std::string motion_state_, wrong_key_, missing_command_, wrong_target_;
+  uint16_t wrong_bit_ = 0;
+  std::vector<spec::ControlTransition> redirected_;  // not resized after construction
+  std::vector<std::string> has_transition_;          // commands some transition names
+};
 
 // ---- device-level faults: a Behaviour around the device's own ----
 
@@ -181,6 +300,8 @@ class FaultyBehaviour final : public ref::Behaviour {
       }
     }
   }
+
+  bool trip_fault(ref::Device& d) override { return inner_->trip_fault(d); }
 
   void power_on(ref::Device& d) override {
     if (faults_.has(Fault::forget_persistent)) {
@@ -238,7 +359,9 @@ FaultyBus::FaultyBus(ref::Bus bus, FaultSet faults) : faults_(faults) {
     return;
   }
   for (auto& d : bus.devices()) {
-    auto behaviour = std::make_unique<FaultyBehaviour>(ref::make_behaviour(d->spec().device.id), faults);
+    std::shared_ptr<const ref::ControlTweak> tweak;
+    if (control_level(faults) && d->spec().control) tweak = std::make_shared<ControlFaults>(faults, *d->spec().control);
+    auto behaviour = std::make_unique<FaultyBehaviour>(ref::make_behaviour(d->spec(), tweak), faults);
     auto nd = std::make_unique<ref::Device>(d->spec(), d->slave_id(), std::move(behaviour));
     nd->load_stored_image(d->stored_image());
     nd->power_cycle();

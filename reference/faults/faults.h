@@ -9,6 +9,9 @@
 //   mbconform serve --list-faults
 //
 // Each fault is small and breaks one requirement, named in its description.
+// The state-machine faults bend the control executor (engine/control.h,
+// ControlTweak) of a device whose spec has `control:`; on a device without
+// one they change nothing.
 #pragma once
 
 #include <cstdint>
@@ -47,6 +50,14 @@ enum class Fault {
   silent_unstated_reads,
   refuse_reserved,
   silent_command_reads,
+  // The state machine of a `control:` section (engine/control.h), each
+  // stated on the model so that it applies to every device that has one.
+  undefined_command_accepted,
+  status_bit_wrong,
+  transition_missing,
+  transition_wrong_target,
+  edge_as_level,
+  stop_ignored,
 };
 
 struct FaultInfo {
@@ -64,14 +75,14 @@ class FaultSet {
   FaultSet(std::initializer_list<Fault> fs) {
     for (Fault f : fs) add(f);
   }
-  void add(Fault f) { bits_ |= uint32_t(1) << int(f); }
-  bool has(Fault f) const { return bits_ & (uint32_t(1) << int(f)); }
+  void add(Fault f) { bits_ |= uint64_t(1) << int(f); }
+  bool has(Fault f) const { return bits_ & (uint64_t(1) << int(f)); }
   bool empty() const { return bits_ == 0; }
   std::vector<Fault> list() const;
   std::string names() const;  // "a,b"; "" when empty
 
  private:
-  uint32_t bits_ = 0;
+  uint64_t bits_ = 0;
 };
 
 // "swapped-words,lost-write" -> the set. Throws std::invalid_argument naming
