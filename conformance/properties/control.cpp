@@ -25,6 +25,9 @@ using spec::Trigger;
 
 namespace {
 
+// The normal reply to a write: FC 06 echoes it, FC 16 its first 5 bytes (MBAP v1.1b3 §6.6, §6.12).
+Bytes echo_of(const Bytes& req) { return req.size() > 5 && req[0] == 0x10 ? Bytes(req.begin(), req.begin() + 5) : req; }
+
 [[noreturn]] void fail(const std::string& message) {
   RC_FAIL(message);
   throw std::logic_error("unreachable");
@@ -250,7 +253,7 @@ Reply write_checked(Session& s, const Register& r, uint32_t raw, check::Expect e
   Bytes req = s.view().write_request(r, raw);
   if (Decision d = s.allowed(req); !d) fail(fmt::format("{}: the frame policy refuses it: {}", note, d.refused->reason));
   Reply rep = s.send(req, note);
-  if (e.kind == check::Expect::Kind::none) e = {.kind = check::Expect::Kind::reply, .pdu = req};
+  if (e.kind == check::Expect::Kind::none) e = {.kind = check::Expect::Kind::reply, .pdu = echo_of(req)};
   s.expect_last(e);
   if (auto miss = check::judge(s.steps().back().script(), rep, judge_context(s)))
     fail(fmt::format("{}: expected {}, got {}", note, check::expect_text(s.steps().back().expect), miss->why));
@@ -334,7 +337,7 @@ void check_status(Session& s, const Ctl& m, const std::string& after) {
 // The expectation of a command write's reply: echoed, or (undefined and
 // the spec says refused) the exception; either when both may hold.
 check::Expect write_expect(const Control& c, const Bytes& req, const WriteOutcome& o) {
-  check::Expect echo{.kind = check::Expect::Kind::reply, .pdu = req};
+  check::Expect echo{.kind = check::Expect::Kind::reply, .pdu = echo_of(req)};
   if (c.undefined.kind != spec::UndefinedCommand::Kind::exception || !o.undefined_somewhere) return echo;
   check::Expect ex{.kind = check::Expect::Kind::exception, .code = uint8_t(c.undefined.code)};
   if (!o.defined_somewhere) return ex;
@@ -510,8 +513,10 @@ struct TripCmd final : rc::state::Command<Ctl, Sut> {
   void run(const Ctl& m, Sut& sut) const override {
     trip(sut.session);
     const Control& c = control_of(*s);
+    Ctl next = m;
+    apply(next);
     wait_ms(sut.session, settle_ms(c));
-    check_status(sut.session, m, "a fault");
+    check_status(sut.session, next, "a fault");
   }
   void show(std::ostream& os) const override { os << "fault (out of band)"; }
 };
@@ -629,8 +634,9 @@ void stop_from_motion(Session& s) {
     fail(fmt::format("in {} with {} = {}, the axis does not move ({} reads {})", id, axis.mode->setpoint_keys.front(), setpoint,
                      actual, before2));
   const Register& r = reg(s, stop.register_key);
-  write_checked(s, r, stop.word(), {}, fmt::format("{} = 0x{:04X} ({}, stops: {})", stop.register_key, stop.word(), stop.id, stop.section));
-  m.last[stop.register_key] = stop.word();
+  const std::string stop_note = fmt::format("{} = 0x{:04X} ({}, stops: {})", stop.register_key, stop.word(), stop.id, stop.section);
+  WriteOutcome stop_outcome = apply_write(c, m, stop.register_key, stop.word());
+  write_checked(s, r, stop.word(), write_expect(c, echo_of(s.view().write_request(r, stop.word())), stop_outcome), stop_note);
   // Sampled until it stands (speed 0, or the position the same twice).
   constexpr double kSampleMs = 10;
   const double limit = stop.stop_within_ms.value_or(10'000);
@@ -649,6 +655,9 @@ void stop_from_motion(Session& s) {
     fail(fmt::format("{} ({}) from {} at {} = {}: {:.0f} ms later {} still reads {} (stated: stopped within {} ms)", stop.id,
                      stop.section, id, axis.mode ? axis.mode->setpoint_keys.front() : "", setpoint, t, actual, now,
                      *stop.stop_within_ms));
+  // The state the spec's transitions give the stop (Quick stop active, then Switch on disabled).
+  apply_automatic(c, m, t);
+  check_status(s, m, stop_note);
   // It stays stopped.
   wait_ms(s, 100);
   int64_t later = sample("stopped");
@@ -701,7 +710,7 @@ void mode_switch(Session& s) {
   if (!mode.display_key.empty()) shown_before = read_value(s, mode.display_key, "the mode shown before");
   const Register& r = reg(s, sel.key);
   Bytes req = s.view().write_request(r, uint32_t(sel.value));
-  check::Expect e{.kind = check::Expect::Kind::reply, .pdu = req};
+  check::Expect e{.kind = check::Expect::Kind::reply, .pdu = echo_of(req)};
   if (!accepted) {
     // Not accepted there: refused, or taken and not shown (the spec does not say which).
     e = {.kind = check::Expect::Kind::any};
