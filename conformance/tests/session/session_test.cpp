@@ -516,7 +516,8 @@ TEST_F(Cia402, TheMotionFreeWalkSendsNoMotion) {
   int writes = 0, enables = 0;
   for (const auto& st : walker.steps()) {
     if (st.kind != props::Step::Kind::frame) continue;
-    Bytes pdu = mbc::kRtu.pdu_bytes(st.frame);
+    auto body = mbc::kRtu.pdu_bytes(st.frame);
+    Bytes pdu(body.begin(), body.end());
     EXPECT_EQ(control_motion(f, pdu), "") << st.note;
     if (pdu[0] == 0x06 || pdu[0] == 0x10) ++writes;
     if (pdu[0] == 0x06 && be16(pdu, 1) == 0 && (be16(pdu, 3) & 0x8F) == 0x0F) ++enables;
