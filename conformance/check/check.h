@@ -54,6 +54,9 @@ struct Expect {
   uint8_t code = 0;
   std::optional<Bytes> adu{};
   std::vector<uint16_t> words{};
+  // registers: per word, the bits compared (empty: every bit); a status
+  // word names a state by a mask (`registers 0027/006F`: word & 006F == 0027).
+  std::vector<uint16_t> masks{};
   int memo = -1;         // `same`: the index of the earlier step (in its case) whose reply this must equal
   std::string text{};      // the expectation in words, for reports ("exception 03 (policy value_out_of_range, §6.2.4)")
   // The facts this expectation was built from (cases/facts.h); a case

@@ -54,7 +54,10 @@ std::string describe(const Expect& e) {
     case Expect::Kind::normal: return "a well-formed normal reply";
     case Expect::Kind::registers: {
       std::string s;
-      for (auto w : e.words) s += fmt::format("{}{:04X}", s.empty() ? "" : " ", w);
+      for (size_t i = 0; i < e.words.size(); ++i) {
+        s += fmt::format("{}{:04X}", s.empty() ? "" : " ", e.words[i]);
+        if (i < e.masks.size() && e.masks[i] != 0xFFFF) s += fmt::format(" under mask {:04X}", e.masks[i]);
+      }
       return "registers [" + s + "]";
     }
     case Expect::Kind::same: return "the value read before the write (unchanged)";
@@ -184,7 +187,12 @@ std::optional<Mismatch> judge_core(const Expect& e, const Step& s, const Reply& 
         std::vector<uint16_t> got = j.registers;
         if (got.empty() && !j.bits.empty())
           for (bool b : j.bits) got.push_back(b ? 1 : 0);
-        if (got != e.words) {
+        bool differs = got.size() != e.words.size();
+        for (size_t i = 0; !differs && i < got.size(); ++i) {
+          const uint16_t m = i < e.masks.size() ? e.masks[i] : 0xFFFF;
+          differs = (got[i] & m) != (e.words[i] & m);
+        }
+        if (differs) {
           std::string g;
           for (auto w : got) g += fmt::format("{}{:04X}", g.empty() ? "" : " ", w);
           return Mismatch{M::different, fmt::format("read [{}]", g)};
@@ -280,6 +288,7 @@ std::optional<Bytes> expected_bytes(const Step& st, const JudgeContext& ctx) {
       return framed(Bytes{uint8_t((*req)[0] | 0x80), e.code});
     case Expect::Kind::registers: {
       if (!req || req->empty() || ((*req)[0] != 3 && (*req)[0] != 4)) return std::nullopt;
+      if (!e.masks.empty()) return std::nullopt;  // only some bits are known
       // MBAP v1.1b3 §6.3/§6.4: FC, byte count, the registers high byte first.
       Bytes b{(*req)[0], uint8_t(2 * e.words.size())};
       for (uint16_t w : e.words) b.insert(b.end(), {uint8_t(w >> 8), uint8_t(w & 0xFF)});

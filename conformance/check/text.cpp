@@ -2,6 +2,7 @@
 
 #include <fmt/core.h>
 
+#include <algorithm>
 #include <fstream>
 #include <sstream>
 
@@ -69,7 +70,7 @@ struct LineParser {
   // One expectation from words[from, to).
   Expect expect(const std::vector<Word>& w, size_t from, size_t to) const {
     constexpr const char* kinds =
-        "reply HEX [frame HEX], exception XX, silence, normal, registers WWWW..., same-as N, answered, any, any-or-silence, "
+        "reply HEX [frame HEX], exception XX, silence, normal, registers WWWW[/MMMM]..., same-as N, answered, any, any-or-silence, "
         "anything";
     Expect e;
     if (from >= to) fail(w[from - 1].col, "expect", std::string("an expectation is one of: ") + kinds);
@@ -95,10 +96,24 @@ struct LineParser {
     } else if (k.text == "registers") {
       e.kind = Expect::Kind::registers;
       for (size_t i = from + 1; i < to; ++i) {
-        auto v = parse_hex(w[i].text);
-        if (!v || w[i].text.size() != 4) fail(w[i].col, "expect", "'" + w[i].text + "' is not a register (four hex digits)");
+        // WWWW, or WWWW/MMMM: only the bits of the mask are compared.
+        std::string word = w[i].text, mask;
+        if (auto slash = word.find('/'); slash != std::string::npos) {
+          mask = word.substr(slash + 1);
+          word = word.substr(0, slash);
+        }
+        auto v = parse_hex(word);
+        if (!v || word.size() != 4) fail(w[i].col, "expect", "'" + w[i].text + "' is not a register (four hex digits, or WWWW/MMMM)");
         e.words.push_back(uint16_t((*v)[0] << 8 | (*v)[1]));
+        uint16_t m = 0xFFFF;
+        if (!mask.empty()) {
+          auto mv = parse_hex(mask);
+          if (!mv || mask.size() != 4) fail(w[i].col, "expect", "'" + w[i].text + "': the mask after / is four hex digits");
+          m = uint16_t((*mv)[0] << 8 | (*mv)[1]);
+        }
+        e.masks.push_back(m);
       }
+      if (std::all_of(e.masks.begin(), e.masks.end(), [](uint16_t m) { return m == 0xFFFF; })) e.masks.clear();
     } else if (k.text == "same-as") {
       e.kind = Expect::Kind::same;
       if (from + 2 != to) fail(k.col, "expect", "same-as takes the number of an earlier step of the case (1 is its first)");
@@ -142,7 +157,10 @@ std::string one_expect(const Expect& e) {
     case Expect::Kind::normal: return "normal";
     case Expect::Kind::registers: {
       std::string s = "registers";
-      for (uint16_t v : e.words) s += fmt::format(" {:04X}", v);
+      for (size_t i = 0; i < e.words.size(); ++i) {
+        s += fmt::format(" {:04X}", e.words[i]);
+        if (i < e.masks.size() && e.masks[i] != 0xFFFF) s += fmt::format("/{:04X}", e.masks[i]);
+      }
       return s;
     }
     case Expect::Kind::same: return fmt::format("same-as {}", e.memo + 1);

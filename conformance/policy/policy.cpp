@@ -294,6 +294,54 @@ std::vector<std::pair<uint8_t, Bytes>> frames_in(Framing framing, std::span<cons
   return out;
 }
 
+std::set<uint16_t> control_setpoints(const spec::Spec& s) {
+  std::set<uint16_t> out;
+  if (!s.control) return out;
+  for (const auto& mode : s.control->modes)
+    for (const auto& key : mode.setpoint_keys)
+      if (const Register* r = s.find_by_key(key))
+        for (int k = 0; k < r->words; ++k) out.insert(uint16_t(r->address + k));
+  return out;
+}
+
+std::string control_motion(const PolicyFacts& p, std::span<const uint8_t> pdu) {
+  if (!p.spec || !p.spec->control || pdu.empty()) return "";
+  const spec::Spec& s = *p.spec;
+  const spec::Control& c = *s.control;
+  // The words a write puts where (FC 06, 16); another writer of holding registers is judged by its range alone.
+  std::vector<std::pair<uint16_t, std::optional<uint16_t>>> words;
+  if (pdu[0] == 0x06 && pdu.size() >= 5) {
+    words.emplace_back(be16(pdu, 1), be16(pdu, 3));
+  } else if (pdu[0] == 0x10 && pdu.size() >= 6) {
+    const uint16_t start = be16(pdu, 1), qty = be16(pdu, 3);
+    for (uint16_t k = 0; k < qty && size_t(6 + 2 * k + 1) < pdu.size(); ++k) words.emplace_back(uint16_t(start + k), be16(pdu, 6 + 2 * k));
+  } else if (auto w = writes_of(pdu); w && w->table == Table::holding) {
+    for (int k = 0; k < w->count && w->address + k <= 0xFFFF; ++k) words.emplace_back(uint16_t(w->address + k), std::nullopt);
+  }
+  const std::set<uint16_t> setpoints = control_setpoints(s);
+  const bool all_zero = std::all_of(setpoints.begin(), setpoints.end(), [&](uint16_t a) { return p.zeroed.count(a) > 0; });
+  std::set<std::string> starts;
+  for (const auto& mode : c.modes)
+    if (!mode.start_command.empty()) starts.insert(mode.start_command);
+  for (const auto& [address, word] : words) {
+    const Register* r = s.register_covering(address);
+    if (!r) continue;
+    if (setpoints.count(address) && (!word || *word != 0))
+      return fmt::format("FC {:02X} to {}: a non-zero set-point of the drive's control (spec control.modes)", pdu[0], label(*r));
+    for (const auto& cmd : c.commands) {
+      if (cmd.register_key != r->key) continue;
+      if (word && (!cmd.selected_by(*word) || (cmd.trigger == spec::Trigger::edge && !(*word & cmd.edge_mask)))) continue;
+      const std::string given = word ? fmt::format("0x{:04X} gives {}", *word, cmd.id) : fmt::format("may give {}", cmd.id);
+      if (starts.count(cmd.id))
+        return fmt::format("FC {:02X} to {}: {}, which starts a mode's motion (spec control.modes)", pdu[0], label(*r), given);
+      if (cmd.motion && !all_zero)
+        return fmt::format("FC {:02X} to {}: {}, a command that may move the axis (spec control.commands {}), and the set-points "
+                           "were not written 0 first", pdu[0], label(*r), given, cmd.section);
+    }
+  }
+  return "";
+}
+
 Decision allowed(const PolicyFacts& p, uint8_t unit, std::span<const uint8_t> pdu) {
   if (!p.target.live || pdu.empty()) return {};
   const uint8_t fc = pdu[0];
@@ -330,6 +378,9 @@ Decision allowed(const PolicyFacts& p, uint8_t unit, std::span<const uint8_t> pd
     if (!seen.insert(r).second) continue;
     if (auto why = register_refusal(p, *r, fc)) return Decision{std::move(why)};
   }
+  // The drive's control (spec control:): a word that may move the axis.
+  if (!p.opt_ins.allow_motion)
+    if (std::string why = control_motion(p, pdu); !why.empty()) return no(why, "--allow-motion");
   return {};
 }
 

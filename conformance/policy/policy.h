@@ -13,6 +13,7 @@
 
 #include <cstdint>
 #include <optional>
+#include <set>
 #include <span>
 #include <string>
 #include <utility>
@@ -47,6 +48,10 @@ struct PolicyFacts {
   const spec::Spec* spec = nullptr;
   TargetInfo target;
   WritePolicy opt_ins;
+  // The set-point registers of the spec's control modes (addresses) the
+  // caller wrote 0 and the drive acknowledged: while every set-point is here,
+  // a control command that may move (`motion: true`) moves nothing.
+  std::set<uint16_t> zeroed = {};
 };
 
 struct Decision {
@@ -89,6 +94,15 @@ std::vector<std::pair<uint8_t, Bytes>> frames_in(Framing framing, std::span<cons
 // operations.factory_reset, control.motion); for a spec no manual states,
 // the lexicon's role of its name (spec/roles/roles.h) where those say none.
 spec::Role role_of(const spec::Spec&, const spec::Register&);
+// Why a write moves the axis by the spec's control (`control:`), or empty:
+// a word that gives a command with `motion: true` (unless every set-point is
+// in `zeroed`) or a mode's start command (a start moves to any set-point,
+// 0 too), or a non-zero value written to a mode's set-point. Mode
+// selection, and commands that do not move, are not motion.
+std::string control_motion(const PolicyFacts&, std::span<const uint8_t> pdu);
+// The set-point registers of the spec's control modes (every word's address).
+std::set<uint16_t> control_setpoints(const spec::Spec&);
+
 // Whether the spec's facts are a manual's (device.manual.source: manual);
 // otherwise an importer's, a probe's or a map's: a claim.
 bool from_manual(const spec::Spec&);

@@ -10,6 +10,7 @@
 
 #include "modbus/judge.h"
 #include "modbus/rtu.h"
+#include "properties/control.h"
 #include "properties/generators.h"
 #include "properties/motion.h"
 #include "properties/properties.h"
@@ -362,6 +363,7 @@ std::vector<Invariant> make_invariants() {
                "defaults; a factory reset restores the spec's defaults.",
                needs_power_cycle, persistence});
   for (auto& m : motion_invariants()) v.push_back(std::move(m));
+  for (auto& c : control_invariants()) v.push_back(std::move(c));
   v.push_back(stateful_invariant());
   return v;
 }

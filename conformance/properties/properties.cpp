@@ -20,7 +20,11 @@ namespace mbc::conf::props {
 
 check::Step Step::script() const {
   switch (kind) {
-    case Kind::advance: return check::advance(advance_us);
+    case Kind::advance: {
+      check::Step a = check::advance(advance_us);
+      a.note = note;  // "trip: ..." marks a fault caused out of band (control properties)
+      return a;
+    }
     case Kind::power_cycle: return check::power_cycle();
     case Kind::frame: break;
   }
@@ -40,6 +44,8 @@ std::string Step::line() const {
 }
 
 namespace {
+uint8_t unit_of(const PolicyFacts& f) { return f.target.unit; }
+
 Step frame_step(const Reply& r, const TargetInfo& info, Bytes rtu, const std::string& note) {
   Step s;
   s.frame = std::move(rtu);
@@ -54,8 +60,27 @@ Step frame_step(const Reply& r, const TargetInfo& info, Bytes rtu, const std::st
 
 Reply Session::send(std::span<const uint8_t> pdu, const std::string& note) { return send_to(unit(), pdu, note); }
 
+Decision Session::allowed(std::span<const uint8_t> pdu) const {
+  PolicyFacts f = view_.policy_facts();
+  f.zeroed = zeroed_;
+  return mbc::conf::allowed(f, unit_of(f), pdu);
+}
+
 Reply Session::send_to(uint8_t unit, std::span<const uint8_t> pdu, const std::string& note) {
   Reply r = target_.transact(unit, pdu);
+  // A write the drive echoed: the control's set-points it made 0 (or not).
+  if (spec().control && unit == this->unit() && r.pdu && !r.pdu->empty() && !((*r.pdu)[0] & 0x80) && pdu.size() >= 5 &&
+      (pdu[0] == 0x06 || pdu[0] == 0x10)) {
+    const std::set<uint16_t> setpoints = control_setpoints(spec());
+    const uint16_t start = uint16_t(pdu[1] << 8 | pdu[2]);
+    const uint16_t qty = pdu[0] == 0x06 ? 1 : uint16_t(pdu[3] << 8 | pdu[4]);
+    for (uint16_t k = 0; k < qty; ++k) {
+      const size_t at = pdu[0] == 0x06 ? 3 : size_t(6 + 2 * k);
+      if (at + 1 >= pdu.size() || !setpoints.count(uint16_t(start + k))) continue;
+      if ((pdu[at] | pdu[at + 1]) == 0) zeroed_.insert(uint16_t(start + k));
+      else zeroed_.erase(uint16_t(start + k));
+    }
+  }
   // The model reads RTU frames; the step prints in the framing that was sent.
   steps_.push_back(frame_step(r, target_.info(), rtu_frame(unit, pdu), note));
   return r;
@@ -67,11 +92,12 @@ Reply Session::send_raw(std::span<const uint8_t> adu, const std::string& note) {
   return r;
 }
 
-void Session::advance(uint64_t us) {
+void Session::advance(uint64_t us, const std::string& note) {
   target_.advance(std::chrono::microseconds(us));
   Step s;
   s.kind = Step::Kind::advance;
   s.advance_us = us;
+  s.note = note;
   steps_.push_back(s);
 }
 

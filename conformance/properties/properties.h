@@ -15,6 +15,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -60,13 +61,19 @@ class Session {
   Reply send(std::span<const uint8_t> pdu, const std::string& note = "");                    // to the unit
   Reply send_to(uint8_t unit, std::span<const uint8_t> pdu, const std::string& note = "");   // 0 = broadcast
   Reply send_raw(std::span<const uint8_t> adu, const std::string& note = "");
-  void advance(uint64_t us);
+  void advance(uint64_t us, const std::string& note = "");
   void power_cycle();
   const std::vector<Step>& steps() const { return steps_; }
   // The expectation the model gave the last step sent (kept in counterexamples).
   void expect_last(check::Expect e) {
     if (!steps_.empty()) steps_.back().expect = std::move(e);
   }
+  // The set-points of the spec's control modes this session wrote 0 (the
+  // drive echoed the write): the frame policy lets a control command that
+  // may move go out without --allow-motion while every one is here.
+  const std::set<uint16_t>& zeroed() const { return zeroed_; }
+  // Whether the frame policy lets `pdu` go out to the unit, with what this session knows.
+  Decision allowed(std::span<const uint8_t> pdu) const;
   // send(), as the readers in spec_view.h take it.
   Transact transact() {
     return [this](std::span<const uint8_t> pdu, const std::string& note) { return send(pdu, note); };
@@ -77,6 +84,7 @@ class Session {
   const SpecView& view_;
   const DeviceFacts* facts_;
   std::vector<Step> steps_;
+  std::set<uint16_t> zeroed_;
 };
 
 struct Options {

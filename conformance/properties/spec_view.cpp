@@ -78,8 +78,9 @@ uint32_t to_raw(const Register& r, double v) {
 
 }  // namespace
 
-SpecView::SpecView(const spec::Spec& s, const TargetInfo& target, const WritePolicy& policy) : spec_(&s) {
-  const PolicyFacts facts{&s, target, policy};
+SpecView::SpecView(const spec::Spec& s, const TargetInfo& target, const WritePolicy& policy)
+    : spec_(&s), policy_facts_{&s, target, policy} {
+  const PolicyFacts& facts = policy_facts_;
   broadcast_unavailable_ = broadcast_not_applicable(target);
   // A broadcast write of a register that may be written: what the frame
   // policy says of unit 0 (policy/policy.h).

@@ -39,6 +39,8 @@ class SpecView {
   SpecView(const spec::Spec& spec, const TargetInfo& target, const WritePolicy& policy);
 
   const spec::Spec& spec() const { return *spec_; }
+  // What the frame policy judges by on this target (the spec, the target, the opt-ins).
+  const PolicyFacts& policy_facts() const { return policy_facts_; }
 
   // Holding registers a property may write and read back: access rw, not a
   // serial setting (baud, slave id: writing one can cut the master off),
@@ -95,6 +97,7 @@ class SpecView {
 
  private:
   const spec::Spec* spec_;
+  PolicyFacts policy_facts_;
   std::vector<const spec::Register*> writable_, read_only_, image_;
   std::vector<std::string> not_held_;
   std::vector<std::pair<uint16_t, uint16_t>> image_reads_;

@@ -12,6 +12,7 @@
 #include "modbus/judge.h"
 #include "modbus/limits.h"
 #include "modbus/rtu.h"
+#include "properties/control.h"
 #include "properties/generators.h"
 
 namespace mbc::conf::props {
@@ -627,6 +628,8 @@ Invariant stateful_invariant() {
 }
 
 std::string replay(Session& s, const std::vector<Step>& steps) {
+  // A control property's counterexample: its expectations are the control model's.
+  if (auto c = control_replay(s, steps)) return *c;
   std::string error;
   auto m = initial_model(s, error);
   if (!m) return error;

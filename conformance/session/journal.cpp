@@ -258,6 +258,10 @@ void Journal::record(const std::string& line) {
   std::string kind;
   ls >> kind;
   if (kind == "identity") memory_.header["identity"] = rest_of(ls);
+  if (kind == "control" && memory_.control_state.empty()) {
+    ls >> memory_.control_state;
+    memory_.control_status = rest_of(ls);
+  }
   write_records({one_line(line)});
 }
 
@@ -364,6 +368,16 @@ JournalContents read_journal(const std::string& path) {
         }
     } else if (kind == "not-restored" || kind == "left" || kind == "restore" || kind == "stopped") {
       c.restore_lines.push_back(text);
+    } else if (kind == "control") {
+      std::string state;
+      if (!(ls >> state)) {
+        torn("a control record without a state");
+        continue;
+      }
+      if (c.control_state.empty()) {
+        c.control_state = state;
+        c.control_status = rest_of(ls);
+      }
     } else if (kind == "end") {
       c.restore_lines.push_back(text);
       c.ended = true;
@@ -389,6 +403,10 @@ JournalContents merge_journal(JournalContents disk, const JournalContents& memor
   for (const auto& k : memory.commands)
     if (!has(disk.commands, k.table, k.address)) disk.commands.push_back(k);
   for (const auto& [key, value] : memory.header) disk.header.emplace(key, value);
+  if (disk.control_state.empty()) {
+    disk.control_state = memory.control_state;
+    disk.control_status = memory.control_status;
+  }
   return disk;
 }
 

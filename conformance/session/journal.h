@@ -17,6 +17,7 @@
 //   restored|verified <table> 0xADDR <words> <hex word>... [why]
 //   not-restored|left <table> 0xADDR [why]
 //   stopped <how>
+//   control <state id> <status key>=<hex word>...   the control state before the first command write
 //   end <restored|incomplete> ...
 // The first `orig` of an address is its value before the command (a later
 // one, from a forked child that journaled again, is ignored). `switch` marks
@@ -88,6 +89,11 @@ struct JournalContents {
   std::vector<JournalRestored> restored;       // the latest restored/verified value of each address, in order
   std::vector<std::string> restore_lines;      // restored/verified/not-restored/left/end lines
   std::vector<JournalTorn> torn;
+  // `control STATE KEY=WORD...`: the drive's control state (spec control:)
+  // before the command's first write to a control command register, and
+  // the status words that named it. The first one counts.
+  std::string control_state;
+  std::string control_status;
   int format = 2;
   bool ended = false;  // an `end` line came
 };

@@ -4,6 +4,8 @@
 #include <fmt/ranges.h>
 
 #include <algorithm>
+#include <deque>
+#include <set>
 #include <fstream>
 #include <iterator>
 #include <map>
@@ -214,6 +216,153 @@ std::string journal_mismatch(Target& t, const spec::Spec& s, const JournalConten
   return "";
 }
 
+// ---- the control -----------------------------------------------------------------
+
+namespace {
+
+std::optional<std::map<std::string, uint16_t>> control_words(Target& t, const spec::Spec& s, std::string& why) {
+  std::map<std::string, uint16_t> words;
+  for (const auto& st : s.control->states)
+    for (const auto& m : st.status) {
+      if (words.count(m.register_key)) continue;
+      const spec::Register* r = s.find_by_key(m.register_key);
+      if (!r) {
+        why = "the status register " + m.register_key + " is not in the spec";
+        return std::nullopt;
+      }
+      auto v = read_table(t, r->table, r->address, 1, why);
+      if (!v || v->empty()) return std::nullopt;
+      words[m.register_key] = (*v)[0];
+    }
+  return words;
+}
+
+std::string control_state_named(const spec::Control& c, const std::map<std::string, uint16_t>& words) {
+  for (const auto& st : c.states) {
+    bool all = !st.status.empty();
+    for (const auto& m : st.status) {
+      auto it = words.find(m.register_key);
+      all = all && it != words.end() && m.matches(it->second);
+    }
+    if (all) return st.id;
+  }
+  return "";
+}
+
+// How long a command's automatic steps may take: every stated time, and a margin.
+std::chrono::milliseconds control_settle(const spec::Control& c) {
+  double most = 0;
+  for (const auto& t : c.transitions)
+    if (t.within_ms) most = std::max(most, *t.within_ms);
+  for (const auto& cmd : c.commands)
+    if (cmd.stop_within_ms) most = std::max(most, *cmd.stop_within_ms);
+  return std::chrono::milliseconds(int64_t(std::min(most, 10'000.0)) + 50);
+}
+
+}  // namespace
+
+bool is_control_command_register(const spec::Spec& s, spec::Table table, uint16_t address) {
+  if (!s.control || table != spec::Table::holding) return false;
+  for (const auto& cmd : s.control->commands)
+    if (const spec::Register* r = s.find_by_key(cmd.register_key); r && address >= r->address && address <= r->last_address())
+      return true;
+  return false;
+}
+
+std::string control_record(Target& t, const spec::Spec& s) {
+  if (!s.control) return "";
+  std::string why;
+  auto words = control_words(t, s, why);
+  if (!words) return "";
+  std::string state = control_state_named(*s.control, *words);
+  std::string line = "control " + (state.empty() ? std::string("unknown") : state);
+  for (const auto& [key, w] : *words) line += fmt::format(" {}={:04X}", key, w);
+  return line;
+}
+
+std::string control_to_safe(Target& t, const spec::Spec& s, std::vector<std::string>& did) {
+  if (!s.control) return "";
+  const spec::Control& c = *s.control;
+  const uint8_t unit = t.info().unit;
+  t.set_wait(Target::Wait::reply);
+  // The words last written to the command registers (an edge needs them).
+  std::map<std::string, uint16_t> last;
+  std::string why;
+  for (const auto& cmd : c.commands)
+    if (!last.count(cmd.register_key))
+      if (const spec::Register* r = s.find_by_key(cmd.register_key))
+        if (auto v = read_table(t, r->table, r->address, 1, why); v && !v->empty()) last[cmd.register_key] = (*v)[0];
+  auto holds = [&](const spec::ControlTransition& tr) {
+    for (const auto& w : tr.when) {
+      const spec::Register* r = s.find_by_key(w.register_key);
+      std::string no;
+      auto v = r ? read_table(t, r->table, r->address, 1, no) : std::nullopt;
+      if (!v || v->empty() || std::find(w.values.begin(), w.values.end(), int64_t((*v)[0])) == w.values.end()) return false;
+    }
+    return true;
+  };
+  // The states an automatic step leaves (a quick stop completed, a fault reaction done).
+  auto settled = [&](std::string st) {
+    for (int k = 0; k < 8; ++k) {
+      bool moved = false;
+      for (const auto& tr : c.transitions)
+        if (tr.automatic() && (tr.from == st || tr.from == "*") &&
+            (tr.event == "motion_done" || tr.event == "time" || tr.event == "reaction_done") && holds(tr)) {
+          st = tr.to;
+          moved = true;
+          break;
+        }
+      if (!moved) break;
+    }
+    return st;
+  };
+  for (int step = 0; step < 8; ++step) {
+    auto words = control_words(t, s, why);
+    if (!words) return "the status could not be read: " + why;
+    const std::string now = control_state_named(c, *words);
+    if (now.empty()) return "the status names no state of the spec's control";
+    if (now == c.safe) return "";
+    // Shortest path to safe by commands whose transitions start no motion.
+    std::map<std::string, std::pair<std::string, const spec::ControlCommand*>> from;  // state -> (previous, command)
+    std::deque<std::string> queue{now};
+    from[now] = {"", nullptr};
+    while (!queue.empty() && !from.count(c.safe)) {
+      std::string st = queue.front();
+      queue.pop_front();
+      for (const auto& tr : c.transitions) {
+        if (tr.automatic() || tr.motion || (tr.from != st && tr.from != "*")) continue;
+        const spec::ControlCommand* cmd = c.command(tr.command);
+        if (!cmd || (cmd->motion && !cmd->stops) || !holds(tr)) continue;
+        std::string to = settled(tr.to);
+        if (from.emplace(to, std::make_pair(st, cmd)).second) queue.push_back(to);
+      }
+    }
+    if (!from.count(c.safe)) return fmt::format("no command of the spec's control leads from {} to {} without motion", now, c.safe);
+    std::string at = c.safe;
+    while (from[at].first != now) at = from[at].first;
+    const spec::ControlCommand& cmd = *from[at].second;
+    const spec::Register* r = s.find_by_key(cmd.register_key);
+    if (!r) return "the command register " + cmd.register_key + " is not in the spec";
+    std::vector<uint16_t> words_to_write;
+    if (cmd.trigger == spec::Trigger::edge && (last[cmd.register_key] & cmd.edge_mask))
+      words_to_write.push_back(uint16_t(cmd.word() & ~cmd.edge_mask));
+    words_to_write.push_back(cmd.word());
+    for (uint16_t w : words_to_write) {
+      Bytes pdu = write_single_register(r->address, w);
+      if (auto no = restore_refusal(s, t.info(), unit, pdu, true)) return no->reason;
+      Reply got = t.transact(unit, pdu);
+      if (!got.pdu) return fmt::format("{} = 0x{:04X} ({}): no reply", cmd.register_key, w, cmd.id);
+      Judged j = judge_reply(pdu, *got.pdu);
+      if (j.kind != Judged::Kind::normal)
+        return fmt::format("{} = 0x{:04X} ({}): {}", cmd.register_key, w, cmd.id, describe_pdu(*got.pdu, false));
+      last[cmd.register_key] = w;
+    }
+    did.push_back(fmt::format("{} -> {}: {} = 0x{:04X} ({}, {})", now, at, cmd.register_key, cmd.word(), cmd.id, cmd.section));
+    std::this_thread::sleep_for(control_settle(c));
+  }
+  return "the safe state was not reached in 8 commands";
+}
+
 // ---- the restore ------------------------------------------------------------------
 
 RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalContents& c, Journal& record) {
@@ -250,6 +399,29 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
   };
   const uint8_t unit = t.info().unit;
 
+  // The drive's control (spec control:): to the safe state first (stop,
+  // disable), before any register goes back; a control command register is
+  // then left as the safe state's commands left it.
+  bool control_written = !c.control_state.empty();
+  for (const auto& e : c.originals) control_written |= is_control_command_register(s, e.table, e.address);
+  for (const auto& k : c.commands) control_written |= is_control_command_register(s, k.table, k.address);
+  bool safe = false;
+  if (s.control && control_written) {
+    std::vector<std::string> did;
+    std::string why = control_to_safe(t, s, did);
+    for (const auto& d : did) note("stopped control " + d);
+    if (why.empty()) {
+      safe = true;
+      rep.notes.push_back(fmt::format("control: in the safe state {}{}{}", s.control->safe,
+                                      did.empty() ? "" : fmt::format(" ({})", fmt::join(did, "; ")),
+                                      c.control_state.empty() ? "" : fmt::format(", from {} before the command", c.control_state)));
+    } else {
+      rep.not_restored.push_back(fmt::format("control: the safe state {} was not reached: {}", s.control->safe, why));
+      note(fmt::format("not-restored control: the safe state {} was not reached: {}", s.control->safe, why));
+    }
+  }
+  const std::set<uint16_t> setpoints = s.control ? control_setpoints(s) : std::set<uint16_t>{};
+
   // What goes back, in order (the persistence switch first); what the policy
   // or the register's access keeps out; the command registers to stop.
   std::vector<const JournalEntry*> order;
@@ -273,6 +445,11 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
         rep.notes.push_back(fmt::format("{}: read-only: it changes by side effect, so it is not put back", name(e)));
         continue;
       }
+      if (is_control_command_register(s, e.table, e.address)) {
+        rep.notes.push_back(fmt::format("{}: a control command register: left as the commands to the safe state {} wrote it, "
+                                        "not written back (the word it held is a command)", name(e), s.control->safe));
+        continue;
+      }
       if (is_command(r)) {  // a journal of format 1 kept a command register's value: stopped instead
         needs_stop = true;
         commands_written.push_back(name(e));
@@ -280,7 +457,10 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
       }
       // The "do not persist" switch is the session's own write (it turned it
       // on): the policy never lets a check write it, the restore puts it back.
-      if (auto no = e.persist_switch ? std::nullopt : restore_refusal(s, t.info(), unit, write_pdu(e.table, e.address, e.value), false)) {
+      // A set-point of the control moves nothing once the drive is in its safe state.
+      const bool setpoint_in_safe = safe && e.table == spec::Table::holding && setpoints.count(e.address);
+      if (auto no = e.persist_switch ? std::nullopt
+                                     : restore_refusal(s, t.info(), unit, write_pdu(e.table, e.address, e.value), setpoint_in_safe)) {
         std::string msg = fmt::format("{}: not written back: {}", name(e), no->reason);
         rep.not_restored.push_back(msg);
         line("not-restored", e, msg);

@@ -67,6 +67,20 @@ std::string spec_fingerprint(const spec::Spec& spec);
 // names another device, unit, spec file or identity), or empty. One line.
 std::string journal_mismatch(Target& target, const spec::Spec& spec, const JournalContents& contents);
 
+// ---- the drive's control (spec control:) ----
+
+// The state the drive's status names now, with the words read, as the
+// journal's record: "control operation_enabled statusword=0237"; empty when
+// the spec has no control or the status cannot be read.
+std::string control_record(Target& target, const spec::Spec& spec);
+// Whether `address` is a register a control command is written to.
+bool is_control_command_register(const spec::Spec& spec, spec::Table table, uint16_t address);
+// Takes the drive to the control's safe state (spec control.safe) by the
+// commands along transitions that start no motion, reading the status after
+// each (re-planned from the state read). Appends what it sent to `did`;
+// "" when the status names the safe state at the end, else why not.
+std::string control_to_safe(Target& target, const spec::Spec& spec, std::vector<std::string>& did);
+
 // ---- shared by the session's journaling and the restore ----
 
 // "holding 0x0010 pulse/direction signal polarity" (the spec's name when it has one).

@@ -275,12 +275,22 @@ std::optional<Refusal> Session::journal_range(Target& t, const WriteRange& w) {
     if (uint32_t(it.address) + uint32_t(it.words) > 0x10000) it.words = 1;
     items.push_back(it);
   }
-  if (items.empty() && commands.empty()) return std::nullopt;
   auto unrecorded = [&](const std::exception& e) {
     return Refusal{fmt::format("the journal could not record the value before this write ({}): not sent; the command "
                                "stops and restores", journal_.failed().empty() ? e.what() : journal_.failed()),
                    ""};
   };
+  if (spec_ && spec_->control)
+    for (int k = 0; k < w.count && uint32_t(w.address) + uint32_t(k) <= 0xFFFF; ++k)
+      if (is_control_command_register(*spec_, w.table, uint16_t(w.address + k))) {
+        try {
+          record_control(t);
+        } catch (const std::exception& e) {
+          return unrecorded(e);
+        }
+        break;
+      }
+  if (items.empty() && commands.empty()) return std::nullopt;
   try {
     record_identity();
   } catch (const std::exception& e) {
@@ -329,6 +339,12 @@ std::optional<Refusal> Session::journal_range(Target& t, const WriteRange& w) {
   return std::nullopt;
 }
 
+void Session::record_control(Target& t) {
+  // The control state before the command's first command write (journal `control`).
+  if (!spec_ || !spec_->control || !journal_.open() || !journal_.memory().control_state.empty()) return;
+  if (std::string line = control_record(t, *spec_); !line.empty()) journal_.record(line);
+}
+
 void Session::record_identity() {
   if (identity_recorded_ || !spec_ || !journal_.open()) return;
   identity_recorded_ = true;
@@ -360,7 +376,24 @@ Sent Session::send_on(Target& t, uint8_t unit, std::span<const uint8_t> pdu, Tar
   t.set_wait(wait);
   Sent sent{t.transact(unit, pdu), std::nullopt, false};
   count_frame();
+  note_zeroed(unit, pdu, sent.reply);
   return sent;
+}
+
+void Session::note_zeroed(uint8_t unit, std::span<const uint8_t> pdu, const Reply& reply) {
+  // A write the drive echoed: which of the control's set-points it made 0
+  // (the frame policy's PolicyFacts::zeroed).
+  if (!spec_ || !spec_->control || unit != inner_->info().unit || pdu.size() < 5 || (pdu[0] != 0x06 && pdu[0] != 0x10)) return;
+  if (!reply.pdu || reply.pdu->empty() || ((*reply.pdu)[0] & 0x80)) return;
+  const std::set<uint16_t> setpoints = control_setpoints(*spec_);
+  const uint16_t start = uint16_t(pdu[1] << 8 | pdu[2]);
+  const uint16_t qty = pdu[0] == 0x06 ? 1 : uint16_t(pdu[3] << 8 | pdu[4]);
+  for (uint16_t k = 0; k < qty; ++k) {
+    const size_t at = pdu[0] == 0x06 ? 3 : size_t(6 + 2 * k);
+    if (at + 1 >= pdu.size() || !setpoints.count(uint16_t(start + k))) continue;
+    if ((pdu[at] | pdu[at + 1]) == 0) facts_.zeroed.insert(uint16_t(start + k));
+    else facts_.zeroed.erase(uint16_t(start + k));
+  }
 }
 
 Sent Session::send_raw_on(Target& t, std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait) {
@@ -520,6 +553,7 @@ void Session::keep() {
   if (!inner_->info().live || !spec_) return;
   if (!journal_.open()) throw std::runtime_error("a live target needs an output directory for its journal");
   record_identity();
+  record_control(*inner_);
   // The switch first: from the moment it is on, its original is on disk.
   auto sw = persist_switch(*spec_);
   std::optional<uint16_t> switch_was;

@@ -161,6 +161,10 @@ class Session final : public Link {
   std::optional<Refusal> journal_range(Target& t, const WriteRange& w);
   // Records the drive's identity in the journal once, before the first value.
   void record_identity();
+  // The journal's `control` record (the drive's control state), once.
+  void record_control(Target& t);
+  // After a write: the control's set-points it made 0 (PolicyFacts::zeroed).
+  void note_zeroed(uint8_t unit, std::span<const uint8_t> pdu, const Reply& reply);
   void count_frame() {
     ++frames_;
     if (opt_.on_frame) opt_.on_frame(frames_);

@@ -369,5 +369,69 @@ TEST(Policy, TheShippedSpecs) {
   EXPECT_GT(commands, 0);
 }
 
+// The drive's control (spec control:): a controlword is judged by the word
+// written (issue 38): a command that may move needs --allow-motion unless
+// every set-point was written 0 first; a mode's start always; a non-zero
+// set-point always; a command that moves nothing and a mode selection never.
+spec::Spec with_control() {
+  spec::Spec s = made();
+  s.registers.push_back(reg(0x40, "controlword"));
+  s.registers.push_back(reg(0x41, "mode"));
+  s.registers.push_back(reg(0x42, "target_velocity"));
+  s.registers.push_back(reg(0x43, "target_position"));
+  std::stable_sort(s.registers.begin(), s.registers.end(),
+                   [](const Register& a, const Register& b) { return std::pair(a.table, a.address) < std::pair(b.table, b.address); });
+  spec::Control c;
+  auto cmd = [&](std::string id, uint16_t mask, uint16_t value, bool motion, spec::Trigger trigger = spec::Trigger::level) {
+    spec::ControlCommand x;
+    x.id = id;
+    x.register_key = "controlword";
+    x.mask = mask;
+    x.value = value;
+    x.motion = motion;
+    x.trigger = trigger;
+    if (trigger == spec::Trigger::edge) x.edge_mask = value;
+    c.commands.push_back(x);
+  };
+  cmd("shutdown", 0x87, 0x06, false);
+  cmd("enable_operation", 0x8F, 0x0F, true);
+  cmd("new_setpoint", 0x10, 0x10, true, spec::Trigger::edge);
+  spec::ControlMode speed;
+  speed.id = "speed";
+  speed.select = spec::RegisterWrite{"mode", 3, 0, "", {}};
+  speed.setpoint_keys = {"target_velocity"};
+  spec::ControlMode position;
+  position.id = "position";
+  position.select = spec::RegisterWrite{"mode", 1, 0, "", {}};
+  position.setpoint_keys = {"target_position"};
+  position.start_command = "new_setpoint";
+  c.modes = {speed, position};
+  s.control = c;
+  return s;
+}
+
+TEST(Policy, AControlWordIsJudgedByTheCommandItGives) {
+  static const spec::Spec s = with_control();
+  PolicyFacts f{&s, live(), {}};
+  EXPECT_TRUE(allowed(f, 1, w06(0x40, 0x06))) << "shutdown moves nothing";
+  EXPECT_TRUE(allowed(f, 1, w06(0x41, 3))) << "a mode selection moves nothing";
+  EXPECT_TRUE(allowed(f, 1, w06(0x42, 0))) << "a set-point written 0";
+  EXPECT_TRUE(refused_for(allowed(f, 1, w06(0x42, 500)), "--allow-motion")) << "a non-zero set-point";
+  EXPECT_TRUE(refused_for(allowed(f, 1, w06(0x40, 0x0F)), "--allow-motion")) << "enable with set-points not known 0";
+  EXPECT_TRUE(refused_for(allowed(f, 1, write_multiple_registers(0x40, std::vector<uint16_t>{0x0F, 3, 0, 0})), "--allow-motion"))
+      << "FC 16: the words are judged, not the register alone";
+  f.zeroed = {0x42};
+  EXPECT_TRUE(refused_for(allowed(f, 1, w06(0x40, 0x0F)), "--allow-motion")) << "one set-point still unknown";
+  f.zeroed = {0x42, 0x43};
+  EXPECT_TRUE(allowed(f, 1, w06(0x40, 0x0F))) << "enable with every set-point 0 moves nothing";
+  EXPECT_TRUE(refused_for(allowed(f, 1, w06(0x40, 0x1F)), "--allow-motion")) << "a mode's start moves to any set-point";
+  EXPECT_EQ(control_motion(f, w06(0x40, 0x06)), "");
+  EXPECT_NE(control_motion(f, w06(0x40, 0x1F)).find("new_setpoint"), std::string::npos) << control_motion(f, w06(0x40, 0x1F));
+  f.opt_ins.allow_motion = true;
+  f.zeroed.clear();
+  EXPECT_TRUE(allowed(f, 1, w06(0x40, 0x1F)));
+  EXPECT_TRUE(allowed(f, 1, w06(0x42, 500)));
+}
+
 }  // namespace
 }  // namespace mbc::conf

@@ -97,6 +97,16 @@ const std::vector<Tooth> kTeeth = {
     {"stateful-model", "sihong-57hs-r", "forget-persistent"},
     {"stateful-model", "modbus-standard", "accept-out-of-range"},
     {"stateful-model", "rieding-dhe", "reply-other-slave"},
+    // The control state machine (issue 38): each of the six state-machine
+    // faults of reference/faults caught on the CiA 402 device.
+    {"control-status-names-state", "cia402-modbus", "undefined-command-accepted"},
+    {"control-undefined-command", "cia402-modbus", "undefined-command-accepted"},
+    {"control-status-names-state", "cia402-modbus", "status-bit-wrong"},
+    {"control-status-names-state", "cia402-modbus", "transition-missing"},
+    {"control-status-names-state", "cia402-modbus", "transition-wrong-target"},
+    {"control-fault-reset", "cia402-modbus", "edge-as-level"},
+    {"control-stop-from-motion", "cia402-modbus", "stop-ignored"},
+    {"control-mode-switch", "cia402-modbus", "status-bit-wrong"},
 };
 
 void PrintTo(const Tooth& t, std::ostream* os) { *os << t.invariant << " on " << t.device << "?fault=" << t.fault; }

@@ -31,6 +31,9 @@
 #include "policy/policy.h"
 #include "session/journal.h"
 #include "session/session.h"
+#include "properties/control.h"
+#include "modbus/bytes.h"
+#include "modbus/rtu.h"
 #include "targets/target.h"
 
 namespace mbc::conf {
@@ -397,6 +400,139 @@ TEST(NewUser, RunWithoutLineParametersTakesTheSpecsSettings) {
   EXPECT_EQ(rc, 2) << out;
   EXPECT_NE(out.find("does not answer at 9600 8N1, unit 5"), std::string::npos) << out;
   EXPECT_NE(out.find("the spec hsc60 says"), std::string::npos) << out;
+}
+
+// ---- a drive's control in Operation enabled (issue 38) ------------------------
+
+// A served CiA 402 drive (cia402-modbus over Modbus TCP) brought into
+// Operation enabled with a set-point by another master (libmodbus); `props`
+// on it interrupted by SIGINT, and by SIGKILL then `mbconform restore`: the
+// journal records the control state, and the restore leaves the drive in its
+// safe state (Switch on disabled) first, then every register of the journal
+// other than the controlword holds its value from before the command.
+class Cia402 : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    spec_ = spec::load_spec_by_id("cia402-modbus");
+    server_ = std::make_unique<ServeProcess>(std::vector<std::string>{"--device", "cia402-modbus@1", "--tcp", "127.0.0.1:0"});
+    ASSERT_TRUE(server_->wait_listening(1)) << server_->log();
+    port_ = server_->endpoint("tcp")->port();
+    uri_ = fmt::format("tcp://127.0.0.1:{}?unit=1", port_);
+  }
+  modbus_t* connect() {
+    modbus_t* ctx = modbus_new_tcp("127.0.0.1", port_);
+    EXPECT_NE(ctx, nullptr);
+    modbus_set_slave(ctx, 1);
+    modbus_set_response_timeout(ctx, 1, 0);
+    EXPECT_EQ(modbus_connect(ctx), 0) << modbus_strerror(errno);
+    return ctx;
+  }
+  std::vector<uint16_t> regs() {
+    modbus_t* ctx = connect();
+    std::vector<uint16_t> v(14, 0);
+    EXPECT_EQ(modbus_read_registers(ctx, 0, 14, v.data()), 14) << modbus_strerror(errno);
+    modbus_close(ctx);
+    modbus_free(ctx);
+    return v;
+  }
+  // Shutdown, then Switch on + Enable operation, with a target velocity: Operation enabled, moving.
+  void enable() {
+    modbus_t* ctx = connect();
+    EXPECT_EQ(modbus_write_register(ctx, 2, 3), 1);  // profile velocity
+    const uint16_t velocity[2] = {0, 200};
+    EXPECT_EQ(modbus_write_registers(ctx, 4, 2, velocity), 2);
+    EXPECT_EQ(modbus_write_register(ctx, 0, 0x06), 1);
+    EXPECT_EQ(modbus_write_register(ctx, 0, 0x0F), 1);
+    modbus_close(ctx);
+    modbus_free(ctx);
+    std::this_thread::sleep_for(100ms);
+    ASSERT_EQ(regs()[1] & 0x6F, 0x27) << "not in Operation enabled";
+  }
+  void interrupt(int sig) {
+    for (int k = 0; k < 2; ++k) {
+      enable();
+      const std::vector<uint16_t> before = regs();
+      std::string out = dir_ / fmt::format("props-{}-{}", sig, k), logs = dir_ / fmt::format("log-{}-{}", sig, k);
+      std::filesystem::create_directories(logs);
+      std::vector<std::string> args{"props", "--target", uri_, "--device", "cia402-modbus", "--out", out, "--cases", "200",
+                                    "--seed", "5", "--only", "control-status-names-state"};
+      if (k == 1) args.push_back("--allow-motion");
+      Child c = spawn(args, logs);
+      auto journal = journal_of(c, 30s);
+      ASSERT_TRUE(journal) << "no journal line\n" << slurp(c.err_path) << slurp(c.out_path);
+      std::this_thread::sleep_for(k ? 1500ms : 700ms);
+      int status = 0;
+      bool ended_before = waitpid(c.pid, &status, WNOHANG) == c.pid;
+      if (!ended_before) kill(c.pid, sig);
+      int rc = ended_before ? (WIFEXITED(status) ? WEXITSTATUS(status) : -1) : wait_exit(c.pid, 30s);
+      std::string log = slurp(c.err_path) + slurp(c.out_path);
+      if (sig == SIGKILL && !ended_before) {
+        EXPECT_EQ(rc, 128 + SIGKILL) << log;
+        std::string restore_out;
+        EXPECT_EQ(run_mbconform({"restore", *journal}, &restore_out), 0) << restore_out;
+        log += restore_out;
+      }
+      // The journal recorded the control state before the command's first command write.
+      JournalContents j = read_journal(*journal);
+      EXPECT_EQ(j.control_state, "operation_enabled") << log;
+      const std::vector<uint16_t> after = regs();
+      EXPECT_EQ(after[1] & 0x4F, 0x40) << "statusword " << after[1] << ": not in Switch on disabled, the safe state\n" << log;
+      EXPECT_EQ(after[6] | after[7], 0) << "the axis still moves (velocity actual)\n" << log;
+      // Every register the journal kept, but the controlword (a command), holds its value from before.
+      for (const auto& e : j.originals) {
+        if (e.address == 0) continue;
+        for (size_t w = 0; w < e.value.size(); ++w)
+          EXPECT_EQ(after[e.address + w], before[e.address + w]) << "register " << e.address + w << "\n" << log;
+      }
+    }
+  }
+  TempDir dir_;
+  spec::Spec spec_;
+  std::unique_ptr<ServeProcess> server_;
+  int port_ = 0;
+  std::string uri_;
+};
+
+TEST_F(Cia402, PropsInOperationEnabledInterruptedBySigint) { interrupt(SIGINT); }
+TEST_F(Cia402, PropsInOperationEnabledKilledThenRestored) { interrupt(SIGKILL); }
+
+// The motion-free walk on a served drive without --allow-motion: it enables
+// and disables, selects every mode and ends in the safe state, and no frame it
+// sent is one the frame policy counts as motion (set-points written 0 first).
+TEST_F(Cia402, TheMotionFreeWalkSendsNoMotion) {
+  TempDir out;
+  SessionOptions o;
+  o.command = "test";
+  o.out_dir = out.path();
+  Session session(uri_, &spec_, o);
+  session.keep();
+  props::SpecView view(spec_, session.target().info(), {});
+  props::Session walker(session.target(), view, nullptr);
+  std::vector<std::string> skipped;
+  EXPECT_EQ(props::control_walk(walker, skipped), "");
+  for (const auto& line : skipped) std::cout << "walk: skipped " << line << "\n";
+  // The frames sent, judged again by the policy with what they themselves wrote before.
+  PolicyFacts f{&spec_, session.target().info(), {}};
+  int writes = 0, enables = 0;
+  for (const auto& st : walker.steps()) {
+    if (st.kind != props::Step::Kind::frame) continue;
+    auto body = mbc::kRtu.pdu_bytes(st.frame);
+    Bytes pdu(body.begin(), body.end());
+    EXPECT_EQ(control_motion(f, pdu), "") << st.note;
+    if (pdu[0] == 0x06 || pdu[0] == 0x10) ++writes;
+    if (pdu[0] == 0x06 && be16(pdu, 1) == 0 && (be16(pdu, 3) & 0x8F) == 0x0F) ++enables;
+    // What the drive echoed: a set-point written 0 (as the policy learns it).
+    if (st.reply_pdu && pdu[0] == 0x10 && be16(pdu, 1) >= 4 && be16(pdu, 1) <= 8)
+      for (uint16_t k = 0; k < be16(pdu, 3); ++k)
+        if (be16(pdu, 6 + 2 * k) == 0) f.zeroed.insert(uint16_t(be16(pdu, 1) + k));
+  }
+  EXPECT_GT(enables, 0) << "the walk never enabled the drive";
+  EXPECT_GT(writes, 5);
+  EXPECT_EQ(regs()[1] & 0x4F, 0x40) << "the walk ends in the safe state";
+  // Without the set-points written 0 first, the same enable is motion.
+  PolicyFacts cold{&spec_, session.target().info(), {}};
+  EXPECT_NE(control_motion(cold, write_single_register(0, 0x0F)), "");
+  session.restore();
 }
 
 }  // namespace
