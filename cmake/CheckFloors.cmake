@@ -42,7 +42,7 @@ set(conf_may_targets targets)
 set(conf_may_report report)
 set(conf_may_plugin plugin)
 set(conf_may_policy policy targets)
-set(conf_may_session session policy safety targets)
+set(conf_may_session session policy safety targets report)  # report/utc_now.h: the one wall-clock stamp
 set(conf_may_safety safety policy targets)
 set(conf_may_check check policy session targets report)
 set(conf_may_cases cases policy check safety targets report)

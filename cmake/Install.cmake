@@ -2,7 +2,7 @@
 # top-level CMakeLists.txt, so that optional targets (the plugin host, the
 # client adapters) are known here.
 #
-#   cmake --install build --prefix P      P/bin/mbconform (stripped), P/share/mbconform/{devices,schema,
+#   cmake --install build --prefix P      P/bin/mbconform (stripped), P/share/mbconform/{devices,profiles,schema,
 #                                         deviations,quirks}, the man page, the bash completion, ...
 #   (cd build && cpack -G DEB)            build/mbconform_<version>_<arch>.deb
 #
@@ -30,6 +30,9 @@ endif()
 
 # The device specs and the language's schema.
 install(DIRECTORY ${CMAKE_SOURCE_DIR}/spec/devices/ DESTINATION ${MBC_SHARE}/devices FILES_MATCHING PATTERN "*.yaml")
+# The library control profiles a device names (`control: {profile: cia402}`),
+# found in profiles/ beside devices/ (spec/loader/control.cpp).
+install(DIRECTORY ${CMAKE_SOURCE_DIR}/spec/profiles/ DESTINATION ${MBC_SHARE}/profiles FILES_MATCHING PATTERN "*.yaml")
 install(FILES ${CMAKE_SOURCE_DIR}/spec/schema/device.schema.json DESTINATION ${MBC_SHARE}/schema)
 
 # The libraries' declared deviations, found by name (`--quirks libmodbus-tcp`):

@@ -217,6 +217,10 @@ std::string journal_mismatch(Target& t, const spec::Spec& s, const JournalConten
 }
 
 // ---- the control -----------------------------------------------------------------
+// A control with states (a spec's control: may hold only `motion:`, the
+// facts of a move, and no state machine to walk).
+static bool state_machine(const spec::Spec& s) { return s.control && !s.control->states.empty(); }
+
 
 namespace {
 
@@ -262,7 +266,7 @@ std::chrono::milliseconds control_settle(const spec::Control& c) {
 }  // namespace
 
 bool is_control_command_register(const spec::Spec& s, spec::Table table, uint16_t address) {
-  if (!s.control || table != spec::Table::holding) return false;
+  if (!state_machine(s) || table != spec::Table::holding) return false;
   for (const auto& cmd : s.control->commands)
     if (const spec::Register* r = s.find_by_key(cmd.register_key); r && address >= r->address && address <= r->last_address())
       return true;
@@ -270,7 +274,7 @@ bool is_control_command_register(const spec::Spec& s, spec::Table table, uint16_
 }
 
 std::string control_record(Target& t, const spec::Spec& s) {
-  if (!s.control) return "";
+  if (!state_machine(s)) return "";
   std::string why;
   auto words = control_words(t, s, why);
   if (!words) return "";
@@ -281,7 +285,7 @@ std::string control_record(Target& t, const spec::Spec& s) {
 }
 
 std::string control_to_safe(Target& t, const spec::Spec& s, std::vector<std::string>& did) {
-  if (!s.control) return "";
+  if (!state_machine(s)) return "";
   const spec::Control& c = *s.control;
   const uint8_t unit = t.info().unit;
   t.set_wait(Target::Wait::reply);
@@ -406,7 +410,7 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
   for (const auto& e : c.originals) control_written |= is_control_command_register(s, e.table, e.address);
   for (const auto& k : c.commands) control_written |= is_control_command_register(s, k.table, k.address);
   bool safe = false;
-  if (s.control && control_written) {
+  if (state_machine(s) && control_written) {
     std::vector<std::string> did;
     std::string why = control_to_safe(t, s, did);
     for (const auto& d : did) note("stopped control " + d);
@@ -420,7 +424,7 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
       note(fmt::format("not-restored control: the safe state {} was not reached: {}", s.control->safe, why));
     }
   }
-  const std::set<uint16_t> setpoints = s.control ? control_setpoints(s) : std::set<uint16_t>{};
+  const std::set<uint16_t> setpoints = state_machine(s) ? control_setpoints(s) : std::set<uint16_t>{};
 
   // What goes back, in order (the persistence switch first); what the policy
   // or the register's access keeps out; the command registers to stop.
