@@ -131,7 +131,6 @@ class ControlExecutor final : public Behaviour {
   bool done_ = false;          // the active mode's done reading holds
   bool homing_ = false;
   double speed_commanded_ = 0;
-  bool refused_mode_ = false;  // check_write saw a mode selection the state refuses
 };
 
 }  // namespace mbc::ref
