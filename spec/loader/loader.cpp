@@ -313,8 +313,11 @@ struct Builder {
           if (b.section.empty()) b.section = fc.section;
           // A function code accepted or refused: two outcomes, in words.
           // A limit printed two ways as numbers stays typed (the cases stay inside both).
-          bool numbers = k != "supported" && std::all_of(v["either"].begin(), v["either"].end(), [](const json& x) { return x.is_number_integer(); });
-          if (b.basis == Basis::either && !numbers && words_readings(v["either"], bp + "/either")) b.why = "printed two ways in words: no one expectation holds both readings";
+          // (const json: operator[] of a missing key is undefined behaviour, so every lookup is checked)
+          static const json kNone = json::array();
+          const json& either = v.is_object() && v.contains("either") ? v.at("either") : kNone;
+          bool numbers = k != "supported" && (!either.is_array() || std::all_of(either.begin(), either.end(), [](const json& x) { return x.is_number_integer(); }));
+          if (b.basis == Basis::either && !numbers && words_readings(either, bp + "/either")) b.why = "printed two ways in words: no one expectation holds both readings";
           fc.basis[k] = b;
         }
       if (s.device.manual.source != "manual")
