@@ -19,12 +19,22 @@ serve() {  # starts serve on a fresh port; sets $port and $spid
   [ -n "$port" ] || { echo "serve did not start"; cat "$out/serve.out" "$out/serve.err"; exit 1; }
 }
 
-# COMMAND... run in the background; serve is killed after SECONDS; the command must end with exit 2 and say INCOMPLETE.
+connected() {  # an established TCP connection to serve's $port (/proc/net/tcp: local address, state 01)
+  awk -v p="$(printf ':%04X' "$port")" '$4 == "01" && substr($2, length($2) - 4) == p { found = 1 } END { exit !found }' /proc/net/tcp
+}
+
+# COMMAND... run in the background; serve is killed SECONDS after the command
+# connected to it (when $port is set; a slow host, e.g. under ASan, may take
+# seconds to connect), or after SECONDS; the command must end with exit 2 and say INCOMPLETE.
 lost() {  # lost NAME SECONDS COMMAND...
   local name=$1 after=$2
   shift 2
   "$@" > "$out/$name.log" 2>&1 &
   local cpid=$!
+  if [ -n "$port" ]; then
+    for _ in $(seq 600); do connected && break; sleep 0.1; done
+    connected || { echo "$name: never connected to serve"; cat "$out/$name.log"; exit 1; }
+  fi
   sleep "$after"
   kill -9 "$spid"
   set +e
@@ -52,6 +62,7 @@ rtu 01 03 00 00 00 01 84 0A  -> normal
 SCRIPT
 lost replay 1 "$mbc" replay "$out/script.txt" --target "rtu-tcp://127.0.0.1:$port?unit=1" --device hsc60 --out "$out/replay" -q
 # `run` on a serial line (a pty at 9600 baud: slow enough to be cut off).
+port=""
 "$mbc" serve --device hsc60@1 --pty "$out/line" --baud 9600 --line-rate 9600 > "$out/serve.out" 2> "$out/serve.err" &
 spid=$!
 pids+=($spid)
