@@ -30,10 +30,20 @@ grep -q "^reports: cap-q" cap-q.txt || { cat cap-q.txt >&2; fail "check-capture 
 ! grep -qi "pass" cap-q.txt || { cat cap-q.txt >&2; fail "check-capture -q printed the summary table"; }
 "$mbc" check-capture "$pcap" --map 'holding=0-199' --out cap >cap.txt 2>&1 || [ $? = 1 ] || fail "check-capture: exit $?"
 [ "$(wc -l <cap.txt)" -gt "$(wc -l <cap-q.txt)" ] || fail "check-capture without -q printed no more than with it"
-timeout 5 "$mbc" serve --device modbus-standard --tcp 127.0.0.1:0 -q >serve-q.txt 2>&1 &
+# SIGTERM once it listens (a slow host, e.g. under ASan, takes seconds to get there; before
+# that, SIGTERM's default action ends it with 143): it ends with 0 within 10 s.
+listening() {  # a TCP socket of process $1 in the LISTEN state (/proc/net/tcp: state 0A, inode)
+  local inodes
+  inodes=$(for fd in /proc/"$1"/fd/*; do readlink "$fd"; done 2>/dev/null | sed -n 's/^socket:\[\([0-9]*\)\]$/\1/p' | tr '\n' ' ')
+  [ -n "$inodes" ] && awk -v want=" $inodes" '$4 == "0A" && index(want, " " $10 " ") { f = 1 } END { exit !f }' /proc/net/tcp /proc/net/tcp6
+}
+"$mbc" serve --device modbus-standard --tcp 127.0.0.1:0 -q >serve-q.txt 2>&1 &
 serve=$!
-sleep 1
-kill -TERM "$serve" 2>/dev/null || true
+for _ in $(seq 300); do listening "$serve" && break; sleep 0.1; done
+listening "$serve" || { kill -9 "$serve"; cat serve-q.txt >&2; fail "serve -q: not listening after 30 s"; }
+kill -TERM "$serve"
+for _ in $(seq 100); do kill -0 "$serve" 2>/dev/null || break; sleep 0.1; done
+kill -0 "$serve" 2>/dev/null && { kill -9 "$serve"; fail "serve -q: still running 10 s after SIGTERM"; }
 rc=0; wait "$serve" || rc=$?
 [ "$rc" = 0 ] || { cat serve-q.txt >&2; fail "serve -q: exit $rc"; }
 ! grep -q listening serve-q.txt || fail "serve -q printed its listening lines"

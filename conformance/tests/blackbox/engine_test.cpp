@@ -386,8 +386,8 @@ class Paced final : public Target {
 };
 
 // The deadline is looked at before each exchange, not only between batches:
-// a batch of 5000 frames that take 2 ms each (10 s) stops once 500 ms ran
-// out. Each exchange sleeps, so however slow the host, all 5000 cannot fit;
+// a batch of 1000 frames that take 2 ms each (2 s) stops once 500 ms ran
+// out. Each exchange sleeps, so however slow the host, all 1000 cannot fit;
 // 500 ms leave a slow host (ASan, under load) the time to start the batch.
 TEST(Fuzz, TheDeadlineIsLookedAtBeforeEachExchange) {
   spec::Spec s = spec::load_spec_by_id("hsc60");
@@ -395,7 +395,7 @@ TEST(Fuzz, TheDeadlineIsLookedAtBeforeEachExchange) {
   Plan p = make_plan(s, first->info(), WritePolicy{});
   Options o;
   o.duration = std::chrono::milliseconds(500);
-  o.batch = 5000;
+  o.batch = 1000;
   Open open = [] { return std::make_unique<Paced>(open_target("ref:hsc60"), std::chrono::milliseconds(2)); };
   Outcome out = fuzz(std::move(first), open, p, o, {});
   EXPECT_TRUE(out.findings.empty());
