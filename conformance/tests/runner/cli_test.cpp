@@ -345,7 +345,12 @@ TEST(RunCli, InterruptedRunWritesPartialReports) {
   int pid = 0;
   ASSERT_EQ(fscanf(p, "%d", &pid), 1);
   pclose(p);
-  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  // SIGINT once the run journals (its stop signals are caught by then; a slow
+  // host, e.g. under ASan, takes seconds to get there), and a second later.
+  for (int i = 0; i < 600 && !std::filesystem::exists(dir / "r/journal.txt"); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  ASSERT_TRUE(std::filesystem::exists(dir / "r/journal.txt")) << slurp(dir / "out.txt");
+  std::this_thread::sleep_for(std::chrono::milliseconds(1000));
   ASSERT_EQ(kill(pid, SIGINT), 0);
   int rc = -1;
   for (int i = 0; i < 100 && rc < 0; ++i) {
