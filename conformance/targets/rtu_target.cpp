@@ -465,15 +465,19 @@ class RtuTarget final : public Target {
   }
 
   // Bytes in front of a reply that are no frame (line noise between frames,
-  // a frame that ended in a silence): what read_frame took in before the
-  // reply is kept as noise when the rest is a whole frame, CRC right, that
-  // answers `adu` (MB-SL v1.02 §2.5.1.1: a silence of t3.5 ends a frame, so
-  // bytes before one belong to no reply; a USB adapter may hand both over in
-  // one batch, so the silence itself is not required).
+  // a frame cut short): what read_frame took in before the reply is kept as
+  // noise when the rest is a whole frame, CRC right, that answers `adu`, and
+  // the bytes in front are no frame of their own (MB-SL v1.02 §2.5.1.1: t3.5
+  // of silence ends a frame, so bytes before one belong to no reply; a USB
+  // adapter may hand both over in one batch, so the silence itself is not
+  // required).
   static void split_noise(const Bytes& adu, Reply& r) {
     if (r.frame.size() <= kShortestReply || whole_frame(r.frame) == r.frame.size()) return;
     for (size_t k = 1; k + kShortestReply <= r.frame.size(); ++k) {
       auto rest = std::span<const uint8_t>(r.frame).subspan(k);
+      auto front = std::span<const uint8_t>(r.frame).first(k);
+      // Noise is no frame: not one ending in its CRC (an echo with echo=0, a reply sent twice), nor one in front.
+      if (k >= kRtuAddress + 1 + kRtuCrc && (crc_ok(front) || whole_frame(front))) break;
       if (whole_frame(rest) == rest.size() && answers(adu, rest)) {
         r.noise.assign(r.frame.begin(), r.frame.begin() + ptrdiff_t(k));
         r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(k));

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <map>
+#include <random>
 #include <thread>
 
 #include "modbus/function_codes.h"
@@ -205,7 +206,13 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
     return out;
   }
   const auto t35 = f.t35;
-  auto between = [&] { std::this_thread::sleep_for(std::max<microseconds>(2 * t35, std::chrono::milliseconds(2))); };
+  // A pause of random length between exchanges: requests sent in a steady
+  // rhythm would put the replies' reads on a grid of their own, which
+  // batch_period_ms would take for a latency timer's.
+  std::minstd_rand jitter(uint32_t(Clock::now().time_since_epoch().count()));
+  auto between = [&] {
+    std::this_thread::sleep_for(std::max<microseconds>(2 * t35, std::chrono::milliseconds(2)) + microseconds(jitter() % 17000));
+  };
   t.set_wait(Target::Wait::reply);
 
   // ---- sampling: the response time of each read ----

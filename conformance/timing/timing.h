@@ -54,7 +54,10 @@ Timed measure(const Reply&, size_t request_bytes, const LineFacts&);
 
 // The period of batches the replies' reads fall on (a latency timer of
 // 2..16 ms), found in their arrival times: most reads fall just after a
-// multiple of it. nullopt when they do not.
+// multiple of it on this host's monotonic clock (as serve --latency-timer
+// delivers them; a real adapter's is read from sysfs). nullopt when they do
+// not. The requests must not go out in a steady rhythm (check_line pauses a
+// random time between them).
 std::optional<int> batch_period_ms(const std::vector<Reply>&);
 
 struct Options {
