@@ -9,7 +9,12 @@
 //   and a busy host's late read is small beside them.
 #include <gtest/gtest.h>
 
+#include <sys/wait.h>
+
 #include <algorithm>
+#include <cstdio>
+#include <fstream>
+#include <iterator>
 #include <map>
 
 #include "loader.h"
@@ -138,6 +143,26 @@ TEST(TimingJudge, BatchPeriodFoundOnlyWhereReadsFallOnIt) {
   EXPECT_FALSE(batch_period_ms(spread).has_value());
 }
 
+// ---- the spec field ----
+
+// timing: response_time_ms is read as the manual's stated response time.
+TEST(TimingSpec, AStatedResponseTimeIsLoaded) {
+  std::ifstream f(std::string(MBCONFORM_SOURCE_DIR) + "/spec/tests/valid/minimal.yaml");
+  std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  ASSERT_FALSE(text.empty());
+  auto plain = spec::load_spec_text(text, "minimal.yaml");
+  ASSERT_TRUE(plain.ok());
+  EXPECT_FALSE(plain.spec->timing.response_time_ms.has_value());
+  auto stated = spec::load_spec_text(text + "timing: {response_time_ms: 12.5, section: \"6.3\"}\n", "minimal.yaml");
+  std::string why;
+  for (const auto& d : stated.diagnostics) why += d.str() + "\n";
+  ASSERT_TRUE(stated.ok()) << why;
+  EXPECT_EQ(stated.spec->timing.response_time_ms, 12.5);
+  EXPECT_EQ(stated.spec->timing.section, "6.3");
+  auto negative = spec::load_spec_text(text + "timing: {response_time_ms: -1}\n", "minimal.yaml");
+  EXPECT_FALSE(negative.ok());
+}
+
 // ---- the checks against served lines ----
 
 struct Served {
@@ -152,11 +177,16 @@ struct Served {
   std::string uri(int baud) { return "rtu://" + (dir / "line") + "?unit=1&parity=E&baud=" + std::to_string(baud); }
 };
 
-std::map<std::string, CaseResult> checks(std::vector<std::string> serve_args, int baud, std::string uri_extra = "") {
+std::map<std::string, CaseResult> checks(std::vector<std::string> serve_args, int baud, std::string uri_extra = "",
+                                         std::optional<double> stated_ms = std::nullopt) {
   Served s(std::move(serve_args));
   EXPECT_TRUE(s.serve.wait_listening(1)) << s.serve.log();
   auto t = open_target(s.uri(baud) + uri_extra);
-  static const spec::Spec spec = spec::load_spec_by_id("hsc60");
+  spec::Spec spec = spec::load_spec_by_id("hsc60");
+  if (stated_ms) {
+    spec.timing.response_time_ms = stated_ms;
+    spec.timing.section = "test §1";
+  }
   Options o;
   o.samples = 9;
   std::map<std::string, CaseResult> out;
@@ -222,6 +252,17 @@ TEST(TimingOnServedLine, ATurnaroundDelayIsNamedInTheResponseTime) {
   EXPECT_EQ(r.level, Level::observed) << all(m);  // hsc60's manual states no response time
 }
 
+// A response time the spec states (timing: response_time_ms) is a MUST: a
+// drive 40 ms beyond t3.5 fails 10 ms and passes 100 ms.
+TEST(TimingOnServedLine, AStatedResponseTimeIsAMust) {
+  auto slow = checks({"--line", "9600-8E1", "--turnaround", "40"}, 9600, "", 10.0);
+  EXPECT_EQ(slow["response-time/fc03"].level, Level::must) << all(slow);
+  EXPECT_EQ(slow["response-time/fc03"].outcome, Outcome::fail) << all(slow);
+  EXPECT_NE(slow["response-time/fc03"].message.find("the manual states 10 ms (test §1)"), std::string::npos) << all(slow);
+  auto within = checks({"--line", "9600-8E1", "--turnaround", "40"}, 9600, "", 100.0);
+  EXPECT_EQ(within["response-time/fc03"].outcome, Outcome::pass) << all(within);
+}
+
 TEST(TimingOnServedLine, ALatencyTimerIsNamedAndMakesTheSilencesObserved) {
   auto m = checks({"--line", "9600-8E1", "--latency-timer", "16"}, 9600);
   EXPECT_NE(m["read-batching"].message.find("16 ms"), std::string::npos) << all(m);
@@ -242,6 +283,24 @@ TEST(TimingOnServedLine, APtyWithoutALineModelMeasuresNothing) {
     EXPECT_EQ(m[id].level, Level::observed) << id << "\n" << all(m);
     EXPECT_NE(m[id].message.find("does not pace"), std::string::npos) << id << "\n" << all(m);
   }
+}
+
+// `run` makes the checks on an rtu:// target, after the cases, and an early
+// reply fails the run (exit 1) naming the check.
+TEST(TimingInRun, RunOnASerialLineFailsAnEarlyReplyByItsCheck) {
+  Served s({"--line", "9600-8E1", "--fault", "early-reply"});
+  ASSERT_TRUE(s.serve.wait_listening(1)) << s.serve.log();
+  std::string cmd = serve_test::mbconform_bin() + " run --device hsc60 --target '" + s.uri(9600) + "' --filter /timing/ --out " +
+                    (s.dir / "out") + " 2>&1";
+  FILE* p = popen(cmd.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  std::string text;
+  char buf[4096];
+  while (size_t n = fread(buf, 1, sizeof buf, p)) text.append(buf, n);
+  int status = pclose(p);
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 1) << text;
+  EXPECT_NE(text.find("FAIL hsc60/timing/reply-after-t3.5"), std::string::npos) << text;
+  EXPECT_EQ(text.find("FAIL hsc60/timing/reply-gap"), std::string::npos) << text;
 }
 
 }  // namespace
