@@ -7,6 +7,7 @@
 #include <cmath>
 #include <map>
 #include <random>
+#include <stdexcept>
 #include <thread>
 
 #include "modbus/function_codes.h"
@@ -286,7 +287,14 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
       for (int k = 0; k < o.tries; ++k) {
         between();
         t.set_wait(Target::Wait::window);
-        Reply g = t.send_raw(adu, half);
+        Reply g;
+        try {
+          g = t.send_raw(adu, half);
+        } catch (const std::runtime_error& e) {  // the frame policy's refusal (session/): no verdict
+          t.set_wait(Target::Wait::reply);
+          why = std::string("the gapped request could not be sent: ") + e.what();
+          break;
+        }
         t.set_wait(Target::Wait::reply);
         between();
         Reply next = t.transact(info.unit, pdu);  // a late reply to the gapped request shows in front of this one's
@@ -297,6 +305,7 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
       }
       t.set_split_gap(microseconds(0));  // the target's own pause again
     }
+    if (sent == 0 && why.empty()) why = "no gapped request was sent";
     verdict(c, why.empty(), answered * 2 <= sent,
             why.empty() ? fmt::format("{} of {} requests with a {} silence inside (t1.5 = {} us, t3.5 = {} us) were answered{}", answered,
                                       sent, ms(mid), f.t15.count(), f.t35.count(),
