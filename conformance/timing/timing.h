@@ -47,7 +47,7 @@ struct Timed {
   double inner_gap = 0;   // the longest silence seen inside the reply (its reads' times less their characters')
   size_t echo = 0;        // bytes of the adapter's echo in front
   Bytes noise;            // bytes in front that were no frame
-  size_t reads = 0;       // reads the reply came in
+  size_t reads = 0;       // reads that held bytes of the reply
 };
 // `request_bytes`: the request as framed (its line time ends the request).
 Timed measure(const Reply&, size_t request_bytes, const LineFacts&);
