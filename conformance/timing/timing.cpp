@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <map>
 #include <random>
 #include <stdexcept>
@@ -37,6 +38,12 @@ LineFacts line_facts(const TargetInfo& info) {
   f.serial = info.kind == "rtu" && info.baud.has_value();
   f.latency_timer_ms = info.latency_timer_ms;
   if (!info.baud) return f;
+  try {
+    std::error_code ec;
+    auto real = std::filesystem::canonical(parse_uri(info.uri).path, ec);
+    f.pty = !ec && real.string().rfind("/dev/pts/", 0) == 0;
+  } catch (const std::exception&) {
+  }
   f.baud = *info.baud;
   int bits = kBitsPerChar;  // MB-SL v1.02 §2.5.1: 11 bits a character (8E1, 8O1, 8N2)
   try {
@@ -74,20 +81,32 @@ Timed measure(const Reply& r, size_t request_bytes, const LineFacts& f) {
   // characters' time), or later.
   size_t upto = 0;
   std::optional<double> prev_at;  // the read before, when it held reply bytes
+  double first_read = 0;
+  size_t after_first = 0;  // reply bytes read after the first read that held any
   for (const auto& a : r.arrivals) {
     size_t from = upto;
     upto += a.bytes;
     double at = us(a.at - sent);
     if (upto <= first) continue;  // echo or noise only
     ++m.reads;
-    if (from <= first && !prev_at) m.turnaround = at - double(upto - first) * c - request_end;
+    if (from <= first && !prev_at) {
+      m.turnaround = at - double(upto - first) * c - request_end;
+      first_read = at;
+    } else {
+      after_first += std::min(upto, first + r.frame.size()) - std::max(from, first);
+    }
     size_t reply_bytes_here = std::min(upto, first + r.frame.size()) - std::max(from, first);
     if (prev_at && from >= first) m.inner_gap = std::max(m.inner_gap, at - *prev_at - double(reply_bytes_here) * c);
     prev_at = at;
   }
-  // Paced: the reply's characters took at least their line time after the request's (two characters' slack).
+  // Paced: the reply's characters took at least their line time after the
+  // request's (two characters' slack), and came spread over reads as the
+  // line clocked them (at least half their line time between the first read
+  // and the last): a pty without a line model hands a frame over at once,
+  // which a busy host may still deliver later than its line time.
   double last = us(r.arrivals.back().at - sent);
-  m.paced = last >= request_end + double(r.noise.size() + r.frame.size()) * c - 2 * c;
+  m.paced = last >= request_end + double(r.noise.size() + r.frame.size()) * c - 2 * c && m.reads > 1 &&
+            last - first_read >= 0.5 * double(after_first) * c;
   return m;
 }
 
@@ -251,9 +270,12 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
                                      : "not a serial line";
   else if (timed.empty())
     why_not = "no reply could be timed";
-  else if (paced * 2 <= timed.size())
-    why_not = fmt::format("replies came faster than {} baud carries them ({} of {} paced): the line does not pace bytes (a "
-                          "pty without a line model), so their timing is not the drive's",
+  else if (!f.pty)
+    ;  // a UART clocks every byte out at the line's rate
+  else if (paced * 4 < timed.size())
+    why_not = fmt::format("the pty's replies did not come as {} baud carries them ({} of {} spread over their line time): "
+                          "the line does not pace bytes (a pty without a line model, or one that paces whole replies), so "
+                          "their timing is not the drive's",
                           f.baud, paced, timed.size());
   auto coarse = [&](microseconds silence) -> std::string {
     if (resolution <= 0 || resolution + f.char_us < double(silence.count())) return "";
@@ -261,6 +283,12 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
                        "short cannot be seen{}",
                        *batch, batch_source, silence.count(),
                        f.latency_timer_ms ? "; for 1 ms: echo 1 > /sys/bus/usb-serial/devices/<tty>/latency_timer" : "");
+  };
+  // A line that is no serial line, or gave no reply, says so first; then batches
+  // coarser than the silence judged (which also hide pacing); then no pacing.
+  auto first_reason = [&](const std::string& coarser) {
+    if (!f.serial || timed.empty() || coarser.empty()) return why_not;
+    return coarser;
   };
   auto figures = [&](std::vector<double> v) {
     if (v.empty()) return std::string("no figures");
@@ -318,7 +346,7 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
   // ---- no silence over t1.5 inside a reply ----
   {
     CaseResult c = result(s, "reply-gap", Level::must);
-    std::string why = why_not.empty() ? coarse(f.t15) : why_not;
+    std::string why = first_reason(coarse(f.t15));
     bool split = std::any_of(timed.begin(), timed.end(), [](const Timed& m) { return m.reads > 1; });
     if (why.empty() && !split)
       why = "every reply came in one read (the line hands frames over whole), so a silence inside one cannot be seen";
@@ -338,7 +366,7 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
   // ---- the reply starts at least t3.5 after the request ----
   {
     CaseResult c = result(s, "reply-after-t3.5", Level::must);
-    std::string why = why_not.empty() ? coarse(f.t35) : why_not;
+    std::string why = first_reason(coarse(f.t35));
     std::vector<double> ta;
     for (const auto& m : timed) ta.push_back(m.turnaround);
     double med = median(ta);
@@ -356,7 +384,7 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
   // ---- a request sent t3.5 after a reply is answered ----
   {
     CaseResult c = result(s, "request-at-t3.5", Level::must);
-    std::string why = why_not.empty() ? coarse(f.t35) : why_not;
+    std::string why = first_reason(coarse(f.t35));
     const Bytes pdu = list.front().pdu;
     // A try counts when this host sent within t3.5 + max(t3.5, 2 ms) of the reply's last read.
     const double bound = double(f.t35.count()) + std::max(double(f.t35.count()), 2000.0);

@@ -32,6 +32,7 @@ using std::chrono::microseconds;
 // The line as the checks see it.
 struct LineFacts {
   bool serial = false;       // rtu:// (a serial line), not a gateway or TCP
+  bool pty = false;          // a pseudo-terminal (a served line): paced only behind a line model
   int baud = 0;
   double char_us = 0;        // one character's time at the line's format (start, data, parity, stop bits)
   microseconds t15{0}, t35{0};  // MB-SL v1.02 §2.5.1.1 (fixed 750 us / 1.75 ms above 19200 baud)
