@@ -63,7 +63,7 @@ std::optional<int> batch_period_ms(const std::vector<Reply>&);
 
 struct Options {
   int samples = 20;  // replies timed per function code
-  int tries = 3;     // gapped requests sent; requests sent t3.5 after a reply: 2 x tries
+  int tries = 5;     // gapped requests sent (most answered: failed); requests sent t3.5 after a reply: 2 x tries
 };
 
 // Each check as --list shows it (its level on a line that can measure it).
