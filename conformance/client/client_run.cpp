@@ -3,6 +3,7 @@
 #include <openssl/ssl.h>
 
 #include <fmt/core.h>
+#include <fmt/format.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -306,6 +307,22 @@ void run_wide(const Scenario& s, conf::CaseResult& r, const std::vector<std::vec
   conclude(r, failures);
 }
 
+// The wait after each broadcast before the master's next request, as the
+// scenario server saw it (a pty delivers at once, so the wait is the
+// master's own; a busy host only lengthens it).
+void broadcast_turnaround(conf::CaseResult& r, const std::vector<SeenRequest>& reqs, const ClientOptions& o) {
+  std::vector<std::string> waits;
+  for (size_t i = 1; i < reqs.size(); ++i)
+    if (!reqs[i - 1].adu.empty() && reqs[i - 1].adu[0] == 0 && reqs[i].gap_before)
+      waits.push_back(fmt::format("{:.1f} ms", double(reqs[i].gap_before->count()) / 1000.0));
+  std::string text = waits.empty() ? "no request followed a broadcast"
+                                   : fmt::format("the master waited {} after the broadcast before its next request (t3.5 = {} us){}",
+                                                 fmt::join(waits, ", "), frame_gap(o.baud).count(),
+                                                 o.transport == Transport::pty ? "" : " (over TCP: the gateway's timing too)");
+  r.message = r.message.empty() ? text : r.message + "; " + text;
+  if (r.outcome == Outcome::pass) r.outcome = Outcome::observed;
+}
+
 }  // namespace
 
 std::vector<Scenario> selected(const ClientOptions& o, const std::function<bool(const std::string&)>& keep) {
@@ -493,6 +510,7 @@ ClientRun run_client(const ClientOptions& o, const std::vector<Scenario>& list) 
       per_scenario.push_back(server->requests());
       if (o.on_wire) o.on_wire(server->requests(), server->sent());
       conclude(r, failures);
+      if (s.id == "client/timing/broadcast-turnaround") broadcast_turnaround(r, server->requests(), o);
     }
     r.duration_ms = std::chrono::duration<double, std::milli>(Clock::now() - c0).count();
     out.run.cases.push_back(std::move(r));

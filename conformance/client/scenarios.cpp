@@ -332,6 +332,21 @@ void reply_scenarios(std::vector<Scenario>& out, const Framing& wire) {
     json w = op("write_single_register", {{"address", 0x20}, {"value", 0x0042}, {"unit", 0}});
     b.steps.push_back(step(w, Fault::silence, kinds({"ok"})));
     out.push_back(b);
+    // MB-SL v1.02 §2.4.1 names no figure for the turnaround delay: the wait
+    // is recorded (the runner adds it), and t3.5 is client/timing/t3.5's.
+    Scenario t;
+    t.id = "client/timing/broadcast-turnaround";
+    t.family = "client-timing";
+    t.clause = "MB-SL v1.02 §2.4.1";
+    t.level = Level::observed;
+    t.title = "after a broadcast, the master waits its turnaround delay before the next request";
+    t.requirement =
+        "MB-SL v1.02 §2.4.1: after a broadcast request the master waits for a \"turnaround delay\", long enough for "
+        "any slave to process the broadcast before it can receive a new request (no figure: OBSERVED, the wait recorded)";
+    t.op = "write_single_register";
+    t.steps.push_back(step(w, Fault::silence, kinds({"ok"})));
+    t.steps.push_back(step(r, Fault::none, right));
+    out.push_back(t);
   }
 }
 

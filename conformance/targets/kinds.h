@@ -3,6 +3,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -23,5 +24,7 @@ void decode_rtu_reply(Reply& reply, uint8_t slave);
 // one note for `device` (a path or a symlink to /dev/ttyUSBn) when
 // `sysfs`/bus/usb-serial/devices/<name>/latency_timer exists, else none.
 std::vector<std::string> usb_latency_notes(const std::string& device, const std::string& sysfs = "/sys");
+// The latency timer alone, in ms; nullopt when not a readable USB adapter.
+std::optional<int> usb_latency_ms(const std::string& device, const std::string& sysfs = "/sys");
 
 }  // namespace mbc::conf

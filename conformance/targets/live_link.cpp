@@ -85,7 +85,8 @@ microseconds SilenceWindow::window(microseconds line) const {
 // ---- byte streams ----
 
 ReadResult read_frame(int fd, std::vector<uint8_t>& buf, Clock::time_point first_byte_by, microseconds end_silence,
-                      Clock::time_point hard_deadline, const std::function<bool(std::span<const uint8_t>)>& complete) {
+                      Clock::time_point hard_deadline, const std::function<bool(std::span<const uint8_t>)>& complete,
+                      std::vector<Reply::Arrival>* arrivals) {
   ReadResult r;
   r.last_byte = Clock::now();
   while (buf.empty() || !complete(buf)) {
@@ -114,6 +115,7 @@ ReadResult read_frame(int fd, std::vector<uint8_t>& buf, Clock::time_point first
     }
     buf.insert(buf.end(), chunk, chunk + n);
     r.last_byte = Clock::now();
+    if (arrivals) arrivals->push_back({r.last_byte, size_t(n)});
   }
   return r;
 }

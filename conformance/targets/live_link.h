@@ -107,12 +107,14 @@ class SilenceWindow {
 // nothing came for `end_silence` (the end of a frame whose length cannot be
 // known, MB-SL v1.02 §2.5.1.1); never past `hard_deadline`. `closed` is set
 // when the peer closed the stream.
+// `arrivals`, when given, gets each read as it came (when, how many bytes).
 struct ReadResult {
   Clock::time_point last_byte{};
   bool closed = false;
 };
 ReadResult read_frame(int fd, std::vector<uint8_t>& buf, Clock::time_point first_byte_by, microseconds end_silence,
-                      Clock::time_point hard_deadline, const std::function<bool(std::span<const uint8_t>)>& complete);
+                      Clock::time_point hard_deadline, const std::function<bool(std::span<const uint8_t>)>& complete,
+                      std::vector<Reply::Arrival>* arrivals = nullptr);
 
 // Reads whatever is waiting on `fd` (a late reply); the count. The bytes
 // are appended to `kept` when given, else discarded.

@@ -41,14 +41,22 @@ namespace {
 
 }  // namespace
 
-std::vector<std::string> usb_latency_notes(const std::string& device, const std::string& sysfs) {
+std::optional<int> usb_latency_ms(const std::string& device, const std::string& sysfs) {
   std::error_code ec;
   auto real = std::filesystem::canonical(device, ec);
-  if (ec) return {};
-  const std::string name = real.filename().string();
-  std::ifstream f(sysfs + "/bus/usb-serial/devices/" + name + "/latency_timer");
+  if (ec) return std::nullopt;
+  std::ifstream f(sysfs + "/bus/usb-serial/devices/" + real.filename().string() + "/latency_timer");
   int ms = 0;
-  if (!(f >> ms)) return {};
+  if (!(f >> ms)) return std::nullopt;
+  return ms;
+}
+
+std::vector<std::string> usb_latency_notes(const std::string& device, const std::string& sysfs) {
+  auto timer = usb_latency_ms(device, sysfs);
+  if (!timer) return {};
+  std::error_code ec;
+  const std::string name = std::filesystem::canonical(device, ec).filename().string();
+  const int ms = *timer;
   if (ms <= 1)
     return {fmt::format("{}: USB latency timer {} ms: reply times are as fine as the line's", name, ms)};
   return {fmt::format("{}: USB latency timer {} ms: the adapter hands bytes over in batches up to {} ms apart, so reply "
@@ -231,6 +239,7 @@ class RtuTarget final : public Target {
       fd_ = modbus_get_socket(ctx_);
       set_direction_control(u);
       info_.notes = usb_latency_notes(u.path);
+      info_.latency_timer_ms = usb_latency_ms(u.path);
     } else {
       if (u.host.empty() || u.port == 0)
         throw std::invalid_argument(fmt::format("target '{}': needs HOST:PORT, e.g. rtu-tcp://192.168.1.20:4001", uri_text_));
@@ -321,7 +330,9 @@ class RtuTarget final : public Target {
   // Kept until set again (the runner's re-run of a case whose split frame
   // was answered sets a longer pause, then the one it had).
   void set_split_gap(microseconds gap) override {
-    if (!gap_fixed_) split_set_ = gap;
+    if (gap_fixed_) return;
+    if (gap.count() > 0) split_set_ = gap;
+    else split_set_.reset();  // zero: the target's own pause again
   }
 
   void advance(std::chrono::microseconds) override {
@@ -358,6 +369,8 @@ class RtuTarget final : public Target {
     Reply r;
     Bytes waiting;
     if (drain(fd(), &waiting) > 0) take_late(waiting, r);
+    r.sent_at = Clock::now();
+    auto* arrivals = serial_ ? &r.arrivals : nullptr;
     auto t0 = send();
     if (serial_) {
       tcdrain(fd_);
@@ -369,10 +382,16 @@ class RtuTarget final : public Target {
     auto first_by = t0 + (for_reply ? window_.timeout() : window_.window(last_line_));
     auto wire = info_.baud ? wire_time(kMaxRtuAdu, *info_.baud) : microseconds(0);
     auto hard = first_by + window_.timeout() + 2 * wire;
-    auto complete = [](std::span<const uint8_t> b) { return rtu_adu_complete(b, Direction::reply); };
-    ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);
+    // Behind the adapter's echo the reply is complete as soon as it is
+    // whole (not after the end-of-frame silence).
+    auto complete = [&](std::span<const uint8_t> b) {
+      if (rtu_adu_complete(b, Direction::reply)) return true;
+      return echo_ != Echo::off && b.size() > adu.size() && std::equal(adu.begin(), adu.end(), b.begin()) &&
+             rtu_adu_complete(b.subspan(adu.size()), Direction::reply);
+    };
+    ReadResult rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete, arrivals);
     if (echo_ != Echo::off && !rr.closed && strip_echo(adu, r))
-      if (r.frame.empty()) rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);  // the reply follows
+      if (r.frame.empty()) rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete, arrivals);  // the reply follows
     // An earlier request's reply came after its window closed and after
     // this request went out: counted as late (as if drained before it), and
     // this request still waits for its own reply, now behind it on the line.
@@ -384,9 +403,22 @@ class RtuTarget final : public Target {
       r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(late));
       first_by = std::max(first_by, Clock::now() + (for_reply ? window_.timeout() : window_.window(last_line_)));
       hard = first_by + window_.timeout() + 2 * wire;
-      rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete);
+      rr = read_frame(fd_, r.frame, first_by, end_silence_, hard, complete, arrivals);
     }
     if (!rr.closed) take_late_front(adu, r);
+    // Bytes that ended in a silence and are no frame (line noise before the
+    // reply, where the line is slow enough that t3.5 ends the read): the
+    // reply may still follow; it is waited for as long as a silence is.
+    if (!rr.closed && !r.frame.empty() && !whole_frame(r.frame) && serial_) {
+      Bytes more;
+      auto until = std::min(std::max(first_by, Clock::now()), Clock::now() + window_.window(last_line_));
+      ReadResult next = read_frame(fd_, more, until, end_silence_, hard, complete, arrivals);
+      if (!more.empty()) {
+        r.frame.insert(r.frame.end(), more.begin(), more.end());
+        rr = next;
+      }
+    }
+    split_noise(adu, r);
     r.latency = std::chrono::duration_cast<microseconds>((r.frame.empty() ? Clock::now() : rr.last_byte) - t0);
     if (r.frame.empty()) silent_at_ = t0;
     // Replies come in order: theirs would have come first. A reply taken
@@ -428,7 +460,30 @@ class RtuTarget final : public Target {
     // where no reply could be the request: FC 05/06/08/22 need echo=1.
     if (r.frame.size() == adu.size() && may_equal && echo_ == Echo::automatic) return false;
     r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(adu.size()));
+    r.echo_bytes = adu.size();
     return true;
+  }
+
+  // Bytes in front of a reply that are no frame (line noise between frames,
+  // a frame cut short): what read_frame took in before the reply is kept as
+  // noise when the rest is a whole frame, CRC right, that answers `adu`, and
+  // the bytes in front are no frame of their own (MB-SL v1.02 §2.5.1.1: t3.5
+  // of silence ends a frame, so bytes before one belong to no reply; a USB
+  // adapter may hand both over in one batch, so the silence itself is not
+  // required).
+  static void split_noise(const Bytes& adu, Reply& r) {
+    if (r.frame.size() <= kShortestReply || whole_frame(r.frame) == r.frame.size()) return;
+    for (size_t k = 1; k + kShortestReply <= r.frame.size(); ++k) {
+      auto rest = std::span<const uint8_t>(r.frame).subspan(k);
+      auto front = std::span<const uint8_t>(r.frame).first(k);
+      // Noise is no frame: not one ending in its CRC (an echo with echo=0, a reply sent twice), nor one in front.
+      if (k >= kRtuAddress + 1 + kRtuCrc && (crc_ok(front) || whole_frame(front))) break;
+      if (whole_frame(rest) == rest.size() && answers(adu, rest)) {
+        r.noise.assign(r.frame.begin(), r.frame.begin() + ptrdiff_t(k));
+        r.frame.erase(r.frame.begin(), r.frame.begin() + ptrdiff_t(k));
+        return;
+      }
+    }
   }
 
   // rs485=kernel: the driver switches the transceiver (TIOCSRS485, through

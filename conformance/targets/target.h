@@ -38,6 +38,10 @@ struct TargetInfo {
   // What the user should know of how this target was opened (a USB adapter's
   // latency timer, ...), one line each; commands print them.
   std::vector<std::string> notes;
+  // A USB serial adapter's latency timer as read on open (sysfs), in ms: it
+  // hands received bytes over in batches that far apart. Unset: not a USB
+  // adapter, or not readable (a pty, a native UART).
+  std::optional<int> latency_timer_ms;
 };
 
 // One exchange. `frame` is what came back, as received (RTU: slave..CRC;
@@ -64,6 +68,18 @@ struct Reply {
   // One to a frame that had to stay silent (broadcast, another slave id, a
   // corrupted frame: MB-SL v1.02 §2.1, §2.4.2) is that frame's fault.
   std::vector<LateReply> late;
+  // On a serial line (rtu://): when the request's writing began, and each
+  // read of the exchange as it came (when, how many bytes), the adapter's
+  // echo and any line noise included; conformance/timing/ judges a drive's
+  // timing by them (MB-SL v1.02 §2.5.1.1). Empty elsewhere.
+  struct Arrival {
+    std::chrono::steady_clock::time_point at;
+    size_t bytes = 0;
+  };
+  std::chrono::steady_clock::time_point sent_at{};
+  std::vector<Arrival> arrivals;
+  size_t echo_bytes = 0;  // the adapter's echo of the request, stripped from the front
+  Bytes noise;            // bytes before the reply that were no frame (line noise), split off
   bool silent() const { return frame.empty(); }
 };
 
@@ -109,6 +125,7 @@ class Target {
   // receiver that a busy host holds up longer than that reads both parts as
   // one frame; the runner then runs the case again with a longer pause.
   virtual std::optional<std::chrono::microseconds> split_gap() const { return std::nullopt; }
+  // Kept until set again; zero gives back the target's own pause.
   virtual void set_split_gap(std::chrono::microseconds) {}
 
   // How long a negative case waits for silence. Live targets measure their

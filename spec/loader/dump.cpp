@@ -288,6 +288,7 @@ nlohmann::json to_json(const Spec& s) {
   j["timing"] = {{"response_timeout_ms", opt(s.timing.response_timeout_ms)},
                  {"frame_timeout_ms", opt(s.timing.frame_timeout_ms)},
                  {"guard_interval_us", opt(s.timing.guard_interval_us)},
+                 {"response_time_ms", opt(s.timing.response_time_ms)},
                  {"section", s.timing.section}};
   return j;
 }

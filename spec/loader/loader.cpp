@@ -477,7 +477,8 @@ struct Builder {
       const json& t = r["timing"];
       for (auto [key, field] : {std::pair{"response_timeout_ms", &Timing::response_timeout_ms},
                                 std::pair{"frame_timeout_ms", &Timing::frame_timeout_ms},
-                                std::pair{"guard_interval_us", &Timing::guard_interval_us}})
+                                std::pair{"guard_interval_us", &Timing::guard_interval_us},
+                                std::pair{"response_time_ms", &Timing::response_time_ms}})
         if (t.contains(key)) s.timing.*field = t[key].get<double>();
       s.timing.section = str(t, "section");
     }

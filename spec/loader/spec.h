@@ -539,6 +539,9 @@ struct Operations {
 // reply, for the rest of a frame, and between two frames.
 struct Timing {
   std::optional<double> response_timeout_ms, frame_timeout_ms, guard_interval_us;
+  // The drive's own response time, where the manual states one (request's end
+  // to reply's start): conformance/timing/ judges it as a MUST.
+  std::optional<double> response_time_ms;
   std::string section;
 };
 

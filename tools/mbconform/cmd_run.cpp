@@ -35,6 +35,7 @@
 #include "check/text.h"
 #include "safety/safety.h"
 #include "security/security.h"
+#include "timing/timing.h"
 #include "session/session.h"
 #include "session/progress.h"
 #include "session/signals.h"
@@ -282,7 +283,10 @@ int run(RunArgs& a) {
     bool security_kept = false;  // an mbtls:// target also runs conformance/security/'s checks
     if (info.kind == "tls")
       for (const auto& n : conf::security::check_names()) security_kept = security_kept || keep(s.device.id + "/security/" + n);
-    if (cases.empty() && !a.filter.empty() && !security_kept) {
+    bool timing_kept = false;  // an rtu:// target also runs conformance/timing/'s checks
+    if (info.kind == "rtu")
+      for (const auto& k : conf::timing::check_listing()) timing_kept = timing_kept || keep(s.device.id + "/timing/" + k.id);
+    if (cases.empty() && !a.filter.empty() && !security_kept && !timing_kept) {
       fmt::print(stderr, "mbconform run: error: --filter '{}' matches none of the {} cases for {}\n", a.filter,
                  conf::all_cases(g).size(), uri);
       return kExitUsage;
@@ -297,6 +301,11 @@ int run(RunArgs& a) {
           if (keep(s.device.id + "/security/" + k.id))
             fmt::print("{}{}/security/{}  {}  {}  {}  [a TLS check, made on connections of its own]\n", column, s.device.id, k.id,
                        conf::to_string(k.level), k.clause, k.title);
+      if (info.kind == "rtu")
+        for (const auto& k : conf::timing::check_listing())
+          if (keep(s.device.id + "/timing/" + k.id))
+            fmt::print("{}{}/timing/{}  {}  {}  {}  [a timing check, made after the cases; OBSERVED where the line cannot measure it]\n",
+                       column, s.device.id, k.id, conf::to_string(k.level), k.clause, k.title);
       continue;
     }
     if (a.plan) {
@@ -352,6 +361,15 @@ int run(RunArgs& a) {
     conf::DeviceRun dr = conf::run_cases(*session, s, cases, opt);
     // The Modbus/TCP Security checks made before the cases, beside them in the report.
     for (auto& r : security_results) dr.cases.push_back(std::move(r));
+    // A serial line: the RTU timing checks with figures (conformance/timing/), after the cases.
+    if (info.kind == "rtu" && !stop_run && !conf::stop_requested() && timing_kept) {
+      try {
+        for (auto& r : conf::timing::check_line(*target, s))
+          if (keep(r.id)) dr.cases.push_back(std::move(r));
+      } catch (const std::exception& e) {
+        dr.notes.push_back(fmt::format("the timing checks stopped: {}", e.what()));
+      }
+    }
     conf::describe_device(dr, s);
     progress.clear();
     if (info.live) {

@@ -5,10 +5,12 @@
 // one check:
 //   any-transaction  take a Modbus TCP reply whatever its transaction id
 //   no-crc           take an RTU reply whatever its CRC
+//   no-t35           send an RTU frame without t3.5 of silence before it
+//   no-turnaround    go on right after an RTU broadcast, without a turnaround delay
 // It speaks adapter protocol 1 (conformance/client/README.md) over real
 // sockets and a real pty.
 //
-//   broken_master [--defects any-transaction,no-crc]
+//   broken_master [--defects any-transaction,no-crc,no-t35,no-turnaround]
 #include <fcntl.h>
 #include <netdb.h>
 #include <poll.h>
@@ -44,7 +46,7 @@ using namespace std::chrono_literals;
 using namespace mbc;
 
 struct Defects {
-  bool any_transaction = false, no_crc = false;
+  bool any_transaction = false, no_crc = false, no_t35 = false, no_turnaround = false;
 };
 
 class Master {
@@ -96,12 +98,12 @@ class Master {
     if (pdu.size() > kMaxPdu || over_limit(r, f)) return fail(a, "refused", "over the standard's limit");
     uint8_t unit = r.value("unit", 1);
     drain();  // what arrived since the last exchange answers nothing asked now
-    if (rtu_ && baud_) std::this_thread::sleep_for(frame_gap(baud_));  // t3.5 before a frame
+    if (rtu_ && baud_ && !defects_.no_t35) std::this_thread::sleep_for(frame_gap(baud_));  // t3.5 before a frame
     uint16_t tid = ++transaction_;
     Bytes adu = rtu_ ? rtu_frame(unit, pdu) : mbap_frame(tid, unit, pdu);
     if (::write(fd_, adu.data(), adu.size()) != ssize_t(adu.size())) return fail(a, "other", "write failed");
     if (unit == 0 && rtu_) {  // a broadcast: no reply comes (MB-SL v1.02 §2.1); wait the turnaround delay
-      std::this_thread::sleep_for(100ms);
+      if (!defects_.no_turnaround) std::this_thread::sleep_for(100ms);
       return ok(a, json::array());
     }
     auto deadline = Clock::now() + timeout_;
@@ -249,8 +251,10 @@ int main(int argc, char** argv) {
       std::string list = argv[++i];
       d.any_transaction = list.find("any-transaction") != std::string::npos;
       d.no_crc = list.find("no-crc") != std::string::npos;
+      d.no_t35 = list.find("no-t35") != std::string::npos;
+      d.no_turnaround = list.find("no-turnaround") != std::string::npos;
     } else {
-      std::fprintf(stderr, "usage: broken_master [--defects any-transaction,no-crc]\n");
+      std::fprintf(stderr, "usage: broken_master [--defects any-transaction,no-crc,no-t35,no-turnaround]\n");
       return 2;
     }
   }
