@@ -60,6 +60,7 @@ struct Attempt {
   Bytes reply;                  // the PDU answered
   Bytes raw_reply;              // every byte that came back (also when it was no MBAP ADU)
   bool resumed = false;
+  long peer_version = -1;       // X509_get_version of the server's certificate (2: X.509 v3), -1: none seen
   bool close_notify_back = false;  // the server answered our close_notify with its own
   std::string close_text;
   std::shared_ptr<SSL_SESSION> session;  // the session, for a resumption
@@ -134,6 +135,10 @@ Attempt attempt(const ServerUnderTest& s, const Client& c) {
   a.handshake = true;
   a.version = SSL_get_version(ssl);
   a.resumed = SSL_session_reused(ssl) == 1;
+  if (X509* peer = SSL_get1_peer_certificate(ssl)) {
+    a.peer_version = X509_get_version(peer);
+    X509_free(peer);
+  }
   if (!c.request) {
     SSL_shutdown(ssl);
     return finish();
@@ -290,6 +295,25 @@ std::vector<Check> checks() {
       return r.rfind("accepted", 0) == 0 ? fmt::format("accepted: {} was negotiated ({})", name, a.version) : r;
     };
   };
+  // The server's certificate is an X.509 version 3 certificate (§8.1: mutual
+  // authentication by x.509v3 certificates). X509_get_version gives the
+  // encoded value: 0 for v1 (no version field), 2 for v3.
+  v.push_back({"server-certificate-x509v3", hs, "the server's certificate is an X.509 version 3 certificate",
+               "mutual client/server authentication by X.509v3 certificates (§8.1 TLS Handshake; modbus.org: the protocol "
+               "\"leverages X.509v3 digital certificates for authentication of the Server and Client\"); " +
+                   unverified("R-02, R-03"),
+               [](const ServerUnderTest& s, std::string&) -> std::string {
+                 Client c = with_cert(s.files.cert, s.files.key);
+                 c.request = false;
+                 Attempt a = attempt(s, c);
+                 if (!a.handshake) return "error: the handshake with the URI's own certificate failed: " + a.error;
+                 if (a.peer_version < 0) return "error: the server sent no certificate";
+                 if (a.peer_version == 2) return fmt::format("x509v3: {} server certificate is X.509 version 3", a.version);
+                 return fmt::format("not-x509v3: {} server certificate is X.509 version {}, not the x.509v3 certificate "
+                                    "MB-TCP-Security authenticates with",
+                                    a.version, a.peer_version + 1);
+               },
+               Level::must, "x509v3"});
   v.push_back({"tls-1.0-refused", ver, "a client offering only TLS 1.0 is refused",
                "TLS 1.2 or later (§10.1 TLS Version); " + unverified("R-32, R-34"), older(TLS1_VERSION, "TLS 1.0")});
   v.push_back({"tls-1.1-refused", ver, "a client offering only TLS 1.1 is refused",

@@ -105,6 +105,13 @@ leaf server "mbconform test server" server
 leaf server-wrong-host "wrong-host.invalid" wrong_host
 leaf server-untrusted "mbconform untrusted server" server rogue-ca
 expired server-expired "mbconform expired server" server
+# An X.509 version 1 server certificate: `openssl x509 -req` without
+# extensions writes no version 3 field (no SAN either, so its name is the CN,
+# localhost, which OpenSSL's host check reads when there is no SAN).
+key server-v1
+openssl req -new -key server-v1.key -subj "/CN=localhost" -out server-v1.csr 2>/dev/null
+openssl x509 -req -in server-v1.csr -CA ca.crt -CAkey ca.key -CAcreateserial -days 30 -out server-v1.crt 2>/dev/null
+rm -f server-v1.csr
 leaf operator "operator client" operator
 leaf viewer "viewer client" viewer
 leaf no-role "client without a role" no_role

@@ -141,6 +141,7 @@ def test_standard():
     sec = security(report)
     want = {
         "mbap-inside-tls": "mbap",           # §6 Figure 3: the MBAP ADU inside TLS
+        "server-certificate-x509v3": "x509v3",  # §8.1: x.509v3 certificates (make_pki.sh's server.crt is v3)
         "tls-1.0-refused": "refused",        # §10.1: TLS 1.2 or later
         "tls-1.1-refused": "refused",
         "tls-1.2-accepted": "accepted",
@@ -421,12 +422,12 @@ def free_port():
         return so.getsockname()[1]
 
 
-def socat_front(opts):
+def socat_front(opts, cert="server"):
     """`serve --tcp` with socat's OPENSSL-LISTEN in front: a TLS server
     nobody here wrote. Returns (serve, socat, port)."""
     s = Server([MB, "serve", "--device", "modbus-standard", "--tcp", "127.0.0.1:0"], "listening")
     port = free_port()
-    listen = (f"OPENSSL-LISTEN:{port},bind=127.0.0.1,reuseaddr,fork,cert={pki('server.crt')},key={pki('server.key')},"
+    listen = (f"OPENSSL-LISTEN:{port},bind=127.0.0.1,reuseaddr,fork,cert={pki(cert + '.crt')},key={pki(cert + '.key')},"
               + ",".join(opts))
     p = subprocess.Popen(["socat", listen, f"TCP:127.0.0.1:{s.port()}"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     import socket
@@ -528,6 +529,32 @@ def test_pymodbus_client():
     for k, w in want.items():
         check(k in sec and word(sec[k]) == w, f"pymodbus client security/{k}: {w} (got {sec.get(k, {}).get('message')})")
 
+def test_socat_x509v1():
+    """socat serving an X.509 version 1 certificate (`openssl x509 -req`
+    without extensions; make_pki.sh's server-v1.crt, checked here with
+    `openssl x509 -text`): MB-TCP-Security authenticates by x.509v3
+    certificates (§8.1), so server-certificate-x509v3 fails as a MUST, exit 1."""
+    text = subprocess.run(["openssl", "x509", "-in", pki("server-v1.crt"), "-noout", "-text"], capture_output=True, text=True).stdout
+    check("Version: 1 (0x0)" in text, "openssl writes server-v1.crt as an X.509 version 1 certificate")
+    s, p, port = socat_front(["verify=1", f"cafile={pki('ca.crt')}"], cert="server-v1")
+    try:
+        uri = target(port).replace("mbtls://127.0.0.1:", "mbtls://localhost:")
+        r, report = run(uri, os.path.join(OUT, "socat-x509v1"), "--filter", "security")
+    finally:
+        p.terminate()
+        p.wait(10)
+        s.stop()
+    sec = security(report) if report else {}
+    c = sec.get("server-certificate-x509v3", {})
+    check(r.returncode == 1, f"a v1 server certificate: exit 1 (got {r.returncode}: {r.stdout.strip()[-300:]!r})")
+    check(c.get("level") == "MUST" and c.get("outcome") == "fail" and "§8.1" in c.get("clause", "")
+          and "X.509v3" in c.get("requirement", "") and "version 1" in c.get("message", ""),
+          f"security/server-certificate-x509v3: a failed MUST citing §8.1 ({c})")
+    # The same socat with the v3 certificate meets it.
+    r3, sec3 = socat_run(["verify=1", f"cafile={pki('ca.crt')}"], "socat-x509v3")
+    c3 = sec3.get("server-certificate-x509v3", {})
+    check(c3.get("outcome") == "pass" and "version 3" in c3.get("message", ""), f"a v3 server certificate passes ({c3})")
+
 
 tests = {
     "standard": test_standard,
@@ -539,6 +566,7 @@ tests = {
     "pymodbus-client": test_pymodbus_client,
     "socat-no-client-certificate": test_socat_no_client_certificate,
     "socat-tls1.0": test_socat_tls10,
+    "socat-x509v1": test_socat_x509v1,
 }
 tests[TEST]()
 if failures:
