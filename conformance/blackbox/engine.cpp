@@ -411,7 +411,7 @@ std::optional<Step> Generator::malformed(const Bytes& pdu) {
   // RTU over TCP) a frame whose length is wrong swallows the next request
   // (its end is found by counting bytes), so only length-keeping faults.
   if (p_.info.framing != &mbc::kRtu) return std::nullopt;
-  const bool stream = p_.info.kind == "tcp" || p_.info.kind == "rtu-tcp";
+  const bool stream = p_.info.kind == TargetKind::tcp || p_.info.kind == TargetKind::rtu_tcp;
   uint8_t unit = p_.info.unit;
   Step s = check::raw_rtu(rtu_frame(unit, pdu));
   Bytes& a = s.bytes;

@@ -464,7 +464,7 @@ void walk(Session& s, Ctl& m, const std::vector<Write>& path) {
 // states none; a reference target trips one out of band.
 // (Target::trip_fault: a ref: target takes the model's `fault` step; the
 // properties' oracle is still the spec's transitions on event `fault`.)
-bool ref_can_trip(const TargetInfo& t) { return t.kind == "ref" && !t.live; }
+bool ref_can_trip(const TargetInfo& t) { return t.kind == TargetKind::ref && !t.live; }
 bool can_trip(Session& s) { return ref_can_trip(s.target().info()); }
 constexpr const char* kTripNote = "trip: a fault caused out of band (Target::trip_fault)";
 void trip(Session& s) {

@@ -438,7 +438,7 @@ class PluginTarget final : public Target {
     size_t space = hello.find(' ');
     hooks_ = unsigned(std::stoul(hello.substr(0, space)));
 
-    info_.kind = "plugin";
+    info_.kind = TargetKind::plugin;
     info_.framing = &mbc::kRtu;
     info_.unit = uint8_t(unit);
     info_.raw = hooks_ & host::kHasRtu;

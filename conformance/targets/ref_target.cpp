@@ -55,7 +55,7 @@ class RefTarget final : public Target {
       throw std::runtime_error(fmt::format("ref:{}: {}", u.path, e.what()));
     }
     int unit = int_param(u, "unit", s.serial.slave_default.value_or(1), 1, 247);
-    info_.kind = "ref";
+    info_.kind = TargetKind::ref;
     info_.framing = &mbc::kRtu;
     info_.unit = uint8_t(unit);
     info_.virtual_clock = true;

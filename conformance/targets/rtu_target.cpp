@@ -206,7 +206,7 @@ class RtuTarget final : public Target {
     std::optional<int> baud;
     if (serial_ || u.param("baud")) baud = int_param(u, uri_text_, "baud", kDefaultBaud, 300, 4000000);
 
-    info_.kind = u.scheme;
+    info_.kind = u.scheme == "rtu" ? TargetKind::rtu : TargetKind::rtu_tcp;
     info_.framing = &mbc::kRtu;
     info_.unit = uint8_t(unit);
     info_.live = true;

@@ -83,14 +83,43 @@ Uri parse_uri(const std::string& text) {
   return u;
 }
 
+const char* to_string(TargetKind k) {
+  switch (k) {
+    case TargetKind::ref: return "ref";
+    case TargetKind::tcp: return "tcp";
+    case TargetKind::rtu_tcp: return "rtu-tcp";
+    case TargetKind::rtu: return "rtu";
+    case TargetKind::tls: return "tls";
+    case TargetKind::plugin: return "plugin";
+  }
+  return "?";
+}
+
+std::optional<TargetKind> kind_of_scheme(std::string_view scheme) {
+  if (scheme == "ref") return TargetKind::ref;
+  if (scheme == "tcp") return TargetKind::tcp;
+  if (scheme == "rtu-tcp") return TargetKind::rtu_tcp;
+  if (scheme == "rtu") return TargetKind::rtu;
+  if (scheme == "mbtls") return TargetKind::tls;
+  if (scheme == "plugin") return TargetKind::plugin;
+  return std::nullopt;
+}
+
 std::unique_ptr<Target> open_target(const std::string& text) {
   Uri u = parse_uri(text);
-  if (u.scheme == "ref") return make_ref_target(u);
-  if (u.scheme == "tcp" || u.scheme == "rtu-tcp" || u.scheme == "rtu") return make_modbus_target(u);
-  if (u.scheme == "plugin") return make_plugin_target(u);
-  if (u.scheme == "mbtls") return make_tls_target(u);
-  throw std::invalid_argument(
-      fmt::format("target '{}': unknown scheme '{}' (ref, tcp, rtu-tcp, rtu, plugin, mbtls)", text, u.scheme));
+  auto kind = kind_of_scheme(u.scheme);
+  if (!kind)
+    throw std::invalid_argument(
+        fmt::format("target '{}': unknown scheme '{}' (ref, tcp, rtu-tcp, rtu, plugin, mbtls)", text, u.scheme));
+  switch (*kind) {
+    case TargetKind::ref: return make_ref_target(u);
+    case TargetKind::tcp:
+    case TargetKind::rtu_tcp:
+    case TargetKind::rtu: return make_modbus_target(u);
+    case TargetKind::plugin: return make_plugin_target(u);
+    case TargetKind::tls: return make_tls_target(u);
+  }
+  return nullptr;
 }
 
 void decode_rtu_reply(Reply& r, uint8_t slave) {

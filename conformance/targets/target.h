@@ -12,6 +12,7 @@
 #include <stdexcept>
 #include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "modbus/framing.h"
@@ -23,9 +24,18 @@ namespace mbc::conf {
 // on a serial line or over TCP; mbc::kTcp: the MBAP header, on TCP or TLS).
 using Framing = const mbc::Framing*;
 
+// What answers behind a target, by its URI's scheme (mbtls: tls). The one
+// form of the idea: code compares the enum, to_string() gives the name that
+// reports, notes and JSON print.
+enum class TargetKind { ref, tcp, rtu_tcp, rtu, tls, plugin };
+const char* to_string(TargetKind k);  // "ref", "tcp", "rtu-tcp", "rtu", "tls", "plugin"
+// The kind a URI scheme opens ("mbtls" opens tls); nullopt for a scheme no
+// target kind takes.
+std::optional<TargetKind> kind_of_scheme(std::string_view scheme);
+
 struct TargetInfo {
   std::string uri;        // as given (normalised)
-  std::string kind;       // ref | tcp | rtu-tcp | rtu | plugin
+  TargetKind kind = TargetKind::ref;
   Framing framing = &mbc::kRtu;
   uint8_t unit = 1;       // the slave id / unit id cases address
   bool live = false;      // a real device: the safety rules apply

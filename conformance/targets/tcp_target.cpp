@@ -47,7 +47,7 @@ class TcpTarget final : public Target {
     if (u.param("silence")) fixed = milliseconds(int_param(u, base, "silence", 0, 1, 60000));
     window_ = SilenceWindow(timeout_, false, fixed);
     info_.uri = fmt::format("{}?unit={}", base, unit);
-    info_.kind = "tcp";
+    info_.kind = TargetKind::tcp;
     info_.framing = &mbc::kTcp;
     info_.unit = uint8_t(unit);
     info_.live = true;

@@ -50,7 +50,7 @@ class TlsTarget final : public Target {
       if (auto v = u.param(k)) inner.query.emplace_back(k, *v);
     tcp_ = make_tcp_target(inner);
     info_ = tcp_->info();
-    info_.kind = "tls";
+    info_.kind = TargetKind::tls;
     info_.uri = fmt::format("{}?unit={}", base, info_.unit);
   }
 

@@ -116,7 +116,7 @@ int run_fuzz(FuzzArgs& a) {
   o.seed = a.seed.value_or(uint64_t(std::chrono::steady_clock::now().time_since_epoch().count()));
   o.batch = a.batch;
   o.depth = size_t(a.pipeline);
-  o.isolate = info.kind == "plugin";
+  o.isolate = info.kind == conf::TargetKind::plugin;
   o.journal = (fs::path(a.t.out) / ".journal").string();
   if (!quirks.empty()) o.declared = [&](const std::string& sig) { return quirks.for_kind(sig) != nullptr; };
   o.stopped = [&] { return session.stopped().has_value(); };

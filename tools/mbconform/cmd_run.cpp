@@ -93,9 +93,13 @@ conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   conf::Uri u = conf::parse_uri(uri);
   conf::TargetInfo i;
   i.uri = uri;
-  i.kind = u.scheme == "mbtls" ? "tls" : u.scheme;
-  i.framing = u.scheme == "tcp" || u.scheme == "mbtls" ? &mbc::kTcp : &mbc::kRtu;
-  i.live = u.scheme != "ref" && u.scheme != "plugin";
+  auto kind = conf::kind_of_scheme(u.scheme);
+  if (!kind)
+    throw std::invalid_argument(
+        fmt::format("target '{}': unknown scheme '{}' (ref, tcp, rtu-tcp, rtu, plugin, mbtls)", uri, u.scheme));
+  i.kind = *kind;
+  i.framing = i.kind == conf::TargetKind::tcp || i.kind == conf::TargetKind::tls ? &mbc::kTcp : &mbc::kRtu;
+  i.live = i.kind != conf::TargetKind::ref && i.kind != conf::TargetKind::plugin;
   i.raw = true;  // every kind sends raw frames in its own framing (tcp: raw MBAP), as the opened target says
   i.unit = uint8_t(std::stoi(u.param("unit").value_or(std::to_string(s.serial.slave_default.value_or(1)))));
   if (auto b = u.param("baud")) i.baud = std::stoi(*b);
@@ -235,7 +239,7 @@ int run(RunArgs& a) {
     // be done".
     std::vector<conf::CaseResult> security_results;
     bool no_mbap = false;
-    if (info.kind == "tls" && target && !dry && !conf::stop_requested()) {
+    if (info.kind == conf::TargetKind::tls && target && !dry && !conf::stop_requested()) {
       for (auto& r : conf::security::check_server(conf::security::from_uri(uri), s.device.id)) {
         bool mbap_failed = r.id == s.device.id + "/security/mbap-inside-tls" && r.outcome == conf::Outcome::fail;
         no_mbap = no_mbap || mbap_failed;
@@ -281,7 +285,7 @@ int run(RunArgs& a) {
     std::vector<conf::Case> cases;
     cases = conf::select_cases(conf::all_cases(g), a.filter, pattern_for(a.filter));
     bool security_kept = false;  // an mbtls:// target also runs conformance/security/'s checks
-    if (info.kind == "tls")
+    if (info.kind == conf::TargetKind::tls)
       for (const auto& n : conf::security::check_names()) security_kept = security_kept || keep(s.device.id + "/security/" + n);
     bool timing_kept = false;  // an rtu:// target also runs conformance/timing/'s checks
     if (info.kind == "rtu")
@@ -296,7 +300,7 @@ int run(RunArgs& a) {
       for (const auto& c : cases)
         fmt::print("{}{}  {}  {}  {}{}\n", column, c.id, conf::to_string(c.level), c.clause, c.title,
                    c.skip_reason.empty() ? "" : "  [skip: " + c.skip_reason + "]");
-      if (info.kind == "tls")
+      if (info.kind == conf::TargetKind::tls)
         for (const auto& k : conf::security::check_listing())
           if (keep(s.device.id + "/security/" + k.id))
             fmt::print("{}{}/security/{}  {}  {}  {}  [a TLS check, made on connections of its own]\n", column, s.device.id, k.id,
@@ -319,7 +323,7 @@ int run(RunArgs& a) {
         for (const auto& l : conf::check::case_lines(c, info.framing)) fmt::print("{}\n", l);
       }
       for (const auto& b : conf::cases::planned_broadcast_writes(cases)) fmt::print("# every drive on the line receives: {}\n", b);
-      if (info.kind == "tls") {
+      if (info.kind == conf::TargetKind::tls) {
         // Connections of their own, not frames of this plan: `run` makes them after the cases; replay does not.
         bool any = false;
         for (const auto& k : conf::security::check_listing())

@@ -77,7 +77,7 @@ bool write_file(const fs::path& p, const std::string& text) {
 // only because a fact they rely on is inferred (cases/facts.h), with the facts.
 nlohmann::json observed_by_inference(const spec::Spec& s, const spec::Spec& standard) {
   conf::TargetInfo info;
-  info.kind = "ref";
+  info.kind = conf::TargetKind::ref;
   info.uri = "ref:" + s.device.id;
   info.unit = uint8_t(s.serial.slave_default.value_or(s.serial.slave_min));
   info.virtual_clock = info.power_cycle = info.raw = true;

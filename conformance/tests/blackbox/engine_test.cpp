@@ -24,7 +24,7 @@ using K = check::Expect::Kind;
 TargetInfo live_rtu(uint8_t unit) {
   TargetInfo i;
   i.uri = "rtu:///dev/null";
-  i.kind = "rtu";
+  i.kind = conf::TargetKind::rtu;
   i.framing = &mbc::kRtu;
   i.unit = unit;
   i.live = true;
@@ -109,7 +109,7 @@ TEST(Generator, SameSeedSameSteps) {
 TEST(Generator, TcpTargetGetsNoRtuBytes) {
   spec::Spec s = spec::load_spec_by_id("modbus-standard");
   TargetInfo i = live_rtu(1);
-  i.kind = "tcp";
+  i.kind = conf::TargetKind::tcp;
   i.framing = &mbc::kTcp;
   Plan p = make_plan(s, i, WritePolicy{});
   Generator gen(p, 3);

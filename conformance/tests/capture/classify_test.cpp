@@ -217,7 +217,7 @@ TEST(Classify, EveryGeneratedPolicyCaseBreaksWhatItSays) {
     spec::Spec s = spec::load_spec_by_id(id);
     TargetInfo t;
     t.uri = std::string("ref:") + id;
-    t.kind = "ref";
+    t.kind = conf::TargetKind::ref;
     t.virtual_clock = t.power_cycle = t.raw = true;
     GenContext g{s, t, {}, &standard(), std::nullopt};
     for (const Case& c : all_cases(g)) {

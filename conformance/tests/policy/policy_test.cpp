@@ -20,7 +20,7 @@ using spec::Table;
 
 TargetInfo live(uint8_t unit = 1, Framing framing = &mbc::kRtu) {
   TargetInfo i;
-  i.kind = framing == &mbc::kRtu ? "rtu" : "tcp";
+  i.kind = framing == &mbc::kRtu ? conf::TargetKind::rtu : conf::TargetKind::tcp;
   i.framing = framing;
   i.live = true;
   i.raw = true;

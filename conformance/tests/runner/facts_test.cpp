@@ -37,7 +37,7 @@ spec::Spec fixture() {
 TargetInfo full_target() {
   TargetInfo t;
   t.uri = "ref:fixture";
-  t.kind = "ref";
+  t.kind = conf::TargetKind::ref;
   t.framing = &mbc::kRtu;
   t.virtual_clock = t.power_cycle = t.raw = true;
   return t;

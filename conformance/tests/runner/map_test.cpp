@@ -124,7 +124,7 @@ class BitsPastTheEnd : public Target {
  public:
   BitsPastTheEnd() {
     info_.uri = "fake:bits-past-end";
-    info_.kind = "ref";
+    info_.kind = conf::TargetKind::ref;
   }
   const TargetInfo& info() const override { return info_; }
   Reply transact(uint8_t, std::span<const uint8_t> pdu) override {

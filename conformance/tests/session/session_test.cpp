@@ -45,7 +45,7 @@ using namespace std::chrono_literals;
 
 TargetInfo live_rtu(uint8_t unit) {
   TargetInfo i;
-  i.kind = "rtu";
+  i.kind = conf::TargetKind::rtu;
   i.live = true;
   i.raw = true;
   i.unit = unit;

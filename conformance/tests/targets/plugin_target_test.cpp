@@ -67,7 +67,7 @@ class PluginTarget : public ::testing::Test {
 
 TEST_F(PluginTarget, InfoFollowsTheHooksThePluginHas) {
   const TargetInfo& i = target->info();
-  EXPECT_EQ(i.kind, "plugin");
+  EXPECT_EQ(i.kind, conf::TargetKind::plugin);
   EXPECT_EQ(i.device_id, kDevice);
   EXPECT_EQ(i.unit, slave);
   EXPECT_TRUE(i.raw);             // handle_rtu

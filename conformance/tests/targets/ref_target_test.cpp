@@ -41,6 +41,22 @@ TEST(Uri, SplitsSchemeAuthorityPathAndQuery) {
   EXPECT_EQ(plugin.param("config"), "slave=1,holding=0:16");
 }
 
+// The kind is named by its URI scheme, and printed by the name the scheme
+// spells (mbtls opens a tls target); a scheme no kind takes is no kind.
+TEST(TargetKind, EachSchemeNamesItsKindAndItsPrintedName) {
+  const std::pair<const char*, const char*> schemes[] = {{"ref", "ref"}, {"tcp", "tcp"},     {"rtu-tcp", "rtu-tcp"},
+                                                         {"rtu", "rtu"}, {"mbtls", "tls"},   {"plugin", "plugin"}};
+  for (const auto& [scheme, name] : schemes) {
+    auto k = kind_of_scheme(scheme);
+    ASSERT_TRUE(k) << scheme;
+    EXPECT_STREQ(to_string(*k), name) << scheme;
+  }
+  EXPECT_NE(kind_of_scheme("rtu"), kind_of_scheme("rtu-tcp"));
+  EXPECT_FALSE(kind_of_scheme("tls"));  // the scheme is mbtls
+  EXPECT_FALSE(kind_of_scheme("modbus"));
+  EXPECT_THROW(open_target("modbus://127.0.0.1:502"), std::invalid_argument);
+}
+
 TEST(Uri, RejectsMalformedText) {
   for (const char* bad : {"hsc60", ":hsc60", "tcp://[::1", "tcp://host:0", "tcp://host:port", "tcp://host:70000"})
     EXPECT_THROW(parse_uri(bad), std::invalid_argument) << bad;
@@ -74,7 +90,7 @@ class RefTarget : public ::testing::TestWithParam<std::string> {
 
 TEST_P(RefTarget, InfoCarriesTheSpec) {
   const TargetInfo& i = target->info();
-  EXPECT_EQ(i.kind, "ref");
+  EXPECT_EQ(i.kind, conf::TargetKind::ref);
   EXPECT_EQ(i.device_id, spec.device.id);
   EXPECT_EQ(i.unit, spec.serial.slave_default.value_or(1));
   EXPECT_EQ(i.baud, spec.serial.baud_default);
