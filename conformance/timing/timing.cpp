@@ -35,7 +35,7 @@ double median(std::vector<double> v) {
 
 LineFacts line_facts(const TargetInfo& info) {
   LineFacts f;
-  f.serial = info.kind == "rtu" && info.baud.has_value();
+  f.serial = info.kind == conf::TargetKind::rtu && info.baud.has_value();
   f.latency_timer_ms = info.latency_timer_ms;
   if (!info.baud) return f;
   try {
@@ -272,7 +272,7 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
   const double resolution = batch && *batch > 1 ? *batch * 1000.0 : 0.0;  // how late a read may show a byte
   std::string why_not;  // empty: the line can measure character timing
   if (!f.serial)
-    why_not = info.kind == "rtu-tcp" ? "RTU over TCP: the gateway re-times the frames, so their timing is the gateway's"
+    why_not = info.kind == conf::TargetKind::rtu_tcp ? "RTU over TCP: the gateway re-times the frames, so their timing is the gateway's"
                                      : "not a serial line";
   else if (timed.empty())
     why_not = "no reply could be timed";

@@ -288,7 +288,7 @@ int run(RunArgs& a) {
     if (info.kind == conf::TargetKind::tls)
       for (const auto& n : conf::security::check_names()) security_kept = security_kept || keep(s.device.id + "/security/" + n);
     bool timing_kept = false;  // an rtu:// target also runs conformance/timing/'s checks
-    if (info.kind == "rtu")
+    if (info.kind == conf::TargetKind::rtu)
       for (const auto& k : conf::timing::check_listing()) timing_kept = timing_kept || keep(s.device.id + "/timing/" + k.id);
     if (cases.empty() && !a.filter.empty() && !security_kept && !timing_kept) {
       fmt::print(stderr, "mbconform run: error: --filter '{}' matches none of the {} cases for {}\n", a.filter,
@@ -305,7 +305,7 @@ int run(RunArgs& a) {
           if (keep(s.device.id + "/security/" + k.id))
             fmt::print("{}{}/security/{}  {}  {}  {}  [a TLS check, made on connections of its own]\n", column, s.device.id, k.id,
                        conf::to_string(k.level), k.clause, k.title);
-      if (info.kind == "rtu")
+      if (info.kind == conf::TargetKind::rtu)
         for (const auto& k : conf::timing::check_listing())
           if (keep(s.device.id + "/timing/" + k.id))
             fmt::print("{}{}/timing/{}  {}  {}  {}  [a timing check, made after the cases; OBSERVED where the line cannot measure it]\n",
@@ -366,7 +366,7 @@ int run(RunArgs& a) {
     // The Modbus/TCP Security checks made before the cases, beside them in the report.
     for (auto& r : security_results) dr.cases.push_back(std::move(r));
     // A serial line: the RTU timing checks with figures (conformance/timing/), after the cases.
-    if (info.kind == "rtu" && !stop_run && !conf::stop_requested() && timing_kept) {
+    if (info.kind == conf::TargetKind::rtu && !stop_run && !conf::stop_requested() && timing_kept) {
       try {
         for (auto& r : conf::timing::check_line(*target, s))
           if (keep(r.id)) dr.cases.push_back(std::move(r));
