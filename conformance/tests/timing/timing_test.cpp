@@ -36,7 +36,7 @@ using Clock = std::chrono::steady_clock;
 
 LineFacts at9600() {
   TargetInfo info;
-  info.kind = "rtu";
+  info.kind = conf::TargetKind::rtu;
   info.baud = 9600;
   info.uri = "rtu:///dev/null?baud=9600&parity=E&data=8&stop=1&unit=1";
   return line_facts(info);
@@ -67,7 +67,7 @@ TEST(TimingJudge, LineFactsFollowTheStandard) {
   EXPECT_EQ(f.t15.count(), 1719);          // 1.5 x 11 bits at 9600 baud
   EXPECT_EQ(f.t35.count(), 4010);          // 3.5 x 11 bits (tmodbus #145's 4.01 ms)
   TargetInfo fast;
-  fast.kind = "rtu";
+  fast.kind = conf::TargetKind::rtu;
   fast.baud = 115200;
   fast.uri = "rtu:///dev/null?baud=115200&parity=N&data=8&stop=1";
   LineFacts g = line_facts(fast);
@@ -75,7 +75,7 @@ TEST(TimingJudge, LineFactsFollowTheStandard) {
   EXPECT_EQ(g.t35.count(), 1750);
   EXPECT_NEAR(g.char_us, 10e6 / 115200, 1);  // 8N1: ten bits
   TargetInfo gw;
-  gw.kind = "rtu-tcp";
+  gw.kind = conf::TargetKind::rtu_tcp;
   EXPECT_FALSE(line_facts(gw).serial);
 }
 
