@@ -217,6 +217,9 @@ void apply_fault(const Control& c, Ctl& m) {
     if (!moved) next.insert(s);
   }
   m.states = std::move(next);
+  // The drive wrote what it detected (57HS-R: the alarm code a transition's
+  // `when` reads): those registers are unknown now.
+  for (auto& [key, value] : m.values) value = std::nullopt;
 }
 
 std::string states_text(const Control& c, const std::set<std::string>& states) {
@@ -379,8 +382,13 @@ Ctl initial(Session& s, bool setpoints_zero = true) {
   Ctl m;
   if (setpoints_zero) zero_setpoints(s);
   m.zeroed = s.zeroed();
-  for (const auto& cmd : c.commands)
-    if (!m.last.count(cmd.register_key)) m.last[cmd.register_key] = uint16_t(read_value(s, cmd.register_key, "the initial model"));
+  // The last word of each command register; one the spec makes write-only
+  // (access wo) cannot be read: unknown (only an edge needs it).
+  for (const auto& cmd : c.commands) {
+    if (m.last.count(cmd.register_key)) continue;
+    if (reg(s, cmd.register_key).access == spec::Access::wo) m.last[cmd.register_key] = std::nullopt;
+    else m.last[cmd.register_key] = uint16_t(read_value(s, cmd.register_key, "the initial model"));
+  }
   for (const auto& t : c.transitions)
     for (const auto& w : t.when)
       if (!m.values.count(w.register_key)) m.values[w.register_key] = read_value(s, w.register_key, "the initial model");
