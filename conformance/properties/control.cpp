@@ -626,7 +626,7 @@ void stop_from_motion(Session& s) {
   walk(s, m, node.path);
   if (axis.mode && !axis.mode->start_command.empty())
     if (const ControlCommand* start = c.command(axis.mode->start_command)) {
-      Write up{start->register_key, uint16_t(*m.last[start->register_key] | start->word()), start->id};
+      Write up{start->register_key, uint16_t(m.last[start->register_key].value_or(0) | start->word()), start->id};
       write_checked(s, reg(s, up.key), up.word, {}, fmt::format("{} = 0x{:04X} (start: {})", up.key, up.word, start->id));
       m.last[up.key] = up.word;
     }
