@@ -771,6 +771,16 @@ std::vector<Invariant> control_invariants() {
            return "the spec's control names no command that stops (stops: true)";
          if (std::none_of(c.states.begin(), c.states.end(), [](const ControlState& x) { return x.motion; }))
            return "the spec's control has no moving state (motion: true)";
+         // A position move whose distance is its start command's own word (Rieding 0804H), not a set-point the
+         // property chooses: how long it runs is not known, so the stop cannot be timed against it.
+         if (Axis a = moving_mode(c); a.mode && !a.speed)
+           if (const ControlCommand* start = c.command(a.mode->start_command);
+               start && std::find(a.mode->setpoint_keys.begin(), a.mode->setpoint_keys.end(), start->register_key) ==
+                            a.mode->setpoint_keys.end() &&
+               std::any_of(c.commands.begin(), c.commands.end(), [&](const ControlCommand& x) { return x.id == start->id && x.write; }))
+             return fmt::format("the moving mode {} starts with {}, a fixed word to {} that is no set-point: the move's length "
+                                "is the command's, not one the property can choose long enough to stop",
+                                a.mode->id, start->id, start->register_key);
          if (t.live && !v.policy_facts().opt_ins.allow_motion) return "moves the axis: needs --allow-motion";
          if (t.live) return "live target: the axis is not sampled in real time yet";
          return "";
