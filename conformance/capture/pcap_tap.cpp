@@ -91,6 +91,7 @@ class TapTarget : public Target {
   }
   void advance(std::chrono::microseconds dt) override { inner_->advance(dt); }
   void power_cycle() override { inner_->power_cycle(); }
+  bool trip_fault() override { return inner_->trip_fault(); }
 
   ~TapTarget() override {
     if (conv_) {

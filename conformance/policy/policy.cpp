@@ -319,6 +319,14 @@ std::string control_motion(const PolicyFacts& p, std::span<const uint8_t> pdu) {
     for (int k = 0; k < w->count && w->address + k <= 0xFFFF; ++k) words.emplace_back(uint16_t(w->address + k), std::nullopt);
   }
   const std::set<uint16_t> setpoints = control_setpoints(s);
+  // A mode with no start command follows its set-points at once (CiA 402
+  // profile velocity): a non-zero one moves. A mode with one moves on its start.
+  std::set<uint16_t> followed;
+  for (const auto& mode : c.modes)
+    if (mode.start_command.empty())
+      for (const auto& key : mode.setpoint_keys)
+        if (const Register* r = s.find_by_key(key))
+          for (int k = 0; k < r->words; ++k) followed.insert(uint16_t(r->address + k));
   const bool all_zero = std::all_of(setpoints.begin(), setpoints.end(), [&](uint16_t a) { return p.zeroed.count(a) > 0; });
   std::set<std::string> starts;
   for (const auto& mode : c.modes)
@@ -326,7 +334,7 @@ std::string control_motion(const PolicyFacts& p, std::span<const uint8_t> pdu) {
   for (const auto& [address, word] : words) {
     const Register* r = s.register_covering(address);
     if (!r) continue;
-    if (setpoints.count(address) && (!word || *word != 0))
+    if (followed.count(address) && (!word || *word != 0))
       return fmt::format("FC {:02X} to {}: a non-zero set-point of the drive's control (spec control.modes)", pdu[0], label(*r));
     for (const auto& cmd : c.commands) {
       if (cmd.register_key != r->key) continue;

@@ -97,7 +97,8 @@ spec::Role role_of(const spec::Spec&, const spec::Register&);
 // Why a write moves the axis by the spec's control (`control:`), or empty:
 // a word that gives a command with `motion: true` (unless every set-point is
 // in `zeroed`) or a mode's start command (a start moves to any set-point,
-// 0 too), or a non-zero value written to a mode's set-point. Mode
+// 0 too), or a non-zero value written to a set-point of a mode with no start
+// command (it follows its set-points at once). Mode
 // selection, and commands that do not move, are not motion.
 std::string control_motion(const PolicyFacts&, std::span<const uint8_t> pdu);
 // The set-point registers of the spec's control modes (every word's address).

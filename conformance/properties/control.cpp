@@ -217,6 +217,9 @@ void apply_fault(const Control& c, Ctl& m) {
     if (!moved) next.insert(s);
   }
   m.states = std::move(next);
+  // The drive wrote what it detected (57HS-R: the alarm code a transition's
+  // `when` reads): those registers are unknown now.
+  for (auto& [key, value] : m.values) value = std::nullopt;
 }
 
 std::string states_text(const Control& c, const std::set<std::string>& states) {
@@ -379,8 +382,13 @@ Ctl initial(Session& s, bool setpoints_zero = true) {
   Ctl m;
   if (setpoints_zero) zero_setpoints(s);
   m.zeroed = s.zeroed();
-  for (const auto& cmd : c.commands)
-    if (!m.last.count(cmd.register_key)) m.last[cmd.register_key] = uint16_t(read_value(s, cmd.register_key, "the initial model"));
+  // The last word of each command register; one the spec makes write-only
+  // (access wo) cannot be read: unknown (only an edge needs it).
+  for (const auto& cmd : c.commands) {
+    if (m.last.count(cmd.register_key)) continue;
+    if (reg(s, cmd.register_key).access == spec::Access::wo) m.last[cmd.register_key] = std::nullopt;
+    else m.last[cmd.register_key] = uint16_t(read_value(s, cmd.register_key, "the initial model"));
+  }
   for (const auto& t : c.transitions)
     for (const auto& w : t.when)
       if (!m.values.count(w.register_key)) m.values[w.register_key] = read_value(s, w.register_key, "the initial model");
@@ -618,7 +626,7 @@ void stop_from_motion(Session& s) {
   walk(s, m, node.path);
   if (axis.mode && !axis.mode->start_command.empty())
     if (const ControlCommand* start = c.command(axis.mode->start_command)) {
-      Write up{start->register_key, uint16_t(*m.last[start->register_key] | start->word()), start->id};
+      Write up{start->register_key, uint16_t(m.last[start->register_key].value_or(0) | start->word()), start->id};
       write_checked(s, reg(s, up.key), up.word, {}, fmt::format("{} = 0x{:04X} (start: {})", up.key, up.word, start->id));
       m.last[up.key] = up.word;
     }
@@ -763,6 +771,16 @@ std::vector<Invariant> control_invariants() {
            return "the spec's control names no command that stops (stops: true)";
          if (std::none_of(c.states.begin(), c.states.end(), [](const ControlState& x) { return x.motion; }))
            return "the spec's control has no moving state (motion: true)";
+         // A position move whose distance is its start command's own word (Rieding 0804H), not a set-point the
+         // property chooses: how long it runs is not known, so the stop cannot be timed against it.
+         if (Axis a = moving_mode(c); a.mode && !a.speed)
+           if (const ControlCommand* start = c.command(a.mode->start_command);
+               start && std::find(a.mode->setpoint_keys.begin(), a.mode->setpoint_keys.end(), start->register_key) ==
+                            a.mode->setpoint_keys.end() &&
+               std::any_of(c.commands.begin(), c.commands.end(), [&](const ControlCommand& x) { return x.id == start->id && x.write; }))
+             return fmt::format("the moving mode {} starts with {}, a fixed word to {} that is no set-point: the move's length "
+                                "is the command's, not one the property can choose long enough to stop",
+                                a.mode->id, start->id, start->register_key);
          if (t.live && !v.policy_facts().opt_ins.allow_motion) return "moves the axis: needs --allow-motion";
          if (t.live) return "live target: the axis is not sampled in real time yet";
          return "";

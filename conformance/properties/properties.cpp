@@ -352,6 +352,11 @@ TargetSource source_for(const std::string& uri, const spec::Spec* spec_override)
         bool reconnect() override { return t->reconnect(); }
         void advance(std::chrono::microseconds dt) override { t->advance(dt); }
         void power_cycle() override { t->power_cycle(); }
+        bool trip_fault() override { return t->trip_fault(); }
+        std::vector<Reply> transact_all(std::span<const Request> r, size_t depth) override { return t->transact_all(r, depth); }
+        bool pipelines() const override { return t->pipelines(); }
+        std::optional<std::chrono::microseconds> split_gap() const override { return t->split_gap(); }
+        void set_split_gap(std::chrono::microseconds g) override { t->set_split_gap(g); }
       };
       return std::unique_ptr<Target>(new Borrowed(first));
     };

@@ -170,6 +170,10 @@ class Session::View final : public Target {
     s_.check_running();
     inner_->power_cycle();
   }
+  bool trip_fault() override {
+    s_.check_running();
+    return inner_->trip_fault();
+  }
 
  private:
   Reply take(Sent sent) {

@@ -127,6 +127,18 @@ class Hanstar7trsm5740q : public Behaviour {
     publish(d);
   }
 
+  // Out of band (Device::trip_fault): while homing, the search ends without
+  // the zero signal (表 M01 0x1, §5.2); otherwise, once a command defined the
+  // status, the UP switch is met running forward (表 M01 0x6, §5.3: 减速停止并给出
+  // 报警信号). Before the first command (0xFF) the manual gives no alarm.
+  bool trip_fault(Device& d) override {
+    if (undefined_) return true;  // nothing the status can show
+    if (homing_ != Homing::off) homing_over(d, false);
+    else limit_stop(d, +1);
+    publish(d);
+    return true;
+  }
+
  private:
   enum class Homing { off, release, search };
   enum class Arrival { off, up, down };

@@ -25,7 +25,7 @@ namespace mbc::ref {
 namespace {
 
 // 四 驱动器状态寄存器 (75).
-constexpr uint16_t kPositiveLimitBit = 1u << 4, kNegativeLimitBit = 1u << 5, kMotionCompleteBit = 1u << 7;
+constexpr uint16_t kOverCurrentBit = 1u << 0, kPositiveLimitBit = 1u << 4, kNegativeLimitBit = 1u << 5, kMotionCompleteBit = 1u << 7;
 // 四 驱动器控制寄存器 (73): limit signal levels.
 constexpr uint16_t kPositiveLevelBit = 1u << 0, kNegativeLevelBit = 1u << 1;
 // 四 register 70 commands.
@@ -39,6 +39,7 @@ constexpr uint64_t kCommandTime = 10'000;  // us: how long a save or reset reads
 class Hsc60 : public Behaviour {
  public:
   void power_on(Device& d) override {
+    alarm_ = 0;  // the manual prints no alarm reset: a power cycle clears it
     pulse_origin_ = 0;
     save_left_ = reset_left_ = 0;
     publish(d);
@@ -58,6 +59,16 @@ class Hsc60 : public Behaviour {
   }
 
   void before_read(Device& d, uint16_t, uint16_t) override { publish(d); }
+
+  // Out of band (Device::trip_fault): an over-current (75 bit 0); the motor
+  // stops at once. The manual prints what the drive does on an alarm nowhere
+  // else, and no reset: the bit stays until power is cycled.
+  bool trip_fault(Device& d) override {
+    alarm_ |= kOverCurrentBit;
+    d.axis().emergency_stop();
+    publish(d);
+    return true;
+  }
 
   void advance(Device& d, uint64_t dt_us) override {
     refuse_limited_travel(d);
@@ -116,7 +127,7 @@ class Hsc60 : public Behaviour {
 
   void publish(Device& d) {
     const Axis& axis = d.axis();
-    uint16_t status = (axis.moving() ? 0 : kMotionCompleteBit) | (positive_limit(d) ? kPositiveLimitBit : 0) |
+    uint16_t status = alarm_ | (axis.moving() ? 0 : kMotionCompleteBit) | (positive_limit(d) ? kPositiveLimitBit : 0) |
                       (negative_limit(d) ? kNegativeLimitBit : 0);
     d.set_value_of("status", status);
     // 32-bit counters, two's complement when the axis is below its origin.
@@ -129,6 +140,7 @@ class Hsc60 : public Behaviour {
     d.set_value_of("factory_reset", reset_left_ ? 1 : 0);
   }
 
+  uint16_t alarm_ = 0;  // 75 bits 0, 1, 3
   int64_t pulse_origin_ = 0;
   uint64_t save_left_ = 0, reset_left_ = 0;
 };

@@ -46,6 +46,7 @@ constexpr uint16_t kModeMask = 0x000F, kDirectionShift = 4, kDirectionMask = 0x3
 enum Mode { kPositionMode = 0, kSpeedMode = 1, kTorqueMode = 2 };
 enum Direction { kStop = 0, kForward = 1, kReverse = 2 };
 constexpr int kCountsPerLine = 4;  // quadrature decoding of PN-111
+constexpr int kUndervoltage = 0x0A;  // 附表二 LU
 
 class RiedingDhe : public Behaviour {
  public:
@@ -75,6 +76,15 @@ class RiedingDhe : public Behaviour {
     d.axis().advance(double(dt_us) * 1e-6);
     if (mode(d) == kPositionMode) command_pulses_ += d.axis().position() - before;
     publish(d);
+  }
+
+  // Out of band (Device::trip_fault): LU 欠压 (附表二 code 0x0A, 可以恢复); the
+  // motor stops at once, as with every fault.
+  bool trip_fault(Device& d) override {
+    d.set_value_of("fault_code", kUndervoltage);
+    d.axis().emergency_stop();
+    publish(d);
+    return true;
   }
 
  private:

@@ -43,6 +43,8 @@ constexpr int kHomeInput = 1, kPositiveLimitInput = 2, kNegativeLimitInput = 3;
 constexpr int kAlarmOutput = 1, kHomedOutput = 3, kInPositionOutput = 4;
 // §6.1 0x0005: 0 = counter-clockwise (positive), 1 = clockwise (negative).
 constexpr int kNegativeDirection = 1;
+// §8 alarm codes (0x0006).
+constexpr int kOverVoltageAlarm = 2;
 constexpr int kInputs = 4, kOutputs = 2;  // X0~X3, Y0~Y1 (§4.2.2)
 
 class Sihong57hsR : public Behaviour {
@@ -69,7 +71,7 @@ class Sihong57hsR : public Behaviour {
       else
         d.axis().stop(stop_decel_);  // §7.6.2 注意: the decel time set before the move
     }
-    if (wrote("enable")) {
+    if (wrote("enable") && !alarm_) {  // §8 锁机: an alarm holds the motor released until cleared
       enabled_ = d.value_of("enable") == 1;
       if (!enabled_) {
         homing_ = Homing::off;
@@ -88,6 +90,18 @@ class Sihong57hsR : public Behaviour {
   }
 
   void before_read(Device& d, uint16_t, uint16_t) override { publish(d); }
+
+  // Out of band (Device::trip_fault): Err2 电源电压过高 (§8, 锁机/自动恢复). The
+  // drive cuts the motor current on the alarm (our reading: §8 says 锁机), so
+  // it reads released; 0x002A = 1 clears the code and leaves it released.
+  bool trip_fault(Device& d) override {
+    alarm_ = kOverVoltageAlarm;
+    enabled_ = false;
+    homing_ = Homing::off;
+    d.axis().emergency_stop();
+    publish(d);
+    return true;
+  }
 
   void advance(Device& d, uint64_t dt_us) override {
     double left = double(dt_us) * 1e-6;

@@ -67,7 +67,11 @@ ControlExecutor::Decision ControlExecutor::decide(const Device& d, const std::st
       uint16_t bits = c.edge_mask ? c.edge_mask : c.mask;
       gives = (uint16_t(~last) & word & bits) == bits;
     }
-    if (tweak_) gives = tweak_->selected(*this, c, last, word, gives);
+    if (tweak_) {
+      const bool model = gives;
+      gives = tweak_->selected(*this, c, last, word, model);
+      if (gives != model) out.bent = true;
+    }
     if (!gives) continue;
     const spec::ControlTransition* model = nullptr;
     for (const spec::ControlTransition* t : control_.transitions_on(state_, c.id))
@@ -81,7 +85,9 @@ ControlExecutor::Decision ControlExecutor::decide(const Device& d, const std::st
   for (bool defined : {true, false})
     for (const Selected& s : selected) {
       if ((s.model != nullptr) != defined) continue;
-      if (const spec::ControlTransition* t = tweak_ ? tweak_->take(*this, *s.command, s.model) : s.model) {
+      const spec::ControlTransition* t = tweak_ ? tweak_->take(*this, *s.command, s.model) : s.model;
+      if (t != s.model) out.bent = true;
+      if (t) {
         out.command = s.command;
         out.transition = t;
         return out;
@@ -148,16 +154,20 @@ void ControlExecutor::on_write(Device& d, uint16_t address, uint16_t count) {
     const uint16_t last = it == last_word_.end() ? 0 : it->second;
     last_word_[key] = word;
     Decision dec = decide(d, key, last, word);
+    if (dec.bent) imposed_ = true;
+    else if (dec.transition) imposed_ = false;
     if (dec.transition) enter(d, *dec.transition, dec.command);
     else if (dec.starts_mode) start_mode(d);
   }
   run_automatic(d, 0);
   follow_speed(d);
+  follow(d);
   publish(d);
 }
 
 void ControlExecutor::before_read(Device& d, uint16_t address, uint16_t count) {
   if (inner_) inner_->before_read(d, address, count);
+  follow(d);
   publish(d);
 }
 
@@ -168,6 +178,7 @@ void ControlExecutor::advance(Device& d, uint64_t dt_us) {
   in_state_s_ += dt;
   run_automatic(d, dt);
   follow_speed(d);
+  follow(d);
   publish(d);
 }
 
@@ -188,23 +199,60 @@ void ControlExecutor::power_on(Device& d) {
   mode_ = nullptr;
   move_started_ = done_ = homing_ = false;
   speed_commanded_ = 0;
+  imposed_ = false;
   for (const auto& m : control_.modes)
     if (m.select && d.find_by_key(m.select->key) && d.value_of(m.select->key) == m.select->value) {
       select_mode(d, m);
       break;
     }
+  follow(d);
   publish(d);
 }
 
 bool ControlExecutor::trip_fault(Device& d) {
+  // The drive's own detection: it shows the fault as its manual prints it.
+  if (inner_ && inner_->trip_fault(d)) {
+    imposed_ = false;
+    follow(d);
+    publish(d);
+    return true;
+  }
   const spec::ControlTransition* step = nullptr;
   for (const auto& t : control_.transitions)
     if (t.automatic() && t.event == "fault" && (t.from == state_ || (t.from == "*" && !step)) && conditions_hold(d, t))
       step = &t;
-  if (!step) return inner_ ? inner_->trip_fault(d) : false;
+  if (!step) return false;
   enter(d, *step, nullptr);
+  if (inner_) {
+    // No detection of its own: the model's fault state, its readings written once.
+    imposed_ = true;
+    publish(d);
+    imposed_ = false;
+    inner_->advance(d, 0);
+    follow(d);
+  }
   publish(d);
   return true;
+}
+
+bool ControlExecutor::names(const Device& d, const spec::ControlState& s) const {
+  if (s.status.empty()) return false;
+  for (const auto& m : s.status) {
+    const spec::Register* r = d.find_by_key(m.register_key);
+    if (!r || !m.matches(d.word(r->address))) return false;
+  }
+  return true;
+}
+
+void ControlExecutor::follow(Device& d) {
+  if (!inner_ || imposed_) return;
+  if (const spec::ControlState* now = control_.state(state_); now && names(d, *now)) return;
+  for (const auto& s : control_.states)
+    if (names(d, s)) {
+      if (s.id != state_) in_state_s_ = 0;
+      state_ = s.id;
+      return;
+    }
 }
 
 void ControlExecutor::enter(Device& d, const spec::ControlTransition& t, const spec::ControlCommand* command) {
@@ -225,6 +273,7 @@ void ControlExecutor::enter(Device& d, const spec::ControlTransition& t, const s
 }
 
 void ControlExecutor::run_automatic(Device& d, double dt) {
+  if (inner_ && !imposed_) return;  // the behaviour takes its own steps; follow() reads them
   for (int i = 0; i < kMaxAutomaticSteps; ++i) {
     const spec::ControlTransition* step = nullptr;
     for (const auto& t : control_.transitions) {
@@ -347,9 +396,10 @@ void ControlExecutor::publish(Device& d) {
       if (holds) put(m.register_key, [&](uint16_t& w) { w = uint16_t(w | (m.value & m.mask)); });
     }
   }
+  const bool readings = !inner_ || imposed_;
   for (const auto& key : status_keys_)
     put(key, [&](uint16_t& w) {
-      if (s)
+      if (s && readings)
         for (const auto& match : s->status)
           if (match.register_key == key) w = uint16_t((w & ~match.mask) | (match.value & match.mask));
       if (tweak_) w = tweak_->status(*this, key, w);

@@ -34,9 +34,15 @@
 // Judgements where a model states no figure: moves run at `top_speed`
 // (1000 units/s when none is stated) with 100 ms ramps; units are pulses.
 //
-// With a device behaviour of its own (reference/devices/), the behaviour moves
-// the axis from its registers as before and this executor keeps the state,
-// the automatic steps, the status readings and the mode selection only.
+// With a device behaviour of its own (reference/devices/), the behaviour is
+// the drive as its manual prints it: it moves the axis and writes its status
+// registers. The executor then follows it: after every step its state is the
+// one the status names (the current one while it still does), and it writes
+// no status of its own, so the drive's reading is never bent to the model.
+// A fault (Device::trip_fault) is the behaviour's own when it has one (the
+// drive detects it and shows it), else the model's step with its readings.
+// A ControlTweak (reference/faults) that departs from the model imposes its
+// state: its readings are written over the behaviour's until the next step.
 #pragma once
 
 #include <cstdint>
@@ -100,6 +106,7 @@ class ControlExecutor final : public Behaviour {
     const spec::ControlTransition* transition = nullptr;
     bool starts_mode = false;
     bool undefined = false;
+    bool bent = false;  // a tweak changed the model's answer
   };
   Decision decide(const Device&, const std::string& key, uint16_t last, uint16_t word) const;
   bool conditions_hold(const Device&, const spec::ControlTransition&) const;
@@ -112,6 +119,9 @@ class ControlExecutor final : public Behaviour {
   void stop_axis(Device&, double within_s);
   void advance_axis(Device&, double dt_s);
   void publish(Device&);
+  // With a behaviour: the state its status names (kept while it still does).
+  void follow(Device&);
+  bool names(const Device&, const spec::ControlState&) const;
   // Where in `[address, address+count)` register `key` lies, if it does.
   static bool covers(const Device&, const std::string& key, uint16_t address, uint32_t count);
   std::optional<uint16_t> mode_value_written(const Device&, const spec::ControlMode&, uint16_t address,
@@ -131,6 +141,7 @@ class ControlExecutor final : public Behaviour {
   bool done_ = false;          // the active mode's done reading holds
   bool homing_ = false;
   double speed_commanded_ = 0;
+  bool imposed_ = false;  // a tweak departed from the model: its state's readings are written
 };
 
 }  // namespace mbc::ref

@@ -1,5 +1,7 @@
 // mbconform serve: reference devices on Modbus TCP, RTU over TCP and a pty.
+#include <algorithm>
 #include <iostream>
+#include <string_view>
 
 #include <fmt/core.h>
 
@@ -150,8 +152,12 @@ void add_serve_command(CLI::App& app, int& exit_code) {
   cmd->add_flag("--list-faults", a.list_faults, "print the faults --fault takes, one per line, and exit");
   cmd->callback([&exit_code, cmd, tcp, rtu_tcp, pty, tls] {
     if (a.list_faults) {
-      for (const auto& f : faults::all_faults()) fmt::print("{:<22} {}\n", f.name, f.description);
-      for (const auto& f : serve::line_faults()) fmt::print("{:<22} {}\n", f.name, f.description);
+      // The name column as wide as the longest name.
+      size_t width = 0;
+      for (const auto& f : faults::all_faults()) width = std::max(width, std::string_view(f.name).size());
+      for (const auto& f : serve::line_faults()) width = std::max(width, std::string_view(f.name).size());
+      for (const auto& f : faults::all_faults()) fmt::print("{:<{}} {}\n", f.name, width, f.description);
+      for (const auto& f : serve::line_faults()) fmt::print("{:<{}} {}\n", f.name, width, f.description);
       exit_code = 0;
       return;
     }

@@ -372,7 +372,8 @@ TEST(Policy, TheShippedSpecs) {
 // The drive's control (spec control:): a controlword is judged by the word
 // written (issue 38): a command that may move needs --allow-motion unless
 // every set-point was written 0 first; a mode's start always; a non-zero
-// set-point always; a command that moves nothing and a mode selection never.
+// set-point of a mode with no start command (it follows it) always; a
+// command that moves nothing and a mode selection never.
 spec::Spec with_control() {
   spec::Spec s = made();
   s.registers.push_back(reg(0x40, "controlword"));
@@ -416,7 +417,8 @@ TEST(Policy, AControlWordIsJudgedByTheCommandItGives) {
   EXPECT_TRUE(allowed(f, 1, w06(0x40, 0x06))) << "shutdown moves nothing";
   EXPECT_TRUE(allowed(f, 1, w06(0x41, 3))) << "a mode selection moves nothing";
   EXPECT_TRUE(allowed(f, 1, w06(0x42, 0))) << "a set-point written 0";
-  EXPECT_TRUE(refused_for(allowed(f, 1, w06(0x42, 500)), "--allow-motion")) << "a non-zero set-point";
+  EXPECT_TRUE(refused_for(allowed(f, 1, w06(0x42, 500)), "--allow-motion")) << "a non-zero set-point the mode follows";
+  EXPECT_TRUE(allowed(f, 1, w06(0x43, 500))) << "a set-point of a mode that moves on its start command only";
   EXPECT_TRUE(refused_for(allowed(f, 1, w06(0x40, 0x0F)), "--allow-motion")) << "enable with set-points not known 0";
   EXPECT_TRUE(refused_for(allowed(f, 1, write_multiple_registers(0x40, std::vector<uint16_t>{0x0F, 3, 0, 0})), "--allow-motion"))
       << "FC 16: the words are judged, not the register alone";

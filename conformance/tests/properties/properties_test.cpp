@@ -107,6 +107,13 @@ const std::vector<Tooth> kTeeth = {
     {"control-fault-reset", "cia402-modbus", "edge-as-level"},
     {"control-stop-from-motion", "cia402-modbus", "stop-ignored"},
     {"control-mode-switch", "cia402-modbus", "status-bit-wrong"},
+    // ... and on the four drives, where the drive has the state involved (the
+    // executor imposes the fault's state over the drive's own status).
+    {"control-status-names-state", "hsc60", "status-bit-wrong"},
+    {"control-status-names-state", "sihong-57hs-r", "transition-wrong-target"},
+    {"control-undefined-command", "sihong-57hs-r", "undefined-command-accepted"},
+    {"control-undefined-command", "hanstar-7trsm5740q", "undefined-command-accepted"},
+    {"control-undefined-command", "rieding-dhe", "undefined-command-accepted"},
 };
 
 void PrintTo(const Tooth& t, std::ostream* os) { *os << t.invariant << " on " << t.device << "?fault=" << t.fault; }
