@@ -6,7 +6,10 @@
 #  - check-capture, serve and restore take -q;
 #  - default report directories are new: two runs started in the same second
 #    write to two directories, check-capture's under reports/check-capture/
-#    (the README's reports/<command>/<UTC date-time>/).
+#    (the README's reports/<command>/<UTC date-time>/);
+#  - a clean run's terminal output ends on its verdict in words, not on the
+#    table; the report's title names the model, not a vendor the manual does
+#    not print (hsc60's: "(not printed in the manual) HSC60 ..." once).
 # usage: cli_test.sh MBCONFORM PROJECT_VERSION SOURCE_DIR WORK_DIR
 set -euo pipefail
 mbc=$1 version=$2 src=$3 work=$4
@@ -71,4 +74,11 @@ for i in 1 2 3; do grep -q "^reports: reports/run/" "run$i.txt" || fail "run $i 
 grep -Eq "^reports: reports/check-capture/[0-9]{8}T[0-9]{6}Z(-[0-9]+)?$" cap-default.txt ||
   { cat cap-default.txt >&2; fail "check-capture's default directory is not reports/check-capture/<UTC date-time>"; }
 [ ! -e reports/runs ] || fail "something still writes reports/runs/"
+# A clean run: the last line of its terminal output is the verdict; the title shows the model.
+"$mbc" run --target ref:hsc60 --out clean >clean.txt 2>clean.err || { cat clean.txt clean.err >&2; fail "run ref:hsc60: exit $?"; }
+last=$(grep -v '^[[:space:]]*$' clean.txt | tail -1)
+[[ $last == "PASS: "* ]] || { cat clean.txt >&2; fail "a clean run's terminal output ends on '$last', not on the verdict PASS"; }
+title=$(grep -o '<section class=device-summary data-device="hsc60"><h2>[^<]*' clean/report.html | sed 's/.*<h2>//')
+[[ $title == *HSC60* ]] || fail "the report's title '$title' does not name the model HSC60"
+[[ $title != *"not printed"* ]] || fail "the report's title '$title' names a vendor the manual does not print"
 echo "cli_test: ok"

@@ -166,7 +166,8 @@ void add_client_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--transport", a->transport, "tcp (default) | rtu-tcp | pty | tls");
   cmd->add_option("--pki", a->pki, "DIR: --transport tls: ca.crt, server.crt/.key, operator.crt/.key (conformance/tests/security/make_pki.sh)");
   cmd->add_option("--baud", a->baud, "pty: the nominal baud rate (t1.5, t3.5, wire-time bound); default 19200");
-  cmd->add_option("--timeout-ms", a->timeout_ms, "the master's response time-out sent to the adapter; default 500");
+  cmd->add_option("--timeout-ms", a->timeout_ms, "the master's response time-out sent to the adapter; default 500")
+      ->check(CLI::Range(1, 60000));  // range-checked as every duration is (conventions.h's parse_duration)
   cmd->add_option("--pcap", a->pcap, "FILE: also write every frame of every scenario as pcapng (conformance/capture/README.md)");
   cmd->add_option("--pty", a->pty, "pty: where to link the pty the adapter opens (default: a temporary directory)");
   cmd->add_option("--filter", a->filter, "select scenarios by id: a glob ('client/reply/*') or a substring");

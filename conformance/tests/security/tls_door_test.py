@@ -29,11 +29,12 @@ import ssl
 import struct
 import subprocess
 import sys
-import threading
+import multiprocessing
 import time
 
 MB, PKI, WORK, ATTACK = sys.argv[1:5]
 failures = []
+FORK = multiprocessing.get_context("fork")
 # Bounds for a loaded shared machine (the issue's target is p99 <= 10 ms).
 P99_BOUND_S = 0.25
 SHARE_BOUND = 0.99
@@ -123,38 +124,51 @@ def ask(s, tid):
     return t == tid and body[:1] == b"\x03"
 
 
-class GoodClient(threading.Thread):
-    """Asks on one connection until stopped; reconnects when dropped (counted)."""
+class GoodClient:
+    """Asks on one connection until stopped; reconnects when dropped (counted).
+    It runs in a process of its own: a thread beside the attackers waited for
+    Python's interpreter lock while they ran, which its latencies counted as
+    serve's (a p50 of 3.4 ms instead of 0.3 while 600 connections opened)."""
 
     def __init__(self, port):
-        super().__init__(daemon=True)
         self.port, self.asked, self.answered, self.lat, self.drops = port, 0, 0, [], 0
-        self.stop_flag = threading.Event()
-        self.s = tls_client(port, timeout=2)
+        self.stop_flag, self.ready = FORK.Event(), FORK.Event()
+        self.results, sender = FORK.Pipe(duplex=False)
+        self.proc = FORK.Process(target=self.run, args=(sender,), daemon=True)
 
-    def run(self):
-        tid = 0
+    def start(self):
+        self.proc.start()
+        check(self.ready.wait(30), "the good client connected")
+
+    def run(self, sender):
+        asked = answered = drops = tid = 0
+        lat = []
+        s = tls_client(self.port, timeout=2)
+        self.ready.set()
         while not self.stop_flag.is_set():
             tid = (tid + 1) & 0xFFFF
-            self.asked += 1
+            asked += 1
             t0 = time.perf_counter()
             try:
-                if ask(self.s, tid):
-                    self.answered += 1
-                    self.lat.append(time.perf_counter() - t0)
+                if ask(s, tid):
+                    answered += 1
+                    lat.append(time.perf_counter() - t0)
             except (OSError, ConnectionError):
-                self.drops += 1
+                drops += 1
                 try:
-                    self.s.close()
-                    self.s = tls_client(self.port, timeout=2)
+                    s.close()
+                    s = tls_client(self.port, timeout=2)
                 except OSError:
                     time.sleep(0.05)
             time.sleep(0.002)
+        s.close()
+        sender.send((asked, answered, lat, drops))
 
     def finish(self, what):
         self.stop_flag.set()
-        self.join(10)
-        self.s.close()
+        if self.results.poll(30):
+            self.asked, self.answered, self.lat, self.drops = self.results.recv()
+        self.proc.join(10)
         share = self.answered / max(1, self.asked)
         lat = sorted(self.lat)
         p99 = lat[min(len(lat) - 1, int(0.99 * len(lat)))] if lat else 99
