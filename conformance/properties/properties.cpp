@@ -148,6 +148,19 @@ std::string failure_message(const std::string& description) {
   while (!m.empty() && m.back() == '\n') m.pop_back();
   return m;
 }
+// RapidCheck's reason for giving up on one line: "Generation failed with
+// message: Failed to generate command after 100 tries." or the precondition
+// "RC_PRE(!undefined.empty())" (without the file and the macro's expansion).
+std::string why_gave_up(const std::string& description) {
+  std::string line, out;
+  std::istringstream in(description);
+  while (std::getline(in, line)) {
+    if (line == "Expands to:") break;
+    if (line.empty() || (line.find(".cpp:") != std::string::npos && line.back() == ':')) continue;
+    out += (out.empty() ? "" : " ") + line;
+  }
+  return out;
+}
 std::string what_failed(const std::string& description) {
   std::string m = failure_message(description);
   return m.substr(0, m.find('\n'));
@@ -323,7 +336,7 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
     c.message = held_back ? fmt::format("skipped: the frame policy held back {} generated case{} ({} ran): {}", held_back,
                                         held_back == 1 ? "" : "s", gave_up.numSuccess, first_held_back)
                           : fmt::format("skipped: too few cases could be generated ({} ran): {}", gave_up.numSuccess,
-                                        failure_message(gave_up.description));
+                                        why_gave_up(gave_up.description));
   } else if (result.match(error)) {
     c.outcome = Outcome::fail;
     c.message = "could not run: " + error.description;

@@ -140,7 +140,7 @@ TEST(PropsCli, ALiveCleanDriveWithoutOptInsFailsNoProperty) {
   std::string out;
   {
     ServeProcess server({"--device", "hsc60@1", "--tcp", "127.0.0.1:0"});
-    ASSERT_TRUE(server.wait_listening(2)) << server.log();
+    ASSERT_TRUE(server.wait_listening(1)) << server.log();
     std::string uri = fmt::format("tcp://127.0.0.1:{}?unit=1", server.endpoint("tcp")->port());
     int rc = run_cli(fmt::format("--target '{}' --device hsc60 --cases 30 --seed 7 --out {}", uri, dir / "clean"), &out);
     EXPECT_NE(rc, 1) << out;
@@ -154,7 +154,7 @@ TEST(PropsCli, ALiveCleanDriveWithoutOptInsFailsNoProperty) {
     EXPECT_GT(held, 0) << "no generated frame was held back: the test no longer tests the policy's refusals\n" << out;
   }
   ServeProcess bad({"--fault", "lost-write", "--device", "hsc60@1", "--tcp", "127.0.0.1:0"});
-  ASSERT_TRUE(bad.wait_listening(2)) << bad.log();
+  ASSERT_TRUE(bad.wait_listening(1)) << bad.log();
   std::string uri = fmt::format("tcp://127.0.0.1:{}?unit=1", bad.endpoint("tcp")->port());
   EXPECT_EQ(run_cli(fmt::format("--target '{}' --device hsc60 --only read-after-write --cases 30 --seed 7 --out {}", uri,
                                 dir / "bad"), &out), 1) << out;
