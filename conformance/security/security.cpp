@@ -347,6 +347,13 @@ std::vector<Check> checks() {
                "the client's certificate is validated against the server's trust anchors", with_client("untrusted")});
   v.push_back({"refuses-expired-certificate", hs, "a client whose certificate has expired is refused",
                "the client's certificate is validated (RFC 5280 §6.1.3: the current time within its validity)", with_client("expired")});
+  // A client certificate of X.509 version 1 (no extensions at all, so no
+  // role either): the authentication is by x.509v3 certificates on both sides
+  // (§8.1), so a server that verifies only the chain still lets it in.
+  v.push_back({"refuses-v1-certificate", hs, "a client whose certificate is X.509 version 1 is refused",
+               "mutual authentication by X.509v3 certificates (§8.1): a client certificate of another version is not "
+               "one; " + unverified("R-02, R-03"),
+               with_client("client-v1")});
   v.push_back({"refuses-two-roles", authz, "a certificate whose role extension holds two roles is refused",
                "one role per certificate, OID 1.3.6.1.4.1.50316.802.1; " + unverified("R-65"),
                with_client("two-roles")});
@@ -422,7 +429,8 @@ std::vector<Check> checks() {
   // server is MUST; what it leaves to the server stays OBSERVED.
   for (auto& c : v) {
     if (c.id == "tls-1.0-refused" || c.id == "tls-1.1-refused" || c.id == "refuses-no-certificate" ||
-        c.id == "refuses-untrusted-certificate" || c.id == "refuses-expired-certificate" || c.id == "refuses-two-roles" ||
+        c.id == "refuses-untrusted-certificate" || c.id == "refuses-expired-certificate" || c.id == "refuses-v1-certificate" ||
+        c.id == "refuses-two-roles" ||
         c.id == "refuses-role-not-utf8string")
       c.level = Level::must, c.meets = "refused";
     if (c.id == "asks-client-certificate") c.level = Level::must, c.meets = "requested";

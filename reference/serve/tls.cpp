@@ -302,15 +302,23 @@ namespace {
 
 int g_require_role_index = -1;
 
-// The role check runs where the chain is verified: a client certificate with
-// an unusable role extension fails the handshake (bad_certificate).
+// The role check runs where the chain is verified: a client certificate that
+// is not X.509v3, or has an unusable role extension, fails the handshake
+// (bad_certificate).
 int verify_role(int ok, X509_STORE_CTX* store) {
   if (!ok) return 0;
   if (X509_STORE_CTX_get_error_depth(store) != 0) return ok;
   auto* ssl = static_cast<SSL*>(X509_STORE_CTX_get_ex_data(store, SSL_get_ex_data_X509_STORE_CTX_idx()));
   SSL_CTX* ctx = ssl ? SSL_get_SSL_CTX(ssl) : nullptr;
   bool require = ctx && SSL_CTX_get_ex_data(ctx, g_require_role_index) != nullptr;
-  Role r = role_of(X509_STORE_CTX_get_current_cert(store));
+  X509* cert = X509_STORE_CTX_get_current_cert(store);
+  // §8.1: authentication by X.509v3 certificates; OpenSSL verifies a
+  // version 1 leaf's chain like any other, so its version is checked here.
+  if (X509_get_version(cert) != X509_VERSION_3) {
+    X509_STORE_CTX_set_error(store, X509_V_ERR_APPLICATION_VERIFICATION);
+    return 0;
+  }
+  Role r = role_of(cert);
   if (!r.problem.empty() || (require && !r.name)) {
     X509_STORE_CTX_set_error(store, X509_V_ERR_APPLICATION_VERIFICATION);
     return 0;

@@ -13,6 +13,8 @@
 #   printable-role.crt        the role as a PrintableString
 #   expired.crt               role operator, validity in 2020
 #   untrusted.crt             role operator, signed by rogue-ca
+#   server-v1.crt             an X.509 version 1 server certificate (CN localhost)
+#   client-v1.crt             an X.509 version 1 client certificate, signed by the CA
 # Every key is mode 600. The role extension is MB-TCP-Security v2.1 §8.3's:
 # OID 1.3.6.1.4.1.50316.802.1, an ASN.1 UTF8String.
 set -euo pipefail
@@ -112,6 +114,12 @@ key server-v1
 openssl req -new -key server-v1.key -subj "/CN=localhost" -out server-v1.csr 2>/dev/null
 openssl x509 -req -in server-v1.csr -CA ca.crt -CAkey ca.key -CAcreateserial -days 30 -out server-v1.crt 2>/dev/null
 rm -f server-v1.csr
+# An X.509 version 1 client certificate signed by the CA (so no role
+# extension either: a v1 certificate has no extensions).
+key client-v1
+openssl req -new -key client-v1.key -subj "/CN=client v1" -out client-v1.csr 2>/dev/null
+openssl x509 -req -in client-v1.csr -CA ca.crt -CAkey ca.key -CAcreateserial -days 30 -out client-v1.crt 2>/dev/null
+rm -f client-v1.csr
 leaf operator "operator client" operator
 leaf viewer "viewer client" viewer
 leaf no-role "client without a role" no_role

@@ -149,6 +149,7 @@ def test_standard():
         "refuses-no-certificate": "refused",
         "refuses-untrusted-certificate": "refused",
         "refuses-expired-certificate": "refused",
+        "refuses-v1-certificate": "refused",   # §8.1: x.509v3 certificates (make_pki.sh's client-v1.crt)
         "refuses-two-roles": "refused",      # §8.3: one role per certificate
         "refuses-role-not-utf8string": "refused",  # §8.3: a UTF8String
         "close-notify": "sent",              # TLS closure alerts
@@ -392,7 +393,9 @@ def test_pymodbus_server():
     known = sorted([
                     # pymodbus 3.0 reads no role extension (no RBAC in the package): a
                     # certificate with two roles, or a role that is not a UTF8String, is let in.
-                    "security/refuses-two-roles", "security/refuses-role-not-utf8string","examples/MBAP_6.5_Figure_15/write-coil-bad-value",
+                    "security/refuses-two-roles", "security/refuses-role-not-utf8string",
+                    # Python's ssl (CERT_REQUIRED) verifies the chain, not the version.
+                    "security/refuses-v1-certificate", "examples/MBAP_6.5_Figure_15/write-coil-bad-value",
                     "examples/MBAP_6.11_Figure_21/write-coils-wrong-byte-count",
                     "examples/MBAP_6.12_Figure_22/write-registers-wrong-byte-count",
                     "standard/fc05/value-00FF", "standard/fc05/value-0001", "standard/fc23/byte-count-over",
@@ -406,6 +409,7 @@ def test_pymodbus_server():
         "refuses-no-certificate": "refused",
         "refuses-untrusted-certificate": "refused",
         "refuses-expired-certificate": "refused",
+        "refuses-v1-certificate": "accepted",  # CERT_REQUIRED checks the chain, not the X.509 version
         "refuses-two-roles": "accepted",     # pymodbus 3.0 reads no role: no RBAC anywhere in the package
         "refuses-role-not-utf8string": "accepted",
         "no-role": "accepted",
@@ -554,6 +558,17 @@ def test_socat_x509v1():
     r3, sec3 = socat_run(["verify=1", f"cafile={pki('ca.crt')}"], "socat-x509v3")
     c3 = sec3.get("server-certificate-x509v3", {})
     check(c3.get("outcome") == "pass" and "version 3" in c3.get("message", ""), f"a v3 server certificate passes ({c3})")
+    # The other side: socat verifies a client certificate's chain and not its
+    # version, so it lets in make_pki.sh's X.509 version 1 client certificate:
+    # refuses-v1-certificate fails as a MUST, and that alone makes the run exit 1.
+    text = subprocess.run(["openssl", "x509", "-in", pki("client-v1.crt"), "-noout", "-text"], capture_output=True, text=True).stdout
+    check("Version: 1 (0x0)" in text, "openssl writes client-v1.crt as an X.509 version 1 certificate")
+    v1 = sec3.get("refuses-v1-certificate", {})
+    check(v1.get("level") == "MUST" and v1.get("outcome") == "fail" and "§8.1" in v1.get("clause", "")
+          and word(v1) == "accepted", f"security/refuses-v1-certificate: a failed MUST citing §8.1 ({v1})")
+    others = [k for k, c in sec3.items() if c["level"] == "MUST" and c["outcome"] != "pass" and k != "refuses-v1-certificate"]
+    check(r3.returncode == 1 and not others,
+          f"the v1 client certificate let in is the run's only failed MUST, exit 1 (exit {r3.returncode}, others {others})")
 
 
 tests = {
