@@ -148,6 +148,19 @@ std::string failure_message(const std::string& description) {
   while (!m.empty() && m.back() == '\n') m.pop_back();
   return m;
 }
+// RapidCheck's reason for giving up on one line: "Generation failed with
+// message: Failed to generate command after 100 tries." or the precondition
+// "RC_PRE(!undefined.empty())" (without the file and the macro's expansion).
+std::string why_gave_up(const std::string& description) {
+  std::string line, out;
+  std::istringstream in(description);
+  while (std::getline(in, line)) {
+    if (line == "Expands to:") break;
+    if (line.empty() || (line.find(".cpp:") != std::string::npos && line.back() == ':')) continue;
+    out += (out.empty() ? "" : " ") + line;
+  }
+  return out;
+}
 std::string what_failed(const std::string& description) {
   std::string m = failure_message(description);
   return m.substr(0, m.find('\n'));
@@ -211,6 +224,11 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
       if (st.kind == Step::Kind::frame && st.frame.size() >= 2 && st.frame[0] == 0 && (st.frame[1] < 1 || st.frame[1] > 4))
         broadcasts.push_back(fmt::format("{} ({})", to_hex(st.frame), st.note));
   };
+  // Frames the frame policy held back (a live target without the opt-in a
+  // generated frame needs): that case is discarded, never a counterexample.
+  // The device did nothing wrong; the property ran on the other cases.
+  int held_back = 0;
+  std::string first_held_back;
   auto property = [&] {
     std::shared_ptr<Target> target = fresh_per_case ? std::shared_ptr<Target>(source.open()) : shared;
     // One view for every run: RapidCheck keeps generated values (and the
@@ -218,9 +236,15 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
     Session session(*target, probe_view, facts);
     ++runs;
     std::string gone;
+    bool discarded = false;
     try {
       try {
         inv.check(session);
+      } catch (const Refused& r) {
+        if (held_back++ == 0) first_held_back = r.refusal.reason;
+        discarded = true;
+        note_broadcasts(session);
+        RC_DISCARD("a generated frame the frame policy holds back");
       } catch (const RecoveredFault&) {
         throw;  // the thing under test failed the exchange: a verdict
       } catch (const std::runtime_error& e) {
@@ -228,9 +252,11 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
         throw;
       }
     } catch (...) {
-      last_failure = session.steps();
-      lost = gone;
-      note_broadcasts(session);
+      if (!discarded) {  // a discarded case is no failure to show
+        last_failure = session.steps();
+        lost = gone;
+        note_broadcasts(session);
+      }
       throw;
     }
     note_broadcasts(session);
@@ -259,10 +285,13 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   rc::detail::FailureResult failed;
   rc::detail::GaveUpResult gave_up;
   rc::detail::Error error;
+  if (held_back) c.extra["held_back"] = held_back;
   if (result.match(ok)) {
     c.outcome = Outcome::pass;
     c.extra["cases"] = ok.numSuccess;
     c.message = fmt::format("{} generated cases passed (seed {})", ok.numSuccess, seed);
+    if (held_back)
+      c.message += fmt::format("; {} more held back by the frame policy (first: {})", held_back, first_held_back);
     // What the pass does not cover: facts the manual does not state.
     if (const auto& nh = probe_view.not_held(); !nh.empty())
       c.message += fmt::format("; {} fact{} the manual does not state (inferred, observed or printed two ways) not held "
@@ -301,9 +330,13 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
     c.message = fmt::format("falsified after {} cases (seed {}): {}\nshrunk counterexample ({} steps):\n{}",
                             failed.numSuccess + 1, seed, failure_message(failed.description), last_failure.size(), frames);
   } else if (result.match(gave_up)) {
-    c.outcome = Outcome::fail;
+    // Too few cases could be made or sent: no evidence against the device.
+    c.outcome = Outcome::skip;
     c.extra["cases"] = gave_up.numSuccess;
-    c.message = "gave up: " + gave_up.description;
+    c.message = held_back ? fmt::format("skipped: the frame policy held back {} generated case{} ({} ran): {}", held_back,
+                                        held_back == 1 ? "" : "s", gave_up.numSuccess, first_held_back)
+                          : fmt::format("skipped: too few cases could be generated ({} ran): {}", gave_up.numSuccess,
+                                        why_gave_up(gave_up.description));
   } else if (result.match(error)) {
     c.outcome = Outcome::fail;
     c.message = "could not run: " + error.description;

@@ -3,6 +3,7 @@
 // `mbconform props` command line (exit codes, reports, counterexamples).
 #include <gtest/gtest.h>
 #include <fmt/core.h>
+#include <nlohmann/json.hpp>
 
 #include <cstdio>
 #include <filesystem>
@@ -126,6 +127,37 @@ TEST(PropsCli, ExitCodesReportsAndCounterexamples) {
   EXPECT_EQ(run_cli("--target ref:hsc60 --only no-such-invariant", &out), 2) << out;
   EXPECT_EQ(run_cli("--target 'ref:hsc60?fault=no-such-fault'", &out), 2) << out;
   EXPECT_EQ(run_cli("--target tcp://127.0.0.1:1?unit=1", &out), 2) << out;  // no spec named
+}
+
+// A clean drive served on a live transport, `props` with no opt-in: the
+// frame policy holds back the generated frames it does not allow (FC 05 is
+// not in hsc60's profile, writes to command registers, ...). A case with such
+// a frame is discarded, never a counterexample: no property fails the good
+// drive, and what was held back is said. The same run against the drive
+// with a lost write still fails.
+TEST(PropsCli, ALiveCleanDriveWithoutOptInsFailsNoProperty) {
+  TempDir dir;
+  std::string out;
+  {
+    ServeProcess server({"--device", "hsc60@1", "--tcp", "127.0.0.1:0"});
+    ASSERT_TRUE(server.wait_listening(1)) << server.log();
+    std::string uri = fmt::format("tcp://127.0.0.1:{}?unit=1", server.endpoint("tcp")->port());
+    int rc = run_cli(fmt::format("--target '{}' --device hsc60 --cases 30 --seed 7 --out {}", uri, dir / "clean"), &out);
+    EXPECT_NE(rc, 1) << out;
+    auto report = nlohmann::json::parse(std::ifstream(dir / "clean/report.json"));
+    int held = 0;
+    for (const auto& c : report["devices"][0]["cases"]) {
+      EXPECT_NE(c["outcome"], "fail") << c["id"] << ": " << c["message"];
+      if (c.contains("held_back")) held += c["held_back"].get<int>();
+      if (c.contains("extra") && c["extra"].contains("held_back")) held += c["extra"]["held_back"].get<int>();
+    }
+    EXPECT_GT(held, 0) << "no generated frame was held back: the test no longer tests the policy's refusals\n" << out;
+  }
+  ServeProcess bad({"--fault", "lost-write", "--device", "hsc60@1", "--tcp", "127.0.0.1:0"});
+  ASSERT_TRUE(bad.wait_listening(1)) << bad.log();
+  std::string uri = fmt::format("tcp://127.0.0.1:{}?unit=1", bad.endpoint("tcp")->port());
+  EXPECT_EQ(run_cli(fmt::format("--target '{}' --device hsc60 --only read-after-write --cases 30 --seed 7 --out {}", uri,
+                                dir / "bad"), &out), 1) << out;
 }
 
 }  // namespace

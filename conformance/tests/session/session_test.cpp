@@ -102,8 +102,15 @@ Points read_points(const std::string& pty, int unit, const spec::Spec& s) {
         case spec::Table::coil: rc = modbus_read_bits(ctx, r.address, 1, bits); break;
         case spec::Table::discrete_input: rc = modbus_read_input_bits(ctx, r.address, 1, bits); break;
       }
-      if (rc < 0 && errno > MODBUS_ENOBASE && errno < MODBUS_ENOBASE + 20) break;  // an exception: a value too
-      if (rc < 0) modbus_flush(ctx);
+      // An exception reply (codes 01-0B: EMBXILFUN..EMBXGTAR) is a value too.
+      // Anything else, such as a reply from the other unit ("Response not
+      // from requested slave": a late answer to the killed command's last
+      // request), is read again once the line is flushed.
+      if (rc < 0 && errno >= EMBXILFUN && errno <= EMBXGTAR) break;
+      if (rc < 0) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        modbus_flush(ctx);
+      }
     }
     out[key] = rc < 0 ? fmt::format("error {}", modbus_strerror(errno)) : fmt::format("{:04X} {:04X} {}", regs[0], regs[1], bits[0]);
   }
