@@ -406,10 +406,25 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
   // The drive's control (spec control:): to the safe state first (stop,
   // disable), before any register goes back; a control command register is
   // then left as the safe state's commands left it.
+  // A control still in the state the journal recorded before the command is
+  // left there: the restore puts the drive back as it was, and walking it to
+  // the safe state would change what the command never changed (a 57HS-R
+  // enabled before the run would be released; a Hanstar just powered on has
+  // no motion-free command to its safe state at all).
   bool control_written = !c.control_state.empty();
   for (const auto& e : c.originals) control_written |= is_control_command_register(s, e.table, e.address);
   for (const auto& k : c.commands) control_written |= is_control_command_register(s, k.table, k.address);
   bool safe = false;
+  if (state_machine(s) && !c.control_state.empty()) {
+    std::string no;
+    auto words = control_words(t, s, no);
+    const std::string now = words ? control_state_named(*s.control, *words) : "";
+    if (!now.empty() && now == c.control_state) {
+      control_written = false;
+      safe = now == s.control->safe;
+      rep.notes.push_back(fmt::format("control: in {}, the state before the command: left there", now));
+    }
+  }
   if (state_machine(s) && control_written) {
     std::vector<std::string> did;
     std::string why = control_to_safe(t, s, did);
