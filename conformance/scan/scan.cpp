@@ -4,6 +4,7 @@
 #include <fmt/ranges.h>
 
 #include <algorithm>
+#include <filesystem>
 #include <map>
 #include <nlohmann/json.hpp>
 #include <set>
@@ -58,7 +59,8 @@ class Scanner {
         sweep(fmt::format("{}?{}&unit={}{}", base, s.query(), o_.first_unit, extra), s);
         if (result_.units.size() > before && !o_.all_settings) break;
       }
-      if (u.path.rfind("/dev/pts/", 0) == 0 || u.path.rfind("/tmp/", 0) == 0)
+      std::error_code ec;  // a pty, or a symlink to one (serve --pty PATH)
+      if (std::filesystem::canonical(u.path, ec).string().rfind("/dev/pts/", 0) == 0)
         result_.notes.push_back("a pseudo-terminal carries the baud rate but not parity or stop bits: on a pty the "
                                 "format found is the first tried at that rate");
     }
