@@ -4,11 +4,13 @@
 #include <fmt/ranges.h>
 
 #include <algorithm>
+#include <filesystem>
 #include <map>
 #include <nlohmann/json.hpp>
 #include <set>
 
 #include "modbus/pdu.h"
+#include "session/identity.h"
 #include "session/session.h"
 
 namespace mbc::conf::scan {
@@ -28,30 +30,12 @@ std::optional<Setting> setting_of(int baud, const std::string& format) {
   return Setting{baud, format[0] - '0', p, format[2] - '0'};
 }
 
-bool answers_fc43_14(const spec::Spec& s) {
-  const auto* f = s.profile.function(43);
-  return f && std::find(f->mei_types.begin(), f->mei_types.end(), 14) != f->mei_types.end() &&
-         !s.device.identification.product_code.empty();
-}
-
-// Registers whose readability the spec states, holding or input, in a table the profile reads.
-std::vector<const spec::Register*> stated_readable(const spec::Spec& s) {
-  std::vector<const spec::Register*> out;
-  for (const auto& r : s.registers) {
-    if (r.table != spec::Table::holding && r.table != spec::Table::input) continue;
-    if (r.access == spec::Access::wo || r.access == spec::Access::command) continue;
-    if (r.basis_of(spec::Fact::read).basis != spec::Basis::stated) continue;
-    if (!s.profile.function(r.table == spec::Table::holding ? 3 : 4)) continue;
-    out.push_back(&r);
-  }
-  return out;
-}
-
 class Scanner {
  public:
   Scanner(const Options& o, const std::vector<const spec::Spec*>& specs) : o_(o), specs_(specs), start_(Clock::now()) {}
 
   Result run() {
+    result_.uri = o_.uri;
     Uri u = parse_uri(o_.uri);
     if (u.scheme != "rtu" && u.scheme != "tcp" && u.scheme != "rtu-tcp")
       throw std::invalid_argument("scan: '" + o_.uri + "': expected rtu:///dev/..., tcp://HOST:PORT or rtu-tcp://HOST:PORT");
@@ -75,7 +59,8 @@ class Scanner {
         sweep(fmt::format("{}?{}&unit={}{}", base, s.query(), o_.first_unit, extra), s);
         if (result_.units.size() > before && !o_.all_settings) break;
       }
-      if (u.path.rfind("/dev/pts/", 0) == 0 || u.path.rfind("/tmp/", 0) == 0)
+      std::error_code ec;  // a pty, or a symlink to one (serve --pty PATH)
+      if (std::filesystem::canonical(u.path, ec).string().rfind("/dev/pts/", 0) == 0)
         result_.notes.push_back("a pseudo-terminal carries the baud rate but not parity or stop bits: on a pty the "
                                 "format found is the first tried at that rate");
     }
@@ -112,7 +97,7 @@ class Scanner {
     // where it maps nothing still answers there). At most four.
     std::vector<Bytes> probes{read_request(3, 0, 1)};
     for (const spec::Spec* sp : specs_) {
-      auto readable = stated_readable(*sp);
+      auto readable = identity_registers(*sp);
       if (readable.empty() || probes.size() >= 4) continue;
       const auto* r = readable.front();
       Bytes p = read_request(r->table == spec::Table::holding ? 3 : 4, r->address, 1);
@@ -156,43 +141,40 @@ class Scanner {
     for (const spec::Spec* sp : specs_) {
       if (sp->device.id == "modbus-standard") continue;  // describes any server: identifies nothing
       Match m{sp->device.id, 0, ""};
-      bool decided = false;
-      if (answers_fc43_14(*sp)) {
-        if (auto r = ask(session, f.unit, read_device_identification(1, 0), at)) {
-          auto objects = r->pdu ? device_identification(*r->pdu) : std::map<int, std::string>{};
-          if (!objects.empty()) {
-            const auto& id = sp->device.identification;
-            bool same = objects[0] == id.vendor_name && objects[1] == id.product_code;
-            m.score = same ? 1.0 : 0.0;
-            m.evidence = fmt::format("FC 43/14 VendorName \"{}\", ProductCode \"{}\"{}", objects[0], objects[1],
-                                     same ? "" : fmt::format(" (the spec says \"{}\", \"{}\")", id.vendor_name, id.product_code));
-            decided = true;
-          }
-        }
-      }
-      if (!decided) {
-        auto readable = stated_readable(*sp);
-        if (readable.empty()) continue;
+      // The one identity reading (session/identity.h), through this session's policy.
+      const IdentityAsk asker = [&](const Bytes& pdu, std::string& error) {
+        auto r = ask(session, f.unit, pdu, at);
+        if (!r) error = "held back by the frame policy";
+        return r;
+      };
+      Identity id = read_identity(*sp, asker, IdentityOptions{16, 1, true, true});
+      if (id.by_fc43 && !id.objects.empty()) {
+        const auto& want = sp->device.identification;
+        const bool same = id.objects[0] == want.vendor_name && id.objects[1] == want.product_code;
+        m.score = same ? 1.0 : 0.0;
+        m.evidence = fmt::format("FC 43/14 VendorName \"{}\", ProductCode \"{}\"{}", id.objects[0], id.objects[1],
+                                 same ? "" : fmt::format(" (the spec says \"{}\", \"{}\")", want.vendor_name, want.product_code));
+      } else {
+        // No identification objects: the registers the spec states readable.
+        if (id.by_fc43) id = read_identity(*sp, asker, IdentityOptions{16, 1, false, true});
+        if (id.reads.empty()) continue;
         // A register matches when it is answered and, where the spec states
         // its range, holds a value inside it: two drives that both answer
         // the same addresses are told apart by what they hold there.
-        const size_t samples = std::min<size_t>(16, readable.size());
         size_t read = 0;
-        for (size_t k = 0; k < samples; ++k) {
-          const spec::Register& r = *readable[k * readable.size() / samples];
-          const uint8_t fc = r.table == spec::Table::holding ? 3 : 4;
-          auto got = ask(session, f.unit, read_request(fc, r.address, uint16_t(r.words)), at);
-          if (!got || !got->pdu || got->pdu->size() != size_t(2 + 2 * r.words) || (*got->pdu)[0] != fc) continue;
+        for (const IdentityRead& got : id.reads) {
+          if (got.kind != IdentityRead::Kind::answered) continue;
+          const spec::Register& r = *got.reg;
           if (r.words == 1 && r.range && r.basis_of(spec::Fact::range).basis == spec::Basis::stated &&
               r.type != spec::DataType::f32) {
-            const uint16_t w = uint16_t((*got->pdu)[2] << 8 | (*got->pdu)[3]);
+            const uint16_t w = *got.word();
             const double v = r.is_signed() ? double(int16_t(w)) : double(w);
             if (v < r.range->min || v > r.range->max) continue;
           }
           ++read;
         }
-        m.score = double(read) / double(samples);
-        m.evidence = fmt::format("{} of {} registers the spec states readable read, in their stated ranges", read, samples);
+        m.score = double(read) / double(id.reads.size());
+        m.evidence = fmt::format("{} of {} registers the spec states readable read, in their stated ranges", read, id.reads.size());
       }
       // The spec's own line settings agreeing is a small point more.
       if (f.setting && sp->serial.baud_default == f.setting->baud) m.score = std::min(1.0, m.score + 0.01);
@@ -212,10 +194,10 @@ class Scanner {
     }
     f.others = std::move(matches);
     Uri u = parse_uri(o_.uri);
-    std::string target = u.scheme == "rtu" ? fmt::format("rtu://{}?{}&unit={}", u.path, f.setting->query(), f.unit)
-                                           : fmt::format("{}://{}:{}?unit={}", u.scheme, u.host, u.port, f.unit);
-    f.command = f.best ? fmt::format("mbconform run --target '{}' --device {} --plan", target, f.best->spec_id)
-                       : fmt::format("mbconform run --target '{}' --map auto --plan", target);
+    f.target = u.scheme == "rtu" ? fmt::format("rtu://{}?{}&unit={}", u.path, f.setting->query(), f.unit)
+                                 : fmt::format("{}://{}:{}?unit={}", u.scheme, u.host, u.port, f.unit);
+    f.command = f.best ? fmt::format("mbconform run --target '{}' --device {} --plan", f.target, f.best->spec_id)
+                       : fmt::format("mbconform run --target '{}' --map auto --plan", f.target);
   }
 
   const Options& o_;
@@ -269,12 +251,14 @@ std::string table(const Result& r) {
                        f.best ? f.best->spec_id : "(none known)", f.confidence, f.best ? f.best->evidence : "");
   if (!r.units.empty()) out += "\nto qualify each (--plan lists every frame first; drop it to run):\n";
   for (const Found& f : r.units) out += fmt::format("  {}\n", f.command);
+  for (const auto& t : r.tried) out += fmt::format("tried {}\n", t);
+  for (const auto& n : r.notes) out += fmt::format("note: {}\n", n);
   return out;
 }
 
-std::string to_json(const Result& r, const std::string& uri) {
+std::string to_json(const Result& r) {
   nlohmann::json j;
-  j["uri"] = uri;
+  j["uri"] = r.uri;
   j["requests"] = r.requests;
   j["seconds"] = r.seconds;
   j["partial"] = r.partial;
@@ -283,7 +267,8 @@ std::string to_json(const Result& r, const std::string& uri) {
   j["notes"] = r.notes;
   j["units"] = nlohmann::json::array();
   for (const Found& f : r.units) {
-    nlohmann::json u{{"unit", f.unit}, {"answered", f.answered}, {"confidence", f.confidence}, {"command", f.command}};
+    nlohmann::json u{{"unit", f.unit}, {"answered", f.answered}, {"confidence", f.confidence}, {"target", f.target},
+                     {"command", f.command}};
     if (f.setting)
       u["settings"] = {{"baud", f.setting->baud}, {"data", f.setting->data_bits}, {"parity", std::string(1, f.setting->parity)},
                        {"stop", f.setting->stop_bits}};
@@ -292,6 +277,88 @@ std::string to_json(const Result& r, const std::string& uri) {
     j["units"].push_back(u);
   }
   return j.dump(2) + "\n";
+}
+
+Result from_json(const std::string& text, const std::string& what) {
+  auto bad = [&](const std::string& why) { return std::invalid_argument(fmt::format("{}: not a scan file (mbconform scan ... --out FILE): {}", what, why)); };
+  nlohmann::json j = nlohmann::json::parse(text, nullptr, false);
+  if (j.is_discarded() || !j.is_object()) throw bad("not a JSON object");
+  if (!j.contains("uri") || !j["uri"].is_string()) throw bad("no \"uri\" (the line scanned)");
+  if (!j.contains("units") || !j["units"].is_array()) throw bad("no \"units\" list");
+  Result r;
+  r.uri = j["uri"].get<std::string>();
+  Uri line;
+  try {
+    line = parse_uri(r.uri);
+  } catch (const std::exception& e) {
+    throw bad(fmt::format("\"uri\": {}", e.what()));
+  }
+  if (line.scheme != "rtu" && line.scheme != "tcp" && line.scheme != "rtu-tcp")
+    throw bad(fmt::format("\"uri\" '{}': not a serial line or a gateway", r.uri));
+  r.partial = j.value("partial", false);
+  r.partial_why = j.value("partial_why", std::string());
+  if (j.contains("tried") && j["tried"].is_array())
+    for (const auto& t : j["tried"]) if (t.is_string()) r.tried.push_back(t.get<std::string>());
+  if (j.contains("notes") && j["notes"].is_array())
+    for (const auto& n : j["notes"]) if (n.is_string()) r.notes.push_back(n.get<std::string>());
+  std::set<int> seen;
+  for (const auto& u : j["units"]) {
+    if (!u.is_object() || !u.contains("unit") || !u["unit"].is_number_integer()) throw bad("a unit without a \"unit\" number");
+    const int unit = u["unit"].get<int>();
+    if (unit < 1 || unit > 247) throw bad(fmt::format("unit {}: outside 1-247", unit));
+    if (!seen.insert(unit).second) throw bad(fmt::format("unit {} listed twice", unit));
+    Found f;
+    f.unit = uint8_t(unit);
+    f.answered = u.value("answered", std::string());
+    f.confidence = u.value("confidence", std::string("none"));
+    f.command = u.value("command", std::string());
+    f.target = u.value("target", std::string());
+    // The target must be this unit on this line: a hand-edited file never
+    // sends a drive's cases to another port or another unit.
+    Uri t;
+    try {
+      t = parse_uri(f.target);
+    } catch (const std::exception& e) {
+      throw bad(fmt::format("unit {}: \"target\": {}", unit, e.what()));
+    }
+    if (t.scheme != line.scheme || t.path != line.path || t.host != line.host || t.port != line.port ||
+        t.param("unit") != std::to_string(unit))
+      throw bad(fmt::format("unit {}: its target '{}' is not unit {} on {}", unit, f.target, unit, r.uri));
+    if (u.contains("settings") && u["settings"].is_object()) {
+      const auto& s = u["settings"];
+      const std::string p = s.value("parity", std::string("E"));
+      f.setting = Setting{s.value("baud", 19200), s.value("data", 8), p.empty() ? 'E' : p[0], s.value("stop", 1)};
+    }
+    if (u.contains("spec") && u["spec"].is_object()) {
+      const auto& m = u["spec"];
+      if (!m.contains("id") || !m["id"].is_string() || m["id"].get<std::string>().empty()) throw bad(fmt::format("unit {}: a spec with no id", unit));
+      f.best = Match{m["id"].get<std::string>(), m.value("score", 0.0), m.value("evidence", std::string())};
+    }
+    r.units.push_back(std::move(f));
+  }
+  return r;
+}
+
+std::pair<int, int> parse_units(const std::string& text) {
+  auto number = [&](const std::string& t) {
+    if (t.empty() || t.size() > 3 || t.find_first_not_of("0123456789") != std::string::npos) return -1;
+    return std::atoi(t.c_str());
+  };
+  int first = -1, last = -1;
+  if (auto dash = text.find('-'); dash != std::string::npos) {
+    first = number(text.substr(0, dash));
+    last = number(text.substr(dash + 1));
+  } else {
+    first = last = number(text);
+  }
+  if (first < 1 || last > 247 || first > last)
+    throw std::invalid_argument(fmt::format("'{}': expected FIRST-LAST within 1-247", text));
+  return {first, last};
+}
+
+std::string line_of(const std::string& uri) {
+  Uri u = parse_uri(uri);
+  return u.scheme == "rtu" ? u.path : fmt::format("{}:{}", u.host, u.port);
 }
 
 }  // namespace mbc::conf::scan

@@ -72,10 +72,12 @@ struct Found {
   std::optional<Match> best;       // none: no known spec matches
   std::vector<Match> others;       // the rest with a score, best first
   std::string confidence;          // high | medium | low | none
+  std::string target;              // the unit as a run target: rtu://PATH?baud=..&unit=N, tcp://HOST:PORT?unit=N
   std::string command;             // the mbconform run command for this unit
 };
 
 struct Result {
+  std::string uri;                 // the line scanned, as given
   std::vector<Found> units;
   std::vector<std::string> tried;  // the settings swept ("9600 8N1: nothing")
   uint64_t requests = 0;
@@ -90,8 +92,21 @@ struct Result {
 // cannot be opened. Stops early (partial) on a stop signal or the budget.
 Result scan(const Options& options, const std::vector<const spec::Spec*>& specs);
 
-// The table printed at the end, and the result as JSON (the scan file).
+// The table printed at the end (with the settings tried and the notes), and the result as JSON (the scan file,
+// `scan --out FILE`, which `run --scan-file FILE` qualifies).
 std::string table(const Result& r);
-std::string to_json(const Result& r, const std::string& uri);
+std::string to_json(const Result& r);
+// A scan file read back: the line, and each unit's target, spec, confidence
+// and settings (`tried` and `notes` as written). Throws
+// std::invalid_argument with one line naming `what` (the file) when it is not
+// a scan file: not JSON, a unit outside 1-247, a target that is not that
+// unit on that line.
+Result from_json(const std::string& text, const std::string& what);
+
+// "1-247" or "7": the units to sweep. Throws std::invalid_argument with one line.
+std::pair<int, int> parse_units(const std::string& text);
+// The line a URI is on: the serial port's path, or HOST:PORT of a gateway
+// (two scans of one line are one line: `run` qualifies it one drive at a time).
+std::string line_of(const std::string& uri);
 
 }  // namespace mbc::conf::scan

@@ -17,6 +17,7 @@
 #include "modbus/pdu.h"
 #include "safety/safety.h"
 #include "policy/policy.h"
+#include "session/identity.h"
 
 namespace mbc::conf {
 namespace {
@@ -25,8 +26,6 @@ namespace {
 // and how many times.
 constexpr std::chrono::milliseconds kSettle{300};
 constexpr int kSettleRounds = 3;
-// Registers read for the identity when the drive has no FC 43/14 objects.
-constexpr size_t kIdentitySamples = 8;
 
 bool is_command(const spec::Register* r) { return r && (r->access == spec::Access::command || r->command); }
 
@@ -145,47 +144,31 @@ std::string spec_fingerprint(const spec::Spec& s) {
 }
 
 std::string journal_identity(Target& t, const spec::Spec& s) {
-  const auto& id = s.device.identification;
-  const auto* fc43 = s.profile.function(43);
   const Target::Wait kept_wait = Target::Wait::automatic;
   t.set_wait(Target::Wait::reply);
-  if (fc43 && std::find(fc43->mei_types.begin(), fc43->mei_types.end(), 14) != fc43->mei_types.end() &&
-      !id.product_code.empty()) {
-    // Read Device Identification, basic stream (MBAP v1.1b3 §6.21): 00 VendorName, 01 ProductCode, 02 Revision.
-    Reply r = t.transact(t.info().unit, read_device_identification(1, 0));
-    t.set_wait(kept_wait);
-    std::map<int, std::string> objects = r.pdu ? device_identification(*r.pdu) : std::map<int, std::string>{};
-    if (objects.empty()) return "FC 43/14: no identification";
-    return fmt::format("FC 43/14: VendorName \"{}\", ProductCode \"{}\", Revision \"{}\"", objects[0], objects[1], objects[2]);
-  }
-  std::vector<const spec::Register*> readable;
-  for (const auto& r : s.registers)
-    if ((r.table == spec::Table::holding || r.table == spec::Table::input) && r.access != spec::Access::wo &&
-        !is_command(&r) && s.profile.function(r.table == spec::Table::holding ? 3 : 4))
-      readable.push_back(&r);
-  std::vector<std::string> seen;
-  const size_t samples = std::min(kIdentitySamples, readable.size());
-  for (size_t k = 0; k < samples; ++k) {
-    const spec::Register& r = *readable[k * readable.size() / samples];
-    const uint8_t fc = r.table == spec::Table::holding ? 3 : 4;
-    const Bytes req = read_request(fc, r.address, uint16_t(r.words));
-    std::string what = "no reply";
-    for (int attempt = 0; attempt < 2 && what == "no reply"; ++attempt) {
-      Reply got;
-      try {
-        got = t.transact(t.info().unit, req);
-      } catch (const std::exception&) {
-        continue;
-      }
-      if (!got.pdu) continue;
-      Judged j = judge_reply(req, *got.pdu);
-      what = j.kind == Judged::Kind::exception ? fmt::format("exception {:02X}", j.exception_code)
-             : j.ok()                          ? "answers"
-                                               : "malformed";
+  IdentityOptions o;
+  o.attempts = 2;
+  o.stated_only = false;  // a drive compared with itself: an inferred reading tells drives apart too
+  const Identity id = read_identity(s, [&](const Bytes& pdu, std::string& error) -> std::optional<Reply> {
+    try {
+      return t.transact(t.info().unit, pdu);
+    } catch (const std::exception& e) {
+      error = e.what();
+      return std::nullopt;
     }
-    seen.push_back(fmt::format("FC {:02} 0x{:04X} {}", fc, r.address, what));
-  }
+  }, o);
   t.set_wait(kept_wait);
+  if (id.by_fc43) return id.objects.empty() ? "FC 43/14: no identification" : id.objects_text();
+  // Which registers answer, not their values (which change).
+  std::vector<std::string> seen;
+  for (const IdentityRead& r : id.reads) {
+    using K = IdentityRead::Kind;
+    const std::string what = r.kind == K::exception  ? fmt::format("exception {:02X}", r.exception)
+                             : r.kind == K::answered ? "answers"
+                             : r.kind == K::malformed && !r.pdu.empty() ? "malformed"
+                                                                         : "no reply";
+    seen.push_back(fmt::format("FC {:02} 0x{:04X} {}", r.fc, r.reg->address, what));
+  }
   if (seen.empty()) return "no register the spec says is readable";
   return fmt::format("{}", fmt::join(seen, ", "));
 }

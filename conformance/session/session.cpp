@@ -13,6 +13,7 @@
 #include "modbus/limits.h"
 #include "modbus/pdu.h"
 #include "safety/safety.h"
+#include "session/identity.h"
 #include "session/signals.h"
 #include "report/utc_now.h"
 
@@ -445,80 +446,59 @@ std::string Session::preflight(std::string& identity) {
   // The standard's baseline describes any server that follows the
   // standard, not one product: nothing to identify.
   if (!spec_ || !inner_->info().live || spec_->device.id == "modbus-standard") return "";
-  const auto& id = spec_->device.identification;
-  const auto* fc43 = spec_->profile.function(43);
-  if (fc43 && std::find(fc43->mei_types.begin(), fc43->mei_types.end(), 14) != fc43->mei_types.end() &&
-      !id.product_code.empty()) {
-    // Read Device Identification, basic stream (MBAP v1.1b3 §6.21): objects 00 VendorName, 01 ProductCode, 02 Revision.
-    inner_->set_wait(Target::Wait::reply);
-    Reply r = inner_->transact(inner_->info().unit, read_device_identification(1, 0));
-    std::map<int, std::string> objects = r.pdu ? device_identification(*r.pdu) : std::map<int, std::string>{};
-    if (objects.empty())
+  const uint8_t unit = inner_->info().unit;
+  inner_->set_wait(Target::Wait::reply);
+  const Identity id = read_identity(*spec_, [&](const Bytes& pdu, std::string& error) -> std::optional<Reply> {
+    try {
+      return inner_->transact(unit, pdu);
+    } catch (const std::exception& e) {
+      error = e.what();
+      return std::nullopt;
+    }
+  });
+  if (id.by_fc43) {
+    const auto& want = spec_->device.identification;
+    if (id.objects.empty())
       return fmt::format("--device {}: unit {} does not answer Read Device Identification (FC 43/14), which the spec says it "
                          "does: is it a {}? (--no-preflight skips this check)",
-                         spec_->device.id, inner_->info().unit, spec_->device.id);
-    identity = fmt::format("FC 43/14: VendorName \"{}\", ProductCode \"{}\", Revision \"{}\"", objects[0], objects[1], objects[2]);
-    if (objects[0] != id.vendor_name || objects[1] != id.product_code)
+                         spec_->device.id, unit, spec_->device.id);
+    identity = id.objects_text();
+    const std::string vendor = id.objects.count(0) ? id.objects.at(0) : "", product = id.objects.count(1) ? id.objects.at(1) : "";
+    if (vendor != want.vendor_name || product != want.product_code)
       return fmt::format("--device {}: unit {} identifies as VendorName \"{}\", ProductCode \"{}\"; the spec says \"{}\", \"{}\" "
                          "(--no-preflight skips this check)",
-                         spec_->device.id, inner_->info().unit, objects[0], objects[1], id.vendor_name, id.product_code);
+                         spec_->device.id, unit, vendor, product, want.vendor_name, want.product_code);
     return "";
   }
-  // No identity objects: reads spread over the registers the spec states
-  // are readable. A reading that is only inferred, observed or printed two
-  // ways identifies nothing (a Hanstar answers FC 03 only where its table 12
-  // prints it, not at 3000-3016, documented for FC 06/16), and one
-  // declaration is one sample (a reserved block of 39 registers is one).
-  std::vector<const spec::Register*> readable;
-  std::set<std::string> declarations;
-  for (const auto& r : spec_->registers)
-    if ((r.table == spec::Table::holding || r.table == spec::Table::input) && r.access != spec::Access::wo &&
-        r.access != spec::Access::command && r.basis_of(spec::Fact::read).basis == spec::Basis::stated &&
-        spec_->profile.function(r.table == spec::Table::holding ? 3 : 4) &&
-        !spec_->profile.function(r.table == spec::Table::holding ? 3 : 4)->basis_of("supported").is_inferred() &&
-        (r.origin.empty() || declarations.insert(r.origin).second))
-      readable.push_back(&r);
-  if (readable.empty()) {
+  if (id.reads.empty()) {
     identity = fmt::format("not identified: the spec {} states no FC 43/14 identity and no register as readable", spec_->device.id);
     return "";
   }
-  const size_t samples = std::min<size_t>(8, readable.size());
-  size_t refused = 0;
-  std::vector<std::string> seen, refusals;
   // Only a refusal of a mapped address (exception 01 or 02) or silence
   // speaks against the identity: a reply that is malformed (a wrong byte
   // count, say) is still this drive answering, and a finding for the run.
-  inner_->set_wait(Target::Wait::reply);
-  for (size_t k = 0; k < samples; ++k) {
-    const spec::Register& r = *readable[k * readable.size() / samples];
-    const uint8_t fc = r.table == spec::Table::holding ? 3 : 4;
-    Reply got;
-    try {
-      got = inner_->transact(inner_->info().unit, read_request(fc, r.address, uint16_t(r.words)));
-    } catch (const std::exception& e) {
+  size_t refused = 0;
+  std::vector<std::string> seen, refusals;
+  for (const IdentityRead& r : id.reads) {
+    const uint16_t at = r.reg->address;
+    if (r.refused()) {
       ++refused;
-      refusals.push_back(fmt::format("0x{:04X}: {}", r.address, e.what()));
-      continue;
-    }
-    const bool exception = got.pdu && got.pdu->size() >= 2 && (*got.pdu)[0] == (fc | 0x80);
-    if (got.silent()) {
-      ++refused;
-      refusals.push_back(fmt::format("0x{:04X}: no reply", r.address));
-    } else if (exception && ((*got.pdu)[1] == 1 || (*got.pdu)[1] == 2)) {
-      ++refused;
-      refusals.push_back(fmt::format("0x{:04X}: exception {:02X}", r.address, (*got.pdu)[1]));
-    } else if (got.pdu && !exception && got.pdu->size() == size_t(2 + 2 * r.words) && (*got.pdu)[0] == fc) {
-      seen.push_back(fmt::format("0x{:04X}={:02X}", r.address, fmt::join(got.pdu->begin() + 2, got.pdu->end(), "")));
+      refusals.push_back(r.kind == IdentityRead::Kind::not_sent ? fmt::format("0x{:04X}: {}", at, r.error)
+                         : r.kind == IdentityRead::Kind::silent ? fmt::format("0x{:04X}: no reply", at)
+                                                                : fmt::format("0x{:04X}: exception {:02X}", at, r.exception));
+    } else if (r.kind == IdentityRead::Kind::answered) {
+      seen.push_back(fmt::format("0x{:04X}={:02X}", at, fmt::join(r.pdu.begin() + 2, r.pdu.end(), "")));
     } else {
-      seen.push_back(fmt::format("0x{:04X} answered ({})", r.address,
-                                 got.pdu ? fmt::format("{:02X}", fmt::join(*got.pdu, " ")) : std::string("a frame that does not decode")));
+      seen.push_back(fmt::format("0x{:04X} answered ({})", at,
+                                 r.pdu.empty() ? std::string("a frame that does not decode") : fmt::format("{:02X}", fmt::join(r.pdu, " "))));
     }
   }
+  const size_t samples = id.reads.size();
   identity = fmt::format("{} of {} registers read across the spec's map: {}", samples - refused, samples, fmt::join(seen, ", "));
   if (refused * 2 > samples)
     return fmt::format("--device {}: unit {} refuses {} of {} reads of registers the spec maps ({}): is it a {}? "
                        "(--no-preflight skips this check)",
-                       spec_->device.id, inner_->info().unit, refused, samples, fmt::join(refusals, "; "), spec_->device.id);
+                       spec_->device.id, unit, refused, samples, fmt::join(refusals, "; "), spec_->device.id);
   return "";
 }
 

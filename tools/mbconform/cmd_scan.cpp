@@ -2,6 +2,7 @@
 //
 //   mbconform scan rtu:///dev/ttyUSB0 [--units 1-247] [--budget 10m] [--timeout 100ms] [--out scan.json]
 //   mbconform scan tcp://10.0.0.5:502          (a gateway: units only)
+//   mbconform run --scan-file scan.json        (then qualify every drive it identified: cmd_run.cpp)
 //
 // Exit codes: 0 the scan finished (whether or not it found a drive: the
 // table says); 1 it found nothing; 2 it could not run, or a stop signal or
@@ -10,6 +11,7 @@
 
 #include <fstream>
 #include <iostream>
+#include <tuple>
 
 #include "commands.h"
 #include "conventions.h"
@@ -40,14 +42,11 @@ int run_scan(const ScanArgs& a) {
                                                            std::chrono::milliseconds(60000)));
   o.budget = *budget;
   o.timeout = *timeout;
-  if (auto dash = a.units.find('-'); dash != std::string::npos) {
-    o.first_unit = std::atoi(a.units.substr(0, dash).c_str());
-    o.last_unit = std::atoi(a.units.substr(dash + 1).c_str());
-  } else {
-    o.first_unit = o.last_unit = std::atoi(a.units.c_str());
+  try {
+    std::tie(o.first_unit, o.last_unit) = conf::scan::parse_units(a.units);
+  } catch (const std::invalid_argument& e) {
+    throw CLI::ValidationError("--units", e.what());
   }
-  if (o.first_unit < 1 || o.last_unit > 247 || o.first_unit > o.last_unit)
-    throw CLI::ValidationError("--units", "'" + a.units + "': expected FIRST-LAST within 1-247");
 
   std::vector<spec::Spec> loaded;
   std::vector<std::string> ids = a.devices.empty() ? spec::spec_ids() : a.devices;
@@ -63,11 +62,9 @@ int run_scan(const ScanArgs& a) {
   conf::scan::Result r = conf::scan::scan(o, specs);
   progress.clear();
   std::cout << conf::scan::table(r);
-  for (const auto& t : r.tried) std::cout << "tried " << t << "\n";
-  for (const auto& n : r.notes) std::cout << "note: " << n << "\n";
   if (!a.out.empty()) {
     std::ofstream f(a.out);
-    f << conf::scan::to_json(r, a.uri);
+    f << conf::scan::to_json(r);
     if (!f) throw std::runtime_error("cannot write " + a.out);
   }
   std::cout << fmt::format("{}: {} unit(s) found, {} requests in {:.1f} s{}\n", r.partial ? "PARTIAL" : "DONE",
@@ -89,7 +86,8 @@ void add_scan_command(CLI::App& app, int& exit_code) {
   cmd->add_option("--budget", a.budget, "DURATION: the longest the scan runs (then PARTIAL)")->capture_default_str();
   cmd->add_option("--timeout", a.timeout, "DURATION: the wait for each probe's reply")->capture_default_str();
   cmd->add_option("--device", a.devices, "ID: a spec to identify against (repeatable; default: every known spec)");
-  cmd->add_option("--out", a.out, "FILE: the scan as JSON (units, settings, identities, commands)");
+  cmd->add_option("--out", a.out, "FILE: the scan as JSON (units, settings, identities, commands): the scan file "
+                                  "`run --scan-file FILE` qualifies, every drive identified");
   cmd->add_flag("--all-settings", a.all_settings, "keep trying line settings after one answered (drives at several settings)");
   cmd->add_flag("--progress", a.progress, "progress on stderr even when it is not a terminal");
   cmd->add_flag("-q,--quiet", a.quiet, "no progress");

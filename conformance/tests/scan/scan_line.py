@@ -56,11 +56,18 @@ try:
     check(sorted(found) == sorted(line), f"units {sorted(line)} found (got {sorted(found)})")
     for unit, device in line.items():
         u = found.get(unit, {})
-        check(u.get("settings", {}).get("baud") == 19200, f"unit {unit} at 19200 baud (got {u.get('settings')})")
+        st = u.get("settings", {})
+        # A pty carries the baud rate but not parity (Linux forces CS8, no
+        # parity: reference/serve/uart.h): 8 data bits and 1 stop bit are
+        # right, the parity is the first tried at 19200 and the scan says so.
+        check(st.get("baud") == 19200 and st.get("data") == 8 and st.get("stop") == 1,
+              f"unit {unit} at 19200 baud, 8 data bits, 1 stop bit (got {st})")
         check(u.get("spec", {}).get("id") == device, f"unit {unit} identified as {device} (got {u.get('spec')})")
         check(f"baud=19200" in u.get("command", "") and f"unit={unit}" in u.get("command", "")
               and f"--device {device}" in u.get("command", ""), f"unit {unit}'s run command: {u.get('command')}")
     check(data is not None and not data["partial"], "the scan finished within its budget")
+    check(data is not None and any("pseudo-terminal" in n for n in data.get("notes", [])),
+          "the scan file says a pty does not carry parity")
 
     # A master held to another rate gets nothing from the line.
     rc, data, _ = scan("rtu://" + pty + "?baud=9600", "--units", "1-15", "--timeout", "100ms", out="wrong.json")
