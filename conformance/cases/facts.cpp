@@ -361,7 +361,12 @@ void settle_level(Case& c) {
   if (c.requirement.find(" [relies on ") != std::string::npos) return;
   std::vector<std::string> inferred;
   for (const auto& r : all_relies(c))
-    if (spec::demotes(r.basis)) inferred.push_back(describe(r));  // inferred, or printed two ways in words
+    if (spec::demotes(r.basis)) {
+      inferred.push_back(describe(r));  // inferred, or printed two ways in words
+      // The erratum the doubt comes from is one the case relies on (issue 37).
+      if (!r.basis.erratum.empty() && std::find(c.errata.begin(), c.errata.end(), r.basis.erratum) == c.errata.end())
+        c.errata.push_back(r.basis.erratum);
+    }
   if (inferred.empty()) return;
   if (c.level == Level::must || c.level == Level::should) {
     c.level_if_stated = c.level;

@@ -21,6 +21,7 @@
 #include <csignal>
 #include <filesystem>
 #include <fstream>
+#include <set>
 #include <sstream>
 #include <thread>
 
@@ -668,31 +669,55 @@ TEST(RestoreCommand, AFullDiskStopsTheCommandBeforeTheWriteItCannotJournal) {
 }
 
 // Issue 37: a drive that stays silent when its command registers are read
-// runs every printed example of every device: none is skipped because its
-// value "could not be read before the write".
+// runs every printed example of every device: each example of the spec is a
+// case of the run, none is skipped, and none because its value "could not be
+// read before the write". Hanstar and Rieding print no reply to a read of a
+// command register, so on them such a drive does what its manual prints and
+// every MUST example passes. (The 57HS-R prints exception 06 for a read of
+// its start command (6.2.4) and the HSC60 a value for a read of 90 and 91:
+// silence is a deviation there, which a case may report.)
 TEST(SilentCommandReads, EveryPrintedExampleOfEveryDeviceRuns) {
   for (const std::string id : {"sihong-57hs-r", "hsc60", "hanstar-7trsm5740q", "rieding-dhe"}) {
     SCOPED_TRACE(id);
+    const bool prints_no_reply = id == "hanstar-7trsm5740q" || id == "rieding-dhe";
     TempDir out;
     Served sv = serve_tcp(id, {"--fault", "silent-command-reads"});
     std::string text;
     int rc = mbconform({"run", "--target", sv.uri, "--device", id, "--filter", "/examples/", "--allow-motion",
-                        "--allow-eeprom-writes", "--out", out.path(), "-q"},
+                        "--allow-eeprom-writes", "--allow-writes", "--out", out.path(), "-q"},
                        &text);
     EXPECT_NE(rc, 2) << text;
+    if (prints_no_reply) {
+      EXPECT_EQ(rc, 0) << text;
+    }
     std::ifstream in(out / "report.json");
     ASSERT_TRUE(in) << text;
     nlohmann::json j = nlohmann::json::parse(in);
-    int examples = 0, ran = 0;
+    std::set<std::string> ran;
+    int must = 0;
     for (const auto& d : j["devices"])
       for (const auto& c : d["cases"]) {
-        ++examples;
-        const std::string message = c.value("message", "");
-        EXPECT_EQ(message.find("could not be read before the write"), std::string::npos) << c.value("id", "") << ": " << message;
-        if (c.value("outcome", "") != "skip") ++ran;
+        const std::string case_id = c.value("id", ""), message = c.value("message", ""), outcome = c.value("outcome", "");
+        EXPECT_EQ(message.find("could not be read before the write"), std::string::npos) << case_id << ": " << message;
+        // Served over Modbus TCP: a frame with a deliberately wrong CRC cannot be sent (not the journal's doing).
+        const bool raw_rtu = message.find("cannot send raw RTU frames") != std::string::npos;
+        EXPECT_TRUE(outcome != "skip" || raw_rtu) << case_id << ": " << message;
+        if (outcome != "skip" || raw_rtu) ran.insert(case_id.substr(case_id.rfind('/') + 1));
+        if (c.value("level", "") == "MUST") {
+          ++must;
+          if (prints_no_reply) {
+            EXPECT_EQ(outcome, "pass") << case_id << ": " << message;
+          }
+        }
       }
-    EXPECT_GT(examples, 0) << text;
-    EXPECT_GT(ran, 0) << text;
+    ASSERT_FALSE(sv.spec.examples.empty());
+    for (const auto& x : sv.spec.examples) {  // a sequence's steps run as one case, named after the sequence
+      const std::string& name = x.sequence.empty() ? x.id : x.sequence;
+      EXPECT_TRUE(ran.count(name)) << "printed example " << name << " did not run";
+    }
+    if (prints_no_reply) {
+      EXPECT_GE(must, 4) << text;  // 6.3.2/6.3.3 (Hanstar), the four 五 sequences (Rieding)
+    }
   }
 }
 
