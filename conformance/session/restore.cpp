@@ -410,6 +410,18 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
   for (const auto& e : c.originals) control_written |= is_control_command_register(s, e.table, e.address);
   for (const auto& k : c.commands) control_written |= is_control_command_register(s, k.table, k.address);
   bool safe = false;
+  // A control the run left in the state the journal recorded before its first
+  // command is unchanged: it stays there (a motor enabled before the run stays
+  // enabled); the safe state is only for a control the run changed.
+  if (state_machine(s) && control_written && !c.control_state.empty() && c.control_state != "unknown") {
+    std::string why;
+    if (auto words = control_words(t, s, why); words && control_state_named(*s.control, *words) == c.control_state) {
+      control_written = false;
+      rep.notes.push_back(fmt::format("control: in {}, the state before the command: unchanged by the run, so left there, "
+                                      "not taken to the safe state {}", c.control_state, s.control->safe));
+      note(fmt::format("left control {}: unchanged by the run", c.control_state));
+    }
+  }
   if (state_machine(s) && control_written) {
     std::vector<std::string> did;
     std::string why = control_to_safe(t, s, did);
