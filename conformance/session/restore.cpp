@@ -398,14 +398,14 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
   for (const auto& e : c.originals) control_written |= is_control_command_register(s, e.table, e.address);
   for (const auto& k : c.commands) control_written |= is_control_command_register(s, k.table, k.address);
   bool safe = false;
-  if (state_machine(s) && !c.control_state.empty()) {
-    std::string no;
-    auto words = control_words(t, s, no);
-    const std::string now = words ? control_state_named(*s.control, *words) : "";
-    if (!now.empty() && now == c.control_state) {
+  if (state_machine(s) && control_written && !c.control_state.empty() && c.control_state != "unknown") {
+    std::string why;
+    if (auto words = control_words(t, s, why); words && control_state_named(*s.control, *words) == c.control_state) {
       control_written = false;
-      safe = now == s.control->safe;
-      rep.notes.push_back(fmt::format("control: in {}, the state before the command: left there", now));
+      safe = c.control_state == s.control->safe;
+      rep.notes.push_back(fmt::format("control: in {}, the state before the command: unchanged by the run, so left there, "
+                                      "not taken to the safe state {}", c.control_state, s.control->safe));
+      note(fmt::format("left control {}: unchanged by the run", c.control_state));
     }
   }
   if (state_machine(s) && control_written) {

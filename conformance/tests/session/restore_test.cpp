@@ -315,6 +315,43 @@ TEST(JournalRestore, NeverWritesALineSettingOrACommandAndStopsTheCommand) {
   for (const auto& r : after.restored) EXPECT_NE(r.address, baud->address);
 }
 
+// A control the run left where it was before its first command (the journal's
+// `control` record) stays there: a drive in Operation enabled before the run
+// is not disabled by the restore (on the 57HS-R that would release the motor);
+// a control the run changed is taken to the safe state (issue 38, Deliver 6).
+TEST(JournalRestore, AControlUnchangedByTheRunStaysAndAChangedOneGoesToTheSafeState) {
+  Served sv = serve_tcp("cia402-modbus");
+  auto t = open_target(sv.uri);
+  for (bool changed : {false, true}) {
+    SCOPED_TRACE(changed ? "changed by the run" : "unchanged by the run");
+    TempDir out;
+    write(*t, 0x0000, 0x06);  // Shutdown: Ready to switch on
+    write(*t, 0x0000, 0x0F);  // Switch on + Enable operation, target velocity 0: Operation enabled
+    std::this_thread::sleep_for(100ms);
+    ASSERT_EQ(read(*t, 0x0001, 1)[0] & 0x6F, 0x27) << "not in Operation enabled";
+    std::string path;
+    {
+      Journal j = Journal::create(out.path(), {{"device", sv.spec.device.id}, {"unit", std::to_string(t->info().unit)}});
+      const std::string line = control_record(*t, sv.spec);
+      ASSERT_EQ(line.rfind("control operation_enabled", 0), 0u) << line;
+      j.record(line);
+      j.keep({{spec::Table::holding, 0x0000, {0x0F}, false, ""}}, {}, {});
+      path = j.path();
+    }
+    write(*t, 0x0000, changed ? 0x06 : 0x0F);  // the run's last command: Shutdown, or Enable operation again
+    std::this_thread::sleep_for(100ms);
+    Journal record = Journal::append_to(path);
+    RestoreReport rep = restore_journal(*t, sv.spec, read_journal(path), record);
+    EXPECT_TRUE(rep.not_restored.empty()) << joined(rep.not_restored);
+    const uint16_t status = read(*t, 0x0001, 1)[0];
+    if (changed)
+      EXPECT_EQ(status & 0x4F, 0x40) << "statusword " << status << ": not in Switch on disabled, the safe state\n" << joined(rep.notes);
+    else
+      EXPECT_EQ(status & 0x6F, 0x27) << "statusword " << status << ": taken out of Operation enabled, where the run found it\n"
+                                     << joined(rep.notes);
+  }
+}
+
 // ---- torn records, second restores -----------------------------------------------
 
 TEST(JournalRestore, ATornRecordIsSkippedAndTheRestStillRestores) {
