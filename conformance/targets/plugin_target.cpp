@@ -439,7 +439,8 @@ class PluginTarget final : public Target {
     hooks_ = unsigned(std::stoul(hello.substr(0, space)));
 
     info_.kind = TargetKind::plugin;
-    info_.framing = &mbc::kRtu;
+    info_.framing = framing_of(info_.kind);
+    info_.live = is_live(info_.kind);
     info_.unit = uint8_t(unit);
     info_.raw = hooks_ & host::kHasRtu;
     info_.power_cycle = hooks_ & host::kHasPowerCycle;

@@ -56,7 +56,8 @@ class RefTarget final : public Target {
     }
     int unit = int_param(u, "unit", s.serial.slave_default.value_or(1), 1, 247);
     info_.kind = TargetKind::ref;
-    info_.framing = &mbc::kRtu;
+    info_.framing = framing_of(info_.kind);
+    info_.live = is_live(info_.kind);
     info_.unit = uint8_t(unit);
     info_.virtual_clock = true;
     info_.power_cycle = true;

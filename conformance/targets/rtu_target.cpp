@@ -207,9 +207,9 @@ class RtuTarget final : public Target {
     if (serial_ || u.param("baud")) baud = int_param(u, uri_text_, "baud", kDefaultBaud, 300, 4000000);
 
     info_.kind = u.scheme == "rtu" ? TargetKind::rtu : TargetKind::rtu_tcp;
-    info_.framing = &mbc::kRtu;
+    info_.framing = framing_of(info_.kind);
     info_.unit = uint8_t(unit);
-    info_.live = true;
+    info_.live = is_live(info_.kind);
     info_.raw = true;
     info_.baud = baud;
     frame_gap_ = baud ? frame_gap(*baud) : microseconds(0);

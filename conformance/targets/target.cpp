@@ -105,13 +105,25 @@ std::optional<TargetKind> kind_of_scheme(std::string_view scheme) {
   return std::nullopt;
 }
 
-std::unique_ptr<Target> open_target(const std::string& text) {
-  Uri u = parse_uri(text);
+TargetKind kind_of_uri(const Uri& u, const std::string& text) {
   auto kind = kind_of_scheme(u.scheme);
   if (!kind)
     throw std::invalid_argument(
         fmt::format("target '{}': unknown scheme '{}' (ref, tcp, rtu-tcp, rtu, plugin, mbtls)", text, u.scheme));
-  switch (*kind) {
+  return *kind;
+}
+
+// TCP and TLS carry MBAP; the others RTU frames (rtu-tcp: RTU over a socket,
+// ref and plugin: in process, RTU framed).
+Framing framing_of(TargetKind k) { return k == TargetKind::tcp || k == TargetKind::tls ? &mbc::kTcp : &mbc::kRtu; }
+
+// A socket or a serial line reaches a device nobody here wrote; ref and a
+// plugin run in this process.
+bool is_live(TargetKind k) { return k != TargetKind::ref && k != TargetKind::plugin; }
+
+std::unique_ptr<Target> open_target(const std::string& text) {
+  Uri u = parse_uri(text);
+  switch (kind_of_uri(u, text)) {
     case TargetKind::ref: return make_ref_target(u);
     case TargetKind::tcp:
     case TargetKind::rtu_tcp:

@@ -32,6 +32,15 @@ const char* to_string(TargetKind k);  // "ref", "tcp", "rtu-tcp", "rtu", "tls", 
 // The kind a URI scheme opens ("mbtls" opens tls); nullopt for a scheme no
 // target kind takes.
 std::optional<TargetKind> kind_of_scheme(std::string_view scheme);
+// The kind `u` opens; throws invalid_argument naming `text` for a scheme no
+// kind takes (open_target and `run --plan` say the same line).
+struct Uri;
+TargetKind kind_of_uri(const Uri& u, const std::string& text);
+// What a kind is before it is opened, decided here once: the framing its
+// frames go out in, and whether it is a real device (the frame policy's
+// default deny). Every target takes them from here, and so does `run --plan`.
+Framing framing_of(TargetKind k);
+bool is_live(TargetKind k);
 
 struct TargetInfo {
   std::string uri;        // as given (normalised)

@@ -48,9 +48,9 @@ class TcpTarget final : public Target {
     window_ = SilenceWindow(timeout_, false, fixed);
     info_.uri = fmt::format("{}?unit={}", base, unit);
     info_.kind = TargetKind::tcp;
-    info_.framing = &mbc::kTcp;
+    info_.framing = framing_of(info_.kind);
     info_.unit = uint8_t(unit);
-    info_.live = true;
+    info_.live = is_live(info_.kind);
     info_.raw = true;
     // gateway=1: a Modbus TCP gateway in front of the device; it stays in
     // the URI, which check/exchange.cpp reads (a gateway found by its 0A/0B

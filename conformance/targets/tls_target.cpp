@@ -51,6 +51,8 @@ class TlsTarget final : public Target {
     tcp_ = make_tcp_target(inner);
     info_ = tcp_->info();
     info_.kind = TargetKind::tls;
+    info_.framing = framing_of(info_.kind);
+    info_.live = is_live(info_.kind);
     info_.uri = fmt::format("{}?unit={}", base, info_.unit);
   }
 

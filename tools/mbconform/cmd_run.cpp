@@ -109,13 +109,9 @@ conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   conf::Uri u = conf::parse_uri(uri);
   conf::TargetInfo i;
   i.uri = uri;
-  auto kind = conf::kind_of_scheme(u.scheme);
-  if (!kind)
-    throw std::invalid_argument(
-        fmt::format("target '{}': unknown scheme '{}' (ref, tcp, rtu-tcp, rtu, plugin, mbtls)", uri, u.scheme));
-  i.kind = *kind;
-  i.framing = i.kind == conf::TargetKind::tcp || i.kind == conf::TargetKind::tls ? &mbc::kTcp : &mbc::kRtu;
-  i.live = i.kind != conf::TargetKind::ref && i.kind != conf::TargetKind::plugin;
+  i.kind = conf::kind_of_uri(u, uri);
+  i.framing = conf::framing_of(i.kind);  // what open_target's target would say
+  i.live = conf::is_live(i.kind);
   i.raw = true;  // every kind sends raw frames in its own framing (tcp: raw MBAP), as the opened target says
   i.unit = uint8_t(std::stoi(u.param("unit").value_or(std::to_string(s.serial.slave_default.value_or(1)))));
   if (auto b = u.param("baud")) i.baud = std::stoi(*b);

@@ -76,6 +76,11 @@ TEST_P(LiveTarget, InfoDescribesTheLink) {
   EXPECT_EQ(i.unit, served.slave);
   EXPECT_EQ(i.framing, GetParam() == "tcp" ? &mbc::kTcp : &mbc::kRtu);
   EXPECT_EQ(i.baud.has_value(), GetParam() == "pty");
+  // What `run --plan` takes for this kind before opening it is what the
+  // opened target says.
+  EXPECT_EQ(framing_of(i.kind), i.framing);
+  EXPECT_EQ(is_live(i.kind), i.live);
+  EXPECT_EQ(kind_of_uri(parse_uri(i.uri), i.uri), i.kind);
   EXPECT_THROW(target->power_cycle(), std::logic_error);
   EXPECT_THROW(target->advance(1ms), std::logic_error);
   // Reopening the normalised URI gives the same link.

@@ -55,6 +55,18 @@ TEST(TargetKind, EachSchemeNamesItsKindAndItsPrintedName) {
   EXPECT_FALSE(kind_of_scheme("tls"));  // the scheme is mbtls
   EXPECT_FALSE(kind_of_scheme("modbus"));
   EXPECT_THROW(open_target("modbus://127.0.0.1:502"), std::invalid_argument);
+  EXPECT_THROW(kind_of_uri(parse_uri("modbus://127.0.0.1:502"), "modbus://127.0.0.1:502"), std::invalid_argument);
+}
+
+// What a kind is before it is opened (`run --plan`): MBAP on tcp and mbtls
+// (MB-TCP), RTU frames on the others (rtu-tcp is RTU over a socket); a socket
+// or a serial line reaches a real device, ref and a plugin run in process.
+TEST(TargetKind, FramingAndLivenessBeforeOpening) {
+  using K = TargetKind;
+  for (K k : {K::tcp, K::tls}) EXPECT_EQ(framing_of(k), &mbc::kTcp) << to_string(k);
+  for (K k : {K::ref, K::rtu, K::rtu_tcp, K::plugin}) EXPECT_EQ(framing_of(k), &mbc::kRtu) << to_string(k);
+  for (K k : {K::tcp, K::tls, K::rtu, K::rtu_tcp}) EXPECT_TRUE(is_live(k)) << to_string(k);
+  for (K k : {K::ref, K::plugin}) EXPECT_FALSE(is_live(k)) << to_string(k);
 }
 
 TEST(Uri, RejectsMalformedText) {
@@ -96,6 +108,8 @@ TEST_P(RefTarget, InfoCarriesTheSpec) {
   EXPECT_EQ(i.baud, spec.serial.baud_default);
   EXPECT_FALSE(i.live);
   EXPECT_TRUE(i.raw && i.power_cycle && i.virtual_clock);
+  EXPECT_EQ(framing_of(i.kind), i.framing);
+  EXPECT_EQ(is_live(i.kind), i.live);
 }
 
 TEST_P(RefTarget, ReadsTheDefaultTheSpecStates) {
