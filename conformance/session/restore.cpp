@@ -389,37 +389,48 @@ RestoreReport restore_journal(Target& t, const spec::Spec& s, const JournalConte
   // The drive's control (spec control:): to the safe state first (stop,
   // disable), before any register goes back; a control command register is
   // then left as the safe state's commands left it.
-  // A control still in the state the journal recorded before the command is
-  // left there: the restore puts the drive back as it was, and walking it to
-  // the safe state would change what the command never changed (a 57HS-R
-  // enabled before the run would be released; a Hanstar just powered on has
-  // no motion-free command to its safe state at all).
-  bool control_written = !c.control_state.empty();
-  for (const auto& e : c.originals) control_written |= is_control_command_register(s, e.table, e.address);
-  for (const auto& k : c.commands) control_written |= is_control_command_register(s, k.table, k.address);
+  // A control the command never commanded (no control command register
+  // written) and still in the state the journal recorded is left there: the
+  // restore puts the drive back as it was (a 57HS-R enabled before a run that
+  // only read is not released). A commanded control goes to the safe state
+  // first (stop, disable: issue 38), even when it is back where it started;
+  // where the spec's control has no motion-free way there from the state the
+  // drive was found in (a Hanstar just powered on), it is left in that state.
+  bool commanded = false;
+  for (const auto& e : c.originals) commanded |= is_control_command_register(s, e.table, e.address);
+  for (const auto& k : c.commands) commanded |= is_control_command_register(s, k.table, k.address);
+  const bool recorded = !c.control_state.empty() && c.control_state != "unknown";
+  auto state_now = [&] {
+    std::string no;
+    auto words = control_words(t, s, no);
+    return words ? control_state_named(*s.control, *words) : std::string();
+  };
   bool safe = false;
-  if (state_machine(s) && control_written && !c.control_state.empty() && c.control_state != "unknown") {
-    std::string why;
-    if (auto words = control_words(t, s, why); words && control_state_named(*s.control, *words) == c.control_state) {
-      control_written = false;
-      safe = c.control_state == s.control->safe;
-      rep.notes.push_back(fmt::format("control: in {}, the state before the command: unchanged by the run, so left there, "
-                                      "not taken to the safe state {}", c.control_state, s.control->safe));
-      note(fmt::format("left control {}: unchanged by the run", c.control_state));
-    }
-  }
-  if (state_machine(s) && control_written) {
-    std::vector<std::string> did;
-    std::string why = control_to_safe(t, s, did);
-    for (const auto& d : did) note("stopped control " + d);
-    if (why.empty()) {
-      safe = true;
-      rep.notes.push_back(fmt::format("control: in the safe state {}{}{}", s.control->safe,
-                                      did.empty() ? "" : fmt::format(" ({})", fmt::join(did, "; ")),
-                                      c.control_state.empty() ? "" : fmt::format(", from {} before the command", c.control_state)));
+  if (state_machine(s) && (commanded || recorded)) {
+    const std::string before = recorded ? c.control_state : "";
+    std::string now = recorded ? state_now() : "";
+    auto leave = [&](const std::string& why) {
+      safe = now == s.control->safe;
+      rep.notes.push_back(fmt::format("control: in {}, the state before the command: {}", now, why));
+      note(fmt::format("left control {}: {}", now, why));
+    };
+    if (!commanded && !now.empty() && now == before) {
+      leave(fmt::format("not commanded by the run, so left there, not taken to the safe state {}", s.control->safe));
     } else {
-      rep.not_restored.push_back(fmt::format("control: the safe state {} was not reached: {}", s.control->safe, why));
-      note(fmt::format("not-restored control: the safe state {} was not reached: {}", s.control->safe, why));
+      std::vector<std::string> did;
+      std::string why = control_to_safe(t, s, did);
+      for (const auto& d : did) note("stopped control " + d);
+      if (why.empty()) {
+        safe = true;
+        rep.notes.push_back(fmt::format("control: in the safe state {}{}{}", s.control->safe,
+                                        did.empty() ? "" : fmt::format(" ({})", fmt::join(did, "; ")),
+                                        before.empty() ? "" : fmt::format(", from {} before the command", before)));
+      } else if (did.empty() && !before.empty() && (now = state_now()) == before) {
+        leave(fmt::format("no motion-free way to the safe state {} ({})", s.control->safe, why));
+      } else {
+        rep.not_restored.push_back(fmt::format("control: the safe state {} was not reached: {}", s.control->safe, why));
+        note(fmt::format("not-restored control: the safe state {} was not reached: {}", s.control->safe, why));
+      }
     }
   }
   const std::set<uint16_t> setpoints = state_machine(s) ? control_setpoints(s) : std::set<uint16_t>{};

@@ -319,11 +319,11 @@ TEST(JournalRestore, NeverWritesALineSettingOrACommandAndStopsTheCommand) {
 // `control` record) stays there: a drive in Operation enabled before the run
 // is not disabled by the restore (on the 57HS-R that would release the motor);
 // a control the run changed is taken to the safe state (issue 38, Deliver 6).
-TEST(JournalRestore, AControlUnchangedByTheRunStaysAndAChangedOneGoesToTheSafeState) {
+TEST(JournalRestore, AControlTheRunDidNotCommandStaysAndACommandedOneGoesToTheSafeState) {
   Served sv = serve_tcp("cia402-modbus");
   auto t = open_target(sv.uri);
   for (bool changed : {false, true}) {
-    SCOPED_TRACE(changed ? "changed by the run" : "unchanged by the run");
+    SCOPED_TRACE(changed ? "commanded by the run" : "not commanded by the run");
     TempDir out;
     write(*t, 0x0000, 0x06);  // Shutdown: Ready to switch on
     write(*t, 0x0000, 0x0F);  // Switch on + Enable operation, target velocity 0: Operation enabled
@@ -335,10 +335,16 @@ TEST(JournalRestore, AControlUnchangedByTheRunStaysAndAChangedOneGoesToTheSafeSt
       const std::string line = control_record(*t, sv.spec);
       ASSERT_EQ(line.rfind("control operation_enabled", 0), 0u) << line;
       j.record(line);
-      j.keep({{spec::Table::holding, 0x0000, {0x0F}, false, ""}}, {}, {});
+      // A run that commands the control journals the controlword; one that
+      // does not, only the register it writes (the quick stop option code).
+      if (changed)
+        j.keep({{spec::Table::holding, 0x0000, {0x0F}, false, ""}}, {}, {});
+      else
+        j.keep({{spec::Table::holding, 0x000D, {2}, false, ""}}, {}, {});
       path = j.path();
     }
-    write(*t, 0x0000, changed ? 0x06 : 0x0F);  // the run's last command: Shutdown, or Enable operation again
+    if (changed) write(*t, 0x0000, 0x06);  // the run's last command: Shutdown
+    else write(*t, 0x000D, 2);
     std::this_thread::sleep_for(100ms);
     Journal record = Journal::append_to(path);
     RestoreReport rep = restore_journal(*t, sv.spec, read_journal(path), record);
