@@ -5,6 +5,7 @@
 #include <netdb.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
+#include <poll.h>
 
 #include <type_traits>
 #include <pty.h>
@@ -16,9 +17,11 @@
 #include <sys/signalfd.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <termios.h>
 #include <unistd.h>
 
+#include <array>
 #include <cerrno>
 #include <chrono>
 #include <csignal>
@@ -837,21 +840,67 @@ struct Server::Impl {
     }
   }
 
+  // How late this host's timers fire. clock_getres says 1 ns with
+  // high-resolution timers, a tick (4 ms at HZ=250) on a kernel or virtual
+  // machine without them; timer slack, a busy host or a hypervisor add their
+  // own. A paced line (--line, --line-rate) cannot wait on a timer that late
+  // for characters of a millisecond: it wakes early by the most its recent
+  // timed waits were late (at least the resolution) and polls to the
+  // deadline, spending CPU only while a paced reply is going out.
+  microseconds timer_resolution = [] {
+    timespec res{};
+    if (clock_getres(CLOCK_MONOTONIC, &res) != 0) return microseconds(0);
+    return duration_cast<microseconds>(std::chrono::seconds(res.tv_sec) + std::chrono::nanoseconds(res.tv_nsec));
+  }();
+  static constexpr size_t kLateWindow = 32;
+  static constexpr microseconds kMostEarly{5000};  // a host later than this is too busy to pace a line
+  std::array<microseconds, kLateWindow> late_seen{};
+  size_t late_at = 0;
+  bool have_epoll_pwait2 = true;
+
+  microseconds wake_early() const {
+    if (!opt.line && !opt.line_rate) return microseconds(0);
+    microseconds most = timer_resolution > microseconds(20) ? timer_resolution : microseconds(0);
+    for (auto l : late_seen) most = std::max(most, l);
+    return std::min(most, kMostEarly);
+  }
+
   // Waits until something is ready, a timer is due or a stop signal came.
   int wait_ready(Clock::time_point now) {
     timespec ts = poll_timeout(now);
-    int rc = epoll_pwait2(epfd, ready.data(), int(ready.size()), &ts, nullptr);
-    if (rc < 0 && errno == ENOSYS) {  // a kernel before 5.11: whole milliseconds, rounded up
-      long ms = long(ts.tv_sec) * 1000 + (ts.tv_nsec + 999999) / 1000000;
-      rc = epoll_wait(epfd, ready.data(), int(ready.size()), int(ms));
+    const microseconds early = wake_early();
+    int64_t us = int64_t(ts.tv_sec) * 1000000 + ts.tv_nsec / 1000;
+    if (early.count() > 0) {
+      us = std::max<int64_t>(0, us - early.count());
+      ts = timespec{time_t(us / 1000000), long(us % 1000000) * 1000L};
+    }
+    int rc = epoll_or_ppoll(ts);
+    if (rc == 0 && us > 0 && (opt.line || opt.line_rate)) {
+      auto late = duration_cast<microseconds>(Clock::now() - (now + microseconds(us)));
+      late_seen[late_at++ % kLateWindow] = std::max(microseconds(0), late);
     }
     return rc;
+  }
+
+  int epoll_or_ppoll(const timespec& ts) {
+    if (have_epoll_pwait2) {
+      int rc = epoll_pwait2(epfd, ready.data(), int(ready.size()), &ts, nullptr);
+      if (rc >= 0 || errno != ENOSYS) return rc;
+      have_epoll_pwait2 = false;  // a kernel before 5.11, or a seccomp profile that predates it
+    }
+    // ppoll waits to the nanosecond on the epoll set (readable when an event
+    // is ready); epoll_wait then collects without waiting. epoll_wait's own
+    // timeout is in whole milliseconds: a millisecond late twice per exchange.
+    pollfd p{epfd, POLLIN, 0};
+    int rc = ppoll(&p, 1, &ts, nullptr);
+    if (rc <= 0) return rc;
+    return epoll_wait(epfd, ready.data(), int(ready.size()), 0);
   }
 
   int run() {
     // Paced replies and RTU gaps are timers of a few hundred microseconds; the
     // default 50 us of timer slack would be added to each.
-    if (opt.line_rate) prctl(PR_SET_TIMERSLACK, 1000UL);
+    if (opt.line_rate || opt.line) prctl(PR_SET_TIMERSLACK, 1000UL);
     Clock::time_point now = clock_at = Clock::now();
     while (!stopping) {
       process_input(now);
