@@ -3,6 +3,8 @@
 #  - the version has one source: --version prints CMake's project version, and
 #    report.json says the same;
 #  - `run --help` lists every target kind, mbtls:// included;
+#  - a value an option cannot take is one line, "mbconform <command>: error: ...",
+#    and exit 2, as every other usage error;
 #  - check-capture, serve and restore take -q;
 #  - default report directories are new: two runs started in the same second
 #    write to two directories, check-capture's under reports/check-capture/
@@ -18,6 +20,15 @@ fail() { echo "cli_test: FAIL: $*" >&2; exit 1; }
 
 # The version.
 [ "$("$mbc" --version)" = "mbconform $version" ] || fail "--version says '$("$mbc" --version)', CMake says $version"
+
+# A bad option value: one line named by its command, exit 2.
+for args in "run --device hsc60 --target ref: --map-time xyz" "fuzz --device hsc60 --target ref: --seed abc" \
+            "serve --device nope --tcp 127.0.0.1:0" "spec check --no-such-option-value=1 x"; do
+  rc=0; "$mbc" $args >bad.txt 2>&1 || rc=$?
+  cmd="mbconform ${args%% *}"; [ "${args%% *}" = spec ] && cmd="mbconform spec check"
+  [ "$rc" = 2 ] && [ "$(wc -l <bad.txt)" = 1 ] && grep -q "^$cmd: error: " bad.txt ||
+    { cat bad.txt >&2; fail "'$args': exit $rc, not one '$cmd: error:' line"; }
+done
 
 # Target kinds in run --help.
 "$mbc" run --help >run-help.txt

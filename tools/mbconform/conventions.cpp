@@ -178,9 +178,16 @@ void add_conventions(CLI::App& app, int& exit_code) {
   footer_everywhere(&app);
 }
 
-std::optional<int> check_args(CLI::App& app, std::vector<std::string>& args) {
+std::optional<int> check_args(CLI::App& app, std::vector<std::string>& args, std::string* command) {
   // Walk the words: commands down the tree, options of the command reached.
   CLI::App* at = &app;
+  struct Named {
+    std::string* into;
+    CLI::App*& at;
+    ~Named() {
+      if (into) *into = path_of(at);
+    }
+  } named{command, at};
   bool positional_seen = false;
   for (size_t i = 0; i < args.size(); ++i) {
     std::string& w = args[i];

@@ -71,7 +71,7 @@ void add_completion_command(CLI::App& app, int& exit_code);
 // known one ("did you mean"), and -q means --quiet where a command has it.
 // Returns the exit code when argv cannot be parsed, else nullopt (argv may
 // have been rewritten in `args`).
-std::optional<int> check_args(CLI::App& app, std::vector<std::string>& args);
+std::optional<int> check_args(CLI::App& app, std::vector<std::string>& args, std::string* command = nullptr);
 
 // The nearest of `known` to `word` (edit distance at most 2, or a prefix),
 // empty when none is near.

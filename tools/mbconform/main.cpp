@@ -1,6 +1,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <exception>
+#include <string>
 
 #include "commands.h"
 #include "conventions.h"
@@ -23,13 +24,16 @@ int main(int argc, char** argv) {
   mbc::cli::add_global_options(app);
   mbc::cli::add_conventions(app, exit_code);
   std::vector<std::string> args(argv + 1, argv + argc);
-  if (auto rc = mbc::cli::check_args(app, args)) return *rc;
+  std::string command = "mbconform";  // the command the words name ("mbconform spec check")
+  if (auto rc = mbc::cli::check_args(app, args, &command)) return *rc;
   try {
     std::reverse(args.begin(), args.end());  // CLI11 takes the words last first
     app.parse(args);
   } catch (const CLI::ParseError& e) {
-    int rc = app.exit(e);
-    return rc == 0 ? 0 : mbc::cli::kExitUsage;
+    if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
+    // One line, named like every other error: "mbconform fuzz: error: ...".
+    std::fprintf(stderr, "%s: error: %s (%s --help)\n", command.c_str(), e.what(), command.c_str());
+    return mbc::cli::kExitUsage;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "mbconform: error: %s\n", e.what());
     return mbc::cli::kExitUsage;
