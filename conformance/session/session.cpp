@@ -611,6 +611,7 @@ RestoreReport Session::restore() {
   }
   c = merge_journal(std::move(c), journal_.memory());
   rep = restore_journal(*inner_, spec_ ? *spec_ : none, c, journal_);
+  if (rep.not_restored.empty()) forget_stop_journal(journal_.path());
   if (!unreadable.empty()) rep.notes.push_back("restored from memory: the journal file could not be read: " + unreadable);
   if (!journal_.failed().empty())
     rep.notes.push_back(fmt::format("the journal stopped recording ({}): the restore used what the command kept in memory",

@@ -4,22 +4,42 @@
 
 #include <csignal>
 #include <cstring>
+#include <vector>
 
 namespace mbc::conf {
 namespace {
 
 std::atomic<bool> g_stop{false};
 std::atomic<int> g_signal{0};
-// Written before a handler can read it; a second signal prints it as is.
-char g_restore_line[4096] = "";
+// The journals of the sessions open now (a fleet run has one per line): a
+// slot is written while `state` is kWriting and read by a second signal only
+// once it is kReady.
+constexpr int kFree = 0, kWriting = 1, kReady = 2;
+struct Slot {
+  std::atomic<int> state{kFree};
+  char line[1024] = "";
+};
+Slot g_slots[16];
 
 void on_session_stop_signal(int sig) {
   if (g_stop.exchange(true) && (sig == SIGINT || sig == SIGTERM)) {
-    const char* msg = g_restore_line[0] ? g_restore_line : "mbconform: stopped at once\n";
-    (void)!::write(STDERR_FILENO, msg, std::strlen(msg));
+    bool named = false;
+    for (auto& s : g_slots)
+      if (s.state.load() == kReady) {
+        (void)!::write(STDERR_FILENO, s.line, std::strlen(s.line));
+        named = true;
+      }
+    if (!named) {
+      const char* msg = "mbconform: stopped at once\n";
+      (void)!::write(STDERR_FILENO, msg, std::strlen(msg));
+    }
     ::_exit(2);
   }
   g_signal.store(sig);
+}
+
+std::string restore_line(const std::string& path) {
+  return "mbconform: stopped at once; the drive is NOT restored: mbconform restore " + path + "\n";
 }
 
 }  // namespace
@@ -37,9 +57,34 @@ int stop_signal() { return g_signal.load(); }
 const std::atomic<bool>& stop_flag() { return g_stop; }
 
 void set_stop_journal(const std::string& path) {
-  std::string line = "mbconform: stopped at once; the drive is NOT restored: mbconform restore " + path + "\n";
-  if (line.size() >= sizeof g_restore_line) return;
-  std::memcpy(g_restore_line, line.c_str(), line.size() + 1);
+  const std::string line = restore_line(path);
+  if (line.size() >= sizeof g_slots[0].line) return;
+  for (auto& s : g_slots) {
+    int free = kFree;
+    if (!s.state.compare_exchange_strong(free, kWriting)) continue;
+    std::memcpy(s.line, line.c_str(), line.size() + 1);
+    s.state.store(kReady);
+    return;
+  }
+}
+
+void forget_stop_journal(const std::string& path) {
+  const std::string line = restore_line(path);
+  for (auto& s : g_slots) {
+    int ready = kReady;
+    if (s.line == line && s.state.compare_exchange_strong(ready, kWriting)) {
+      s.line[0] = 0;
+      s.state.store(kFree);
+    }
+  }
+}
+
+std::vector<std::string> stop_journals() {
+  std::vector<std::string> out;
+  const std::string head = restore_line("");
+  for (auto& s : g_slots)
+    if (s.state.load() == kReady) out.emplace_back(std::string(s.line + head.size() - 1, std::strlen(s.line) - head.size()));
+  return out;
 }
 
 std::string signal_name(int sig) {

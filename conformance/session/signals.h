@@ -7,6 +7,7 @@
 
 #include <atomic>
 #include <string>
+#include <vector>
 
 namespace mbc::conf {
 
@@ -16,8 +17,12 @@ void install_stop_signals();
 bool stop_requested();
 int stop_signal();
 const std::atomic<bool>& stop_flag();
-// The journal a second signal names ("mbconform restore PATH").
+// The journals a second signal names, one line each ("mbconform restore
+// PATH"): every session open now (a fleet run has one per line) adds its
+// own, and forgets it once the drive is restored.
 void set_stop_journal(const std::string& path);
+void forget_stop_journal(const std::string& path);
+std::vector<std::string> stop_journals();  // the paths named now
 // The signal's name for messages ("SIGINT").
 std::string signal_name(int sig);
 
