@@ -11,9 +11,14 @@
 SRC=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 : "${OUT:?set OUT}" "${LIB_FUZZING_ENGINE:?set LIB_FUZZING_ENGINE}"
 BUILD=${WORK:-/tmp}/mbconform-fuzz-build
+# $MBCONFORM_CMAKE_ARGS and $MBCONFORM_BUILD_TARGETS (not set by the engines)
+# let .ci/run build the whole tree here too, under the same flags: the test
+# suite, the smoke runs and this packaging from one build.
+# shellcheck disable=SC2086
 cmake -S "$SRC" -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-  -DMBCONFORM_FUZZ_ENGINE="$LIB_FUZZING_ENGINE" >/dev/null
-cmake --build "$BUILD" --target fuzz_all -j "$(nproc)"
+  -DMBCONFORM_FUZZ_ENGINE="$LIB_FUZZING_ENGINE" ${MBCONFORM_CMAKE_ARGS:-} >/dev/null
+# shellcheck disable=SC2086
+cmake --build "$BUILD" --target ${MBCONFORM_BUILD_TARGETS:-fuzz_all} -j "$(nproc)"
 mkdir -p "$OUT"
 for bin in "$BUILD"/bin/*_fuzzer; do
   name=$(basename "$bin" _fuzzer)

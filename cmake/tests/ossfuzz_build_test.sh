@@ -10,8 +10,10 @@ rm -rf "$work/out" "$work/seeds" && mkdir -p "$work/out" "$work/seeds"
 fail() { echo "oss_fuzz_build: FAIL: $*" >&2; exit 1; }
 
 export CC=clang-14 CXX=clang++-14
-export CFLAGS="-O1 -fno-omit-frame-pointer -gline-tables-only -fsanitize=address -fsanitize-address-use-after-scope -fsanitize=fuzzer-no-link"
-export CXXFLAGS="$CFLAGS"
+# OSS-Fuzz's address build; .ci/run sets its own (UBSan too) and builds the
+# whole tree here (fuzz/build.sh's $MBCONFORM_CMAKE_ARGS).
+export CFLAGS="${CFLAGS:--O1 -fno-omit-frame-pointer -gline-tables-only -fsanitize=address -fsanitize-address-use-after-scope -fsanitize=fuzzer-no-link}"
+export CXXFLAGS="${CXXFLAGS:-$CFLAGS}"
 export LIB_FUZZING_ENGINE=-fsanitize=fuzzer
 export OUT=$work/out SRC=$src WORK=$work
 "$src/fuzz/build.sh"
