@@ -22,6 +22,9 @@
 // * Removing the enable (D8; the external enable input is not simulated),
 //   the emergency stop (D9) and a fault stop the motor at once; nothing moves
 //   until they are gone.
+// * What the spec's control states is read from it: the emergency stop and
+//   reset bits (commands emergency_stop, reset), which faults D10 clears (the
+//   reset transitions), the fault code LU reads.
 // * Faults: the simulation raises none. A test (or serve) injects one with
 //   Device::set_value_of("fault_code", ...); D10 clears it when 附表二 says
 //   it is recoverable (可以恢复).
@@ -42,11 +45,10 @@ namespace {
 
 // 四 (2) command word.
 constexpr uint16_t kModeMask = 0x000F, kDirectionShift = 4, kDirectionMask = 0x3, kInternalShift = 6,
-                   kInternalMask = 0x3, kEnable = 1u << 8, kEmergencyStop = 1u << 9, kReset = 1u << 10;
+                   kInternalMask = 0x3, kEnable = 1u << 8;
 enum Mode { kPositionMode = 0, kSpeedMode = 1, kTorqueMode = 2 };
 enum Direction { kStop = 0, kForward = 1, kReverse = 2 };
 constexpr int kCountsPerLine = 4;  // quadrature decoding of PN-111
-constexpr int kUndervoltage = 0x0A;  // 附表二 LU
 
 class RiedingDhe : public Behaviour {
  public:
@@ -62,7 +64,7 @@ class RiedingDhe : public Behaviour {
       return r.address >= address && r.last_address() < uint32_t(address) + count;
     };
     if (wrote("command_word")) {
-      if (word(d) & kReset) clear_recoverable_fault(d);
+      if (word(d) & bits_of(d, "reset")) clear_recoverable_fault(d);
       apply_command(d);
     }
     if (wrote("speed_setpoint")) change_speed(d);
@@ -81,7 +83,7 @@ class RiedingDhe : public Behaviour {
   // Out of band (Device::trip_fault): LU 欠压 (附表二 code 0x0A, 可以恢复); the
   // motor stops at once, as with every fault.
   bool trip_fault(Device& d) override {
-    d.set_value_of("fault_code", kUndervoltage);
+    d.set_value_of("fault_code", fault_code_of(d, "fault_lu"));
     d.axis().emergency_stop();
     publish(d);
     return true;
@@ -119,13 +121,36 @@ class RiedingDhe : public Behaviour {
       axis.move_to(*axis.target(), 0, speed(d), accel(d), decel(d));
   }
 
+  // D10 clears a fault the spec's control resets (附表二 可以恢复: a reset
+  // transition out of its fault state to a state with no fault).
   void clear_recoverable_fault(Device& d) {
     const auto& r = d.reg_by_key("fault_code");
-    int64_t code = d.value(r);
-    const spec::Enumeration* faults = d.spec().find_enum(r.enum_id);
-    if (!faults || code == 0) return;
-    for (const auto& v : faults->values)
-      if (v.value == code && v.name.en.find("not recoverable") == std::string::npos) d.set_value(r, 0);
+    const uint16_t code = uint16_t(d.value(r));
+    const spec::Control& c = *d.spec().control;
+    for (const auto& st : c.states) {
+      if (!st.fault || !names(st, code)) continue;
+      for (const auto* t : c.transitions_on(st.id, "reset"))
+        if (const spec::ControlState* to = c.state(t->to); to && !to->fault) d.set_value(r, 0);
+    }
+  }
+
+  // ---- what the spec's control states (四 (2), 附表二)
+
+  // Whether fault code `code` is what state `st` reads.
+  static bool names(const spec::ControlState& st, uint16_t code) {
+    return !st.status.empty() && std::all_of(st.status.begin(), st.status.end(), [&](const spec::StatusMatch& m) {
+      return m.register_key == "fault_code" && m.matches(code);
+    });
+  }
+  // The command word bits of control command `id` (D9 SCI 急停, D10 SCI 复位).
+  static uint16_t bits_of(const Device& d, const char* id) {
+    const spec::ControlCommand* cmd = d.spec().control->command(id);
+    return cmd ? cmd->mask : 0;
+  }
+  // The fault code state `id` reads (LU: 0x0A).
+  static uint16_t fault_code_of(const Device& d, const char* id) {
+    const spec::ControlState* st = d.spec().control->state(id);
+    return st && !st->status.empty() ? st->status.front().value : 0;
   }
 
   // ---- the command word (四 (2))
@@ -138,7 +163,7 @@ class RiedingDhe : public Behaviour {
   }
   static bool may_run(const Device& d) {
     uint16_t w = word(d);
-    return (w & kEnable) && !(w & kEmergencyStop) && d.value_of("fault_code") == 0;
+    return (w & kEnable) && !(w & bits_of(d, "emergency_stop")) && d.value_of("fault_code") == 0;
   }
 
   // ---- speeds, in pulses and seconds

@@ -405,6 +405,11 @@ struct Builder {
     mo.position_high_key = str(m["position"], "high_register");
     mo.max_speed_pulses_per_s = m["max_speed_pulses_per_s"].get<double>();
     mo.decel_seconds = m["decel_seconds"].get<double>();
+    if (m.contains("decel")) {
+      Reader rd{doc, file, false, mo.section};
+      mo.decel_basis = rd.basis(m["decel"], mp + "/decel", rd.section_of(m["decel"]));
+      basis(rd.origin(mp + "/decel"), mo.decel_basis, "control.motion.decel");
+    }
     const json& st = m["status"];
     mo.status_key = str(st, "register");
     mo.running_mask = st["running_mask"].get<uint16_t>();

@@ -38,6 +38,7 @@ nlohmann::json motion_json(const std::optional<MotionOperations>& mo) {
                  {"position", {{"register", m.position_key}, {"high_register", m.position_high_key}}},
                  {"max_speed_pulses_per_s", m.max_speed_pulses_per_s},
                  {"decel_seconds", m.decel_seconds},
+                 {"decel_basis", to_string(m.decel_basis.basis)},
                  {"stop", write_json(m.stop)},
                  {"emergency_stop", write_json(m.emergency_stop)},
                  {"status", {{"register", m.status_key}, {"running_mask", m.running_mask},

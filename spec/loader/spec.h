@@ -369,6 +369,15 @@ struct MotionOperations {
   std::string position_key, position_high_key;  // high: the high word in a second register
   double max_speed_pulses_per_s = 0;  // what `setup` configures
   double decel_seconds = 0;           // a normal stop from that speed
+  // Where decel_seconds comes from (`decel:`): only a stated time is held
+  // against the drive; inferred, or no `decel:` at all (not stated), is observed.
+  FactBasis decel_basis = not_stated_decel();
+  static FactBasis not_stated_decel() {
+    FactBasis b;
+    b.basis = Basis::inferred;
+    b.why = "not stated: the spec gives no decel: with the section that states the stop time";
+    return b;
+  }
   std::optional<RegisterWrite> stop, emergency_stop;
   std::string status_key;
   uint16_t running_mask = 0;

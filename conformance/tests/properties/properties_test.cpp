@@ -6,6 +6,7 @@
 #include <fmt/core.h>
 
 #include <filesystem>
+#include <set>
 #include <fstream>
 
 #include "faults/faults.h"
@@ -137,10 +138,17 @@ INSTANTIATE_TEST_SUITE_P(Props, PropertyCatches, ::testing::ValuesIn(kTeeth), []
   return n;
 });
 
+// Invariants whose tooth is a broken target built in another test, not a
+// reference/faults fault.
+const std::set<std::string> kToothElsewhere = {
+    "control-zero-setpoints-still",  // control_props_test.cpp: a CiA 402 drive that ignores a 0 target velocity
+};
+
 // Every invariant has at least one tooth.
 TEST(PropertyTeeth, EveryInvariantCatchesSomeFault) {
   for (const auto& inv : invariants()) {
-    bool found = std::any_of(kTeeth.begin(), kTeeth.end(), [&](const Tooth& t) { return t.invariant == inv.name; });
+    bool found = kToothElsewhere.count(inv.name) ||
+                 std::any_of(kTeeth.begin(), kTeeth.end(), [&](const Tooth& t) { return t.invariant == inv.name; });
     EXPECT_TRUE(found) << inv.name << " has no fault it is shown to catch";
   }
 }
