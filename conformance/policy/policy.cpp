@@ -1,6 +1,7 @@
 #include "policy/policy.h"
 
 #include <fmt/core.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
 #include <set>
@@ -297,10 +298,14 @@ std::vector<std::pair<uint8_t, Bytes>> frames_in(Framing framing, std::span<cons
 std::set<uint16_t> control_setpoints(const spec::Spec& s) {
   std::set<uint16_t> out;
   if (!s.control) return out;
-  for (const auto& mode : s.control->modes)
-    for (const auto& key : mode.setpoint_keys)
+  auto add = [&](const std::vector<std::string>& keys) {
+    for (const auto& key : keys)
       if (const Register* r = s.find_by_key(key))
         for (int k = 0; k < r->words; ++k) out.insert(uint16_t(r->address + k));
+  };
+  for (const auto& mode : s.control->modes) add(mode.setpoint_keys);
+  for (const auto& cmd : s.control->commands)
+    if (cmd.setpoint_keys) add(*cmd.setpoint_keys);
   return out;
 }
 
@@ -328,6 +333,19 @@ std::string control_motion(const PolicyFacts& p, std::span<const uint8_t> pdu) {
         if (const Register* r = s.find_by_key(key))
           for (int k = 0; k < r->words; ++k) followed.insert(uint16_t(r->address + k));
   const bool all_zero = std::all_of(setpoints.begin(), setpoints.end(), [&](uint16_t a) { return p.zeroed.count(a) > 0; });
+  // A command that states its own set-points moves by those (spec control.commands
+  // setpoints); one whose speed the manual leaves unsaid (setpoints: []) by none the run can make 0.
+  auto zeroed_for = [&](const spec::ControlCommand& cmd) {
+    if (!cmd.setpoint_keys) return all_zero;
+    if (cmd.setpoint_keys->empty()) return false;
+    for (const auto& key : *cmd.setpoint_keys) {
+      const Register* r = s.find_by_key(key);
+      if (!r) return false;
+      for (int k = 0; k < r->words; ++k)
+        if (!p.zeroed.count(uint16_t(r->address + k))) return false;
+    }
+    return true;
+  };
   std::set<std::string> starts;
   for (const auto& mode : c.modes)
     if (!mode.start_command.empty()) starts.insert(mode.start_command);
@@ -342,9 +360,13 @@ std::string control_motion(const PolicyFacts& p, std::span<const uint8_t> pdu) {
       const std::string given = word ? fmt::format("0x{:04X} gives {}", *word, cmd.id) : fmt::format("may give {}", cmd.id);
       if (starts.count(cmd.id))
         return fmt::format("FC {:02X} to {}: {}, which starts a mode's motion (spec control.modes)", pdu[0], label(*r), given);
-      if (cmd.motion && !all_zero)
-        return fmt::format("FC {:02X} to {}: {}, a command that may move the axis (spec control.commands {}), and the set-points "
-                           "were not written 0 first", pdu[0], label(*r), given, cmd.section);
+      if (cmd.motion && !zeroed_for(cmd))
+        return fmt::format("FC {:02X} to {}: {}, a command that may move the axis (spec control.commands {}), and {}", pdu[0],
+                           label(*r), given, cmd.section,
+                           !cmd.setpoint_keys ? std::string("the set-points were not written 0 first")
+                           : cmd.setpoint_keys->empty()
+                               ? std::string("the manual does not say what sets its speed")
+                               : fmt::format("its set-points ({}) were not written 0 first", fmt::join(*cmd.setpoint_keys, ", ")));
     }
   }
   return "";

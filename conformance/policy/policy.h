@@ -96,7 +96,8 @@ std::vector<std::pair<uint8_t, Bytes>> frames_in(Framing framing, std::span<cons
 spec::Role role_of(const spec::Spec&, const spec::Register&);
 // Why a write moves the axis by the spec's control (`control:`), or empty:
 // a word that gives a command with `motion: true` (unless every set-point is
-// in `zeroed`) or a mode's start command (a start moves to any set-point,
+// in `zeroed`: the command's own `setpoints:` where it states them, else every
+// mode's) or a mode's start command (a start moves to any set-point,
 // 0 too), or a non-zero value written to a set-point of a mode with no start
 // command (it follows its set-points at once). Mode
 // selection, and commands that do not move, are not motion.

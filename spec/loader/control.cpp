@@ -109,6 +109,7 @@ struct Reader {
     x.trigger = t == "edge" ? Trigger::edge : t == "write" ? Trigger::write : Trigger::level;
     x.edge_mask = j.value("edge_mask", uint16_t(0));
     x.motion = j.value("motion", false);
+    if (j.contains("setpoints")) x.setpoint_keys = j["setpoints"].get<std::vector<std::string>>();
     x.stops = j.value("stops", false);
     if (j.contains("stop_within_ms")) x.stop_within_ms = j["stop_within_ms"].get<double>();
     x.section = section_of(j);
@@ -509,6 +510,9 @@ struct Builder {
                                                                  ", does not match its own pattern " + hex16(x.mask) + "/" + hex16(x.value));
       if (x.trigger == Trigger::edge && !x.edge_mask)
         error(e.origin, "", "control-command-pattern", "command " + x.id + ": an edge command names the bits whose rising edge acts (edge_mask:)");
+      if (x.setpoint_keys)
+        for (size_t k = 0; k < x.setpoint_keys->size(); ++k)
+          key(e.origin, "/setpoints/" + std::to_string(k), (*x.setpoint_keys)[k], "command " + x.id);
       for (size_t j = 0; j < i; ++j) {
         const auto& y = commands[j].value;
         if (y.id != x.id && y.register_key == x.register_key && y.mask == x.mask && y.value == x.value && y.trigger == x.trigger)

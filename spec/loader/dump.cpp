@@ -161,7 +161,7 @@ json control(const std::optional<Control>& co) {
   for (const auto& x : c.commands)
     commands.push_back({{"id", x.id}, {"name", name(x.name)}, {"register", x.register_key}, {"mask", x.mask}, {"value", x.value},
                         {"write", x.word()}, {"trigger", to_string(x.trigger)}, {"edge_mask", x.edge_mask}, {"motion", x.motion},
-                        {"stops", x.stops}, {"stop_within_ms", x.stop_within_ms ? json(*x.stop_within_ms) : json(nullptr)},
+                        {"setpoints", x.setpoint_keys ? json(*x.setpoint_keys) : json(nullptr)}, {"stops", x.stops}, {"stop_within_ms", x.stop_within_ms ? json(*x.stop_within_ms) : json(nullptr)},
                         {"basis", basis(x.basis)}});
   j["commands"] = commands;
   json transitions = json::array();

@@ -445,6 +445,12 @@ struct ControlCommand {
   // May set the axis moving (with the set-points of the active mode); a
   // motion-free walk sends it only where `moves_only_with` holds nothing.
   bool motion = false;
+  // The registers that set how it moves when they are not its modes'
+  // set-points: the frame policy lets a motion command out without
+  // --allow-motion only once these (absent: every mode's set-points) were
+  // written 0. Empty: the manual does not say what sets its speed (Rieding's
+  // internal speeds 1-3), so no write makes it safe.
+  std::optional<std::vector<std::string>> setpoint_keys;
   // Stops the axis from every moving state (quick stop, emergency stop).
   bool stops = false;
   std::optional<double> stop_within_ms;  // stated: stopped within this time from the stated top speed

@@ -435,5 +435,45 @@ TEST(Policy, AControlWordIsJudgedByTheCommandItGives) {
   EXPECT_TRUE(allowed(f, 1, w06(0x42, 500)));
 }
 
+// A motion command that moves by something other than its modes' set-points
+// (spec control.commands setpoints): Rieding's internal speeds 1-3 (四 (2)
+// D6~D7) run at speeds the manual does not tie to a register, and position
+// mode, once enabled, follows external pulses (五): with every set-point
+// written 0 they still need --allow-motion. A command that names its own
+// set-points is let out once those are 0.
+TEST(Policy, AMotionCommandWhoseSpeedTheManualLeavesUnsaidNeedsAllowMotionWithEverySetPointZero) {
+  static const spec::Spec s = spec::load_spec_by_id("rieding-dhe");
+  PolicyFacts f{&s, live(), {}};
+  f.zeroed = control_setpoints(s);
+  ASSERT_FALSE(f.zeroed.empty());
+  const uint16_t command_word = s.find_by_key("command_word")->address;
+  for (uint16_t word : {0x0151, 0x0161, 0x0191, 0x01A1, 0x01D1, 0x01E1, 0x0100}) {
+    EXPECT_TRUE(refused_for(allowed(f, 1, w06(command_word, word)), "--allow-motion")) << std::hex << word;
+    EXPECT_NE(control_motion(f, w06(command_word, word)).find("the manual does not say what sets its speed"), std::string::npos)
+        << control_motion(f, w06(command_word, word));
+  }
+  EXPECT_TRUE(allowed(f, 1, w06(command_word, 0x0000))) << "stop moves nothing";
+  f.opt_ins.allow_motion = true;
+  EXPECT_TRUE(allowed(f, 1, w06(command_word, 0x0151)));
+
+  spec::Spec own = with_control();
+  own.registers.push_back(reg(0x44, "jog_speed"));
+  spec::ControlCommand jog;
+  jog.id = "jog";
+  jog.register_key = "controlword";
+  jog.mask = 0x300;
+  jog.value = 0x100;
+  jog.motion = true;
+  jog.setpoint_keys = std::vector<std::string>{"jog_speed"};
+  own.control->commands.push_back(jog);
+  PolicyFacts g{&own, live(), {}};
+  g.zeroed = {0x42, 0x43};
+  EXPECT_TRUE(refused_for(allowed(g, 1, w06(0x40, 0x100)), "--allow-motion")) << "the modes' set-points are not the jog's";
+  EXPECT_NE(control_motion(g, w06(0x40, 0x100)).find("its set-points (jog_speed)"), std::string::npos) << control_motion(g, w06(0x40, 0x100));
+  g.zeroed = {0x44};
+  EXPECT_TRUE(allowed(g, 1, w06(0x40, 0x100))) << "the jog's own set-point is 0";
+  EXPECT_TRUE(control_setpoints(own).count(0x44)) << "a command's own set-points are set-points";
+}
+
 }  // namespace
 }  // namespace mbc::conf
