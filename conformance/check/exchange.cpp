@@ -21,7 +21,7 @@ double frame_wire_seconds(size_t bytes, int baud) {
 }
 
 Exchange::Exchange(Link& link, DeviceRun& counters) : link_(link), counters_(counters) {}
-Exchange::Exchange(Link& link) : link_(link), counters_(own_) {}
+Exchange::Exchange(Link& link) : link_(link), counters_(own_), latencies_(false) {}
 
 namespace {
 bool wants_reply(const Step& st) {
@@ -83,8 +83,8 @@ void Exchange::account(const Reply& r, int extra_gaps) {
   counters_.frames_sent++;
   counters_.bytes_sent += r.request.size();
   counters_.bytes_received += r.frame.size();
-  if (!r.silent()) counters_.latencies_us.push_back(double(r.latency.count()));
-  else counters_.silences++;
+  if (r.silent()) counters_.silences++;
+  else if (latencies_) counters_.latencies_us.push_back(double(r.latency.count()));
   if (auto baud = link_.info().baud) {
     double b = frame_wire_seconds(r.request.size(), *baud) +
                extra_gaps * std::chrono::duration<double>(frame_gap(*baud)).count();

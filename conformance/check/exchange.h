@@ -39,7 +39,8 @@ class Exchange {
   // Counts every frame into `counters` (frames, bytes, latencies, silences,
   // the wire-time lower bound).
   Exchange(Link& link, DeviceRun& counters);
-  // Counts into counters() of its own (props, fuzz).
+  // Counts into counters() of its own (props, fuzz), without each frame's
+  // latency (a fuzz run of hours would keep millions).
   explicit Exchange(Link& link);
   Exchange(const Exchange&) = delete;
   Exchange& operator=(const Exchange&) = delete;
@@ -73,6 +74,7 @@ class Exchange {
   Link& link_;
   DeviceRun own_;
   DeviceRun& counters_;
+  bool latencies_ = true;
   bool last_silent_ = false;
 };
 
