@@ -176,11 +176,10 @@ std::string still_there(Link& t, const spec::Spec& spec) {
   for (int attempt = 0; attempt < 2; ++attempt) {
     try {
       if (attempt) t.reconnect();
-      Sent s = t.transact(t.info().unit, probe, Target::Wait::automatic);
-      if (s.refused) return "";  // the policy or a stop holds the probe back: nothing learnt, the verdict stands
-      if (!s.lost && !s.reply.silent()) return "";
+      Reply r = reply_or_throw(t.transact(t.info().unit, probe, Target::Wait::automatic), t.info());
+      if (!r.silent()) return "";
     } catch (const std::logic_error&) {
-      return "";  // the target cannot probe: nothing learnt, the verdict stands
+      return "";  // the policy or the target cannot probe (Refused): nothing learnt, the verdict stands
     } catch (const std::exception& e) {
       return fmt::format("it no longer answers ({})", e.what());
     }
