@@ -235,8 +235,6 @@ std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r) {
   return Finding{kind, msg};
 }
 
-std::optional<Finding> execute(Target& t, const Plan& p, const Step& s) { return execute(t, p, s, nullptr); }
-
 namespace {
 // What an exchange adds to the fuzzing's counts and, on a serial line, to the
 // wire-time bound: each frame's characters plus the t3.5 before it (MB-SL
@@ -254,15 +252,20 @@ void account(Outcome& out, const Plan& p, const Step& s, const Reply& r) {
 }
 }  // namespace
 
-std::optional<Finding> execute(Target& t, const Plan& p, const Step& s, Outcome* out) {
+std::optional<Finding> execute(check::Exchange& x, const Plan& p, const Step& s, Outcome* out) {
+  // As round() waits: the probe for its reply, a generated frame (which may
+  // be dropped) the silence window; a live target's reconnect() keeps what
+  // it learnt of its latency, so a dropped frame costs a window, not the timeout.
+  const Target::Wait wait = is_probe(s) ? Target::Wait::reply : Target::Wait::window;
+  Link& t = x.link();
   try {
     Reply r;
     switch (s.kind) {
       case Step::Kind::advance: t.advance(std::chrono::microseconds(s.us)); return std::nullopt;
       case Step::Kind::power_cycle: t.power_cycle(); return std::nullopt;
       case Step::Kind::wait: return std::nullopt;
-      case Step::Kind::raw: r = t.send_raw(s.bytes, s.gap); break;
-      case Step::Kind::frame: r = t.transact(s.unit, s.pdu); break;
+      case Step::Kind::raw:
+      case Step::Kind::frame: r = reply_or_throw(x.send(s, wait), t.info()); break;
     }
     if (out) account(*out, p, s, r);
     // A split frame answered where the target chose the pause (a live line):
@@ -273,7 +276,7 @@ std::optional<Finding> execute(Target& t, const Plan& p, const Step& s, Outcome*
       if (auto gap = t.split_gap()) {
         t.set_split_gap(std::max<std::chrono::microseconds>(10 * *gap, check::kSplitGapRecheck));
         try {
-          r = t.send_raw(s.bytes, s.gap);
+          r = reply_or_throw(x.send(s, wait), t.info());
         } catch (...) {
           t.set_split_gap(*gap);
           throw;
@@ -446,18 +449,16 @@ std::optional<Step> Generator::malformed(const Bytes& pdu) {
 
 // ---- running and reducing ----
 
-std::optional<Finding> run_fresh(const Open& open, const Plan& p, const std::vector<Step>& steps, const Wanted& wanted) {
-  std::unique_ptr<Target> t;
+std::optional<Finding> run_fresh(Link& link, const Open& open, const Plan& p, const std::vector<Step>& steps,
+                                 const Wanted& wanted) {
   try {
-    t = open();
+    open();
   } catch (const std::exception& e) {
     return Finding{FindingKind::cannot_reopen, e.what()};
   }
+  check::Exchange x(link);
   for (const auto& st : steps) {
-    // As round() waits: a live target's reconnect() keeps what it learnt of
-    // its latency, so a dropped frame costs a window here too, not the timeout.
-    t->set_wait(is_probe(st) ? Target::Wait::reply : Target::Wait::window);
-    if (auto f = execute(*t, p, st)) {
+    if (auto f = execute(x, p, st)) {
       if (!wanted || wanted(*f, st)) return f;
       if (target_may_be_gone(*f)) return std::nullopt;
     }
@@ -510,8 +511,9 @@ using Known = std::function<bool(const Finding&, const Step&)>;
 // expectation allows silence), so it waits the target's silence window,
 // learnt from its latency as the runner's is (targets/live_link.h); the
 // probe must be answered, so it waits for the reply.
-std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch, size_t depth, Clock::time_point deadline,
+std::optional<Finding> round(Link& link, const Plan& p, uint64_t seed, int batch, size_t depth, Clock::time_point deadline,
                              const std::function<void(const Step&)>& journal, const Known& known, Outcome& out) {
+  check::Exchange x(link);
   Generator gen(p, seed);
   const Step probe = probe_step(p);
   auto keep = [&](std::optional<Finding> f, const Step& st) -> std::optional<Finding> {
@@ -520,36 +522,30 @@ std::optional<Finding> round(Target& t, const Plan& p, uint64_t seed, int batch,
   };
   auto send = [&](const Step& st) -> std::optional<Finding> {
     journal(st);
-    return keep(execute(t, p, st, &out), st);
+    return keep(execute(x, p, st, &out), st);
   };
-  const bool pipelined = depth > 1 && t.pipelines();
-  auto send_probe = [&]() {
-    t.set_wait(Target::Wait::reply);
-    auto f = send(probe);
-    t.set_wait(Target::Wait::window);
-    return f;
-  };
+  const bool pipelined = depth > 1 && link.pipelines();
+  auto send_probe = [&]() { return send(probe); };
   // A live target's silence window is its timeout until a few replies were
   // timed (targets/live_link.h): the probe, answered, teaches it before the
   // first fuzzed frame that may go unanswered has to wait for it.
-  for (int i = 0; i < (t.info().live ? kWarmupProbes : 1); ++i)
+  for (int i = 0; i < (link.info().live ? kWarmupProbes : 1); ++i)
     if (auto f = send_probe()) return f;
   std::vector<Step> steps;
-  std::vector<Target::Request> requests;
   while (Clock::now() < deadline) {
     steps.clear();
     for (int i = 0; i < batch; ++i) steps.push_back(gen.next());
     bool all_frames = std::all_of(steps.begin(), steps.end(), [](const Step& s) { return s.kind == Step::Kind::frame; });
     if (pipelined && all_frames) {
       // Modbus TCP: the batch goes out pipelined, every reply is judged in order.
-      requests.clear();
-      for (const auto& st : steps) {
-        journal(st);
-        requests.push_back({st.unit, st.pdu});
-      }
+      // Every request passes the session's policy and journal before the
+      // batch goes out (Session::transact_all); a refused one is a
+      // target-error, as a refused single frame is.
+      for (const auto& st : steps) journal(st);
       std::vector<Reply> replies;
       try {
-        replies = t.transact_all(requests, depth);
+        for (auto& sent : x.send_all(steps, depth, Target::Wait::window)) replies.push_back(reply_or_throw(std::move(sent), link.info()));
+        if (replies.size() < steps.size()) throw std::runtime_error("fewer replies than requests");
       } catch (const std::exception& e) {
         return Finding{FindingKind::target_error, fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(steps.back()))};
       }
@@ -592,7 +588,7 @@ std::vector<Step> last_batch(const std::vector<Step>& h) {
   return {h.begin() + long(from), h.end()};
 }
 
-Reported reduce(const Open& open, const Plan& p, const Options& o, const Finding& f, const std::vector<Step>& history) {
+Reported reduce(Link& link, const Open& open, const Plan& p, const Options& o, const Finding& f, const std::vector<Step>& history) {
   Reported rep{f, history.empty() ? to_string(f.kind) : signature(f, p, history.back()), {}, true, false, 0, history.size()};
   // The same finding, past others (already reported) on the way.
   Wanted same = [&](const Finding& g, const Step& st) { return g.kind == f.kind && signature(g, p, st) == rep.signature; };
@@ -602,7 +598,7 @@ Reported reduce(const Open& open, const Plan& p, const Options& o, const Finding
   // calls return at once.
   std::function<bool(const std::vector<Step>&)> fails = [&](const std::vector<Step>& steps) {
     if (rep.cut_off || (rep.cut_off = stopped())) return false;
-    auto g = o.isolate ? isolated([&] { return run_fresh(open, p, steps, same); }) : run_fresh(open, p, steps, same);
+    auto g = o.isolate ? isolated([&] { return run_fresh(link, open, p, steps, same); }) : run_fresh(link, open, p, steps, same);
     if (g && g->kind == f.kind) return true;
     rep.cut_off = stopped();
     return false;
@@ -629,7 +625,7 @@ Reported reduce(const Open& open, const Plan& p, const Options& o, const Finding
 
 }  // namespace
 
-Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, const Options& o,
+Outcome fuzz(Link& link, const Open& open, const Plan& p, const Options& o,
              const std::function<void(const Reported&)>& on_finding) {
   Outcome out;
   const auto started = Clock::now();
@@ -647,7 +643,7 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
   };
   const auto deadline = Clock::now() + o.duration;
   Clock::duration reducing{};
-  std::unique_ptr<Target> target = std::move(first);
+  bool fresh = true;  // round 0: the link as it is
   for (uint64_t r = 0; r == 0 || Clock::now() < deadline; ++r) {
     if (r > 0 && o.stopped && o.stopped()) break;
     ++out.rounds;
@@ -655,14 +651,15 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
     const uint64_t seed = o.seed + r * 0x9E3779B97F4A7C15ull;
     std::vector<Step> history;
     std::optional<Finding> f;
-    if (!target) {
+    if (!fresh) {
       try {
-        target = open();
+        open();
       } catch (const std::exception& e) {
         out.target_lost = true;
         break;
       }
     }
+    fresh = false;
     if (o.isolate) {
       // The round in a child, so a plugin crash cannot lose it: the child
       // journals each step before sending it; the parent reduces the journal.
@@ -670,7 +667,7 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
       f = isolated([&]() -> std::optional<Finding> {
         std::ofstream j(o.journal, std::ios::trunc);
         j << check::kHeader << "\n";
-        return round(*target, p, seed, o.batch, o.depth, deadline, [&](const Step& s) { j << check::line(s) << std::endl; },
+        return round(link, p, seed, o.batch, o.depth, deadline, [&](const Step& s) { j << check::line(s) << std::endl; },
                      known, child_counts);
       });
       try {
@@ -680,14 +677,13 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
       std::remove(o.journal.c_str());
       for (const auto& s : history) out.frames += !is_probe(s);
     } else {
-      f = round(*target, p, seed, o.batch, o.depth, deadline, [&](const Step& s) {
+      f = round(link, p, seed, o.batch, o.depth, deadline, [&](const Step& s) {
         // A bounded history: findings that need state older than this are
         // reported with what is kept (and said not to reproduce, if so).
         if (history.size() > o.history_cap) history.erase(history.begin(), history.end() - long(o.history_cap / 2));
         history.push_back(s);
       }, known, out);
     }
-    target.reset();
     if (!f) break;
     // The session refused to send once stopped: the stop, not the target's fault.
     if (f->kind == FindingKind::target_error && o.stopped && o.stopped()) break;
@@ -699,7 +695,7 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
     // finding (one whose target comes back is: it is reduced below).
     if (f->kind == FindingKind::target_error) {
       try {
-        open().reset();  // closed again at once: the reduction opens its own
+        open();  // the reduction starts afresh again for each of its runs
       } catch (const std::exception&) {
         out.target_lost = true;
         break;
@@ -716,7 +712,7 @@ Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, con
     }
     // Reduction is not fuzzing: its time is left out of the frames/s.
     auto reduce_from = Clock::now();
-    out.findings.push_back(reduce(open, p, o, *f, history));
+    out.findings.push_back(reduce(link, open, p, o, *f, history));
     reducing += Clock::now() - reduce_from;
     if (on_finding) on_finding(out.findings.back());
   }

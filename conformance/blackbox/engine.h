@@ -1,5 +1,6 @@
 // The black-box fuzzer behind `mbconform fuzz`: structure-aware frames from
-// a device's spec sent to any Target, every reply judged from the standard,
+// a device's spec sent through check::Exchange over any Link (the command's
+// Session: the frame policy, then the journal), every reply judged from the standard,
 // each distinct finding reduced by delta debugging to a minimal reproducer
 // in the frame-script format (conformance/check/README.md).
 //
@@ -39,6 +40,7 @@
 #include <vector>
 
 #include "policy/policy.h"
+#include "check/exchange.h"
 #include "check/judge.h"
 #include "check/text.h"
 #include "spec.h"
@@ -109,11 +111,13 @@ check::Expect expect_for(const Plan& p, const Step& s);
 
 // Judges one exchange from the standard (check::judge) and names the finding.
 std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r);
-// Runs one step; a target that throws (connection lost, plugin error) is a finding too.
-std::optional<Finding> execute(Target& t, const Plan& p, const Step& s);
+// Runs one step through the exchange (the Link: the session's policy and
+// journal): the probe waits for its reply, a generated frame the target's
+// silence window. A target that throws (connection lost, plugin error), or a
+// frame refused or stopped on the way, is a target-error finding.
 struct Outcome;
-// The same, counting the exchange in `out` (frames, silences, wire time).
-std::optional<Finding> execute(Target& t, const Plan& p, const Step& s, Outcome* out);
+// `out`: counts the exchange (frames, silences, wire time).
+std::optional<Finding> execute(check::Exchange& x, const Plan& p, const Step& s, Outcome* out = nullptr);
 
 class Generator {
  public:
@@ -166,16 +170,19 @@ std::vector<T> ddmin(std::vector<T> steps, const std::function<bool(const std::v
 // crashes cannot take the fuzzer down; a child killed by a signal is a "crash".
 std::optional<Finding> isolated(const std::function<std::optional<Finding>()>& fn);
 
-using Open = std::function<std::unique_ptr<Target>()>;
+// Starts the Link afresh (Session::restart: a new in-process target at
+// power-on, a live connection reopened); throws when it cannot.
+using Open = std::function<void()>;
 
 // Whether a finding on a step is the one looked for.
 using Wanted = std::function<bool(const Finding&, const Step&)>;
-// Runs `steps` on a fresh target; the first finding (the first `wanted` one,
+// Runs `steps` on `link` started afresh (`open`); the first finding (the first `wanted` one,
 // going on past others while the target answers), if any. A target that
 // cannot be opened again (a server that died) gives "cannot-reopen". Each
 // step waits as it did while fuzzing (round() in engine.cpp): the probe for
 // its reply, a generated frame only the target's silence window.
-std::optional<Finding> run_fresh(const Open& open, const Plan& p, const std::vector<Step>& steps, const Wanted& wanted = {});
+std::optional<Finding> run_fresh(Link& link, const Open& open, const Plan& p, const std::vector<Step>& steps,
+                                 const Wanted& wanted = {});
 
 struct Options {
   std::chrono::milliseconds duration{10'000};
@@ -237,8 +244,9 @@ struct Outcome {
 
 // Fuzzes until the duration runs out: a finding is reduced (when its
 // signature is new), reported through `on_finding`, and fuzzing goes on on a
-// fresh target. `first` is the target already open (it is used for round 0).
-Outcome fuzz(std::unique_ptr<Target> first, const Open& open, const Plan& p, const Options& o,
+// fresh target. Every frame goes through `link` (the session); round 0 runs
+// on it as it is, every later round and reduction run after `open`.
+Outcome fuzz(Link& link, const Open& open, const Plan& p, const Options& o,
              const std::function<void(const Reported&)>& on_finding);
 
 // The reproducer of a finding as a frame script (comments say what was found).

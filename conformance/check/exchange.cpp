@@ -21,12 +21,43 @@ double frame_wire_seconds(size_t bytes, int baud) {
 }
 
 Exchange::Exchange(Link& link, DeviceRun& counters) : link_(link), counters_(counters) {}
+Exchange::Exchange(Link& link) : link_(link), counters_(own_), latencies_(false) {}
+
+namespace {
+bool wants_reply(const Step& st) {
+  return st.expect.kind != Expect::Kind::silence && st.expect.kind != Expect::Kind::none &&
+         st.expect.kind != Expect::Kind::any_or_silence;
+}
+}  // namespace
 
 Sent Exchange::send(const Step& st) {
-  bool want_reply = st.expect.kind != Expect::Kind::silence && st.expect.kind != Expect::Kind::none &&
-                    st.expect.kind != Expect::Kind::any_or_silence;
+  bool want_reply = wants_reply(st);
   Target::Wait wait = want_reply ? Target::Wait::reply : Target::Wait::automatic;
   if (st.expect.kind == Expect::Kind::silence || (want_reply && st.may_go_unanswered)) wait = Target::Wait::window;
+  return send(st, wait);
+}
+
+std::vector<Sent> Exchange::send_all(std::span<const Step> steps, size_t depth, Target::Wait wait) {
+  std::vector<Target::Request> requests;
+  for (const auto& st : steps) requests.push_back({st.unit, st.pdu});
+  std::vector<Sent> out = link_.transact_all(requests, depth, wait);
+  for (size_t k = 0; k < out.size() && k < steps.size(); ++k) {
+    if (out[k].refused) continue;
+    account(out[k].reply, 0);
+    line.last_request = out[k].reply.request;
+    line.last_what = steps[k].note;
+    if (out[k].reply.silent()) {
+      line.silence = true;
+      line.unanswered |= wants_reply(steps[k]);
+    }
+  }
+  return out;
+}
+
+Reply Exchange::transact(std::span<const uint8_t> pdu) { return reply_or_throw(quiet(link_.info().unit, pdu), link_.info()); }
+
+Sent Exchange::send(const Step& st, Target::Wait wait) {
+  bool want_reply = wants_reply(st);
   bool after_silence = last_silent_;
   Sent s = st.kind == Step::Kind::raw ? link_.send_raw(st.bytes, st.gap, wait) : link_.transact(st.unit, st.pdu, wait);
   if (s.refused) return s;
@@ -52,8 +83,8 @@ void Exchange::account(const Reply& r, int extra_gaps) {
   counters_.frames_sent++;
   counters_.bytes_sent += r.request.size();
   counters_.bytes_received += r.frame.size();
-  if (!r.silent()) counters_.latencies_us.push_back(double(r.latency.count()));
-  else counters_.silences++;
+  if (r.silent()) counters_.silences++;
+  else if (latencies_) counters_.latencies_us.push_back(double(r.latency.count()));
   if (auto baud = link_.info().baud) {
     double b = frame_wire_seconds(r.request.size(), *baud) +
                extra_gaps * std::chrono::duration<double>(frame_gap(*baud)).count();

@@ -32,19 +32,38 @@ struct LineState {
   std::string last_what;                  // and what it was
 };
 
+// The one way a check, a property or the fuzzer sends: every frame through
+// the Link (the session's frame policy and journal), counted.
 class Exchange {
  public:
   // Counts every frame into `counters` (frames, bytes, latencies, silences,
   // the wire-time lower bound).
   Exchange(Link& link, DeviceRun& counters);
+  // Counts into counters() of its own (props, fuzz), without each frame's
+  // latency (a fuzz run of hours would keep millions).
+  explicit Exchange(Link& link);
+  Exchange(const Exchange&) = delete;
+  Exchange& operator=(const Exchange&) = delete;
 
   // Sends a frame or raw step. The wait: a reply that is expected is waited
   // for up to the timeout; an expected silence (or a step that records
   // whatever comes), and a reply the device's documentation says may not
   // come, get the silence window (a late reply re-runs the case, runner/).
   Sent send(const Step& st);
+  // The same with the wait given (the fuzzer: the window for a generated
+  // frame, the timeout for its probe; props: automatic).
+  Sent send(const Step& st, Target::Wait wait);
+  // Frame steps, pipelined where the Link pipelines (Modbus TCP; Link::transact_all),
+  // one Sent each, in order.
+  std::vector<Sent> send_all(std::span<const Step> steps, size_t depth, Target::Wait wait);
   // Quiet traffic (save and restore, liveness): up to the timeout.
   Sent quiet(uint8_t unit, std::span<const uint8_t> pdu);
+
+  // For code that reads a reply or an exception (the properties): quiet()
+  // to the target's unit, a refusal thrown as reply_or_throw (session/link.h) says.
+  Reply transact(std::span<const uint8_t> pdu);
+  const TargetInfo& info() const { return link_.info(); }
+  bool trip_fault() { return link_.trip_fault(); }
 
   Link& link() { return link_; }
   DeviceRun& counters() { return counters_; }
@@ -53,7 +72,9 @@ class Exchange {
  private:
   void account(const Reply& r, int extra_gaps);
   Link& link_;
+  DeviceRun own_;
   DeviceRun& counters_;
+  bool latencies_ = true;
   bool last_silent_ = false;
 };
 

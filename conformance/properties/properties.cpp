@@ -67,7 +67,8 @@ Decision Session::allowed(std::span<const uint8_t> pdu) const {
 }
 
 Reply Session::send_to(uint8_t unit, std::span<const uint8_t> pdu, const std::string& note) {
-  Reply r = target_.transact(unit, pdu);
+  // Automatic: up to the timeout to the unit, the silence window otherwise.
+  Reply r = reply_or_throw(x_.send(check::frame(x_.info().framing, unit, Bytes(pdu.begin(), pdu.end())), Target::Wait::automatic), x_.info());
   // A write the drive echoed: the control's set-points it made 0 (or not).
   if (spec().control && unit == this->unit() && r.pdu && !r.pdu->empty() && !((*r.pdu)[0] & 0x80) && pdu.size() >= 5 &&
       (pdu[0] == 0x06 || pdu[0] == 0x10)) {
@@ -82,18 +83,20 @@ Reply Session::send_to(uint8_t unit, std::span<const uint8_t> pdu, const std::st
     }
   }
   // The model reads RTU frames; the step prints in the framing that was sent.
-  steps_.push_back(frame_step(r, target_.info(), rtu_frame(unit, pdu), note));
+  steps_.push_back(frame_step(r, x_.info(), rtu_frame(unit, pdu), note));
   return r;
 }
 
 Reply Session::send_raw(std::span<const uint8_t> adu, const std::string& note) {
-  Reply r = target_.send_raw(adu);
-  steps_.push_back(frame_step(r, target_.info(), Bytes(adu.begin(), adu.end()), note));
+  Bytes bytes(adu.begin(), adu.end());
+  check::Step st = x_.info().framing == &mbc::kRtu ? check::raw_rtu(bytes) : check::raw_mbap(bytes);
+  Reply r = reply_or_throw(x_.send(st, Target::Wait::automatic), x_.info());
+  steps_.push_back(frame_step(r, x_.info(), Bytes(adu.begin(), adu.end()), note));
   return r;
 }
 
 void Session::advance(uint64_t us, const std::string& note) {
-  target_.advance(std::chrono::microseconds(us));
+  x_.link().advance(std::chrono::microseconds(us));
   Step s;
   s.kind = Step::Kind::advance;
   s.advance_us = us;
@@ -102,7 +105,7 @@ void Session::advance(uint64_t us, const std::string& note) {
 }
 
 void Session::power_cycle() {
-  target_.power_cycle();
+  x_.link().power_cycle();
   Step s;
   s.kind = Step::Kind::power_cycle;
   steps_.push_back(s);
@@ -168,15 +171,15 @@ std::string what_failed(const std::string& description) {
 
 // Empty when the target answers a liveness probe (after one reconnect),
 // else why it is taken as lost.
-std::string still_there(Target& t, const spec::Spec& spec) {
+std::string still_there(Link& t, const spec::Spec& spec) {
   Bytes probe = probe_request(spec);
   for (int attempt = 0; attempt < 2; ++attempt) {
     try {
       if (attempt) t.reconnect();
-      Reply r = t.transact(probe);
+      Reply r = reply_or_throw(t.transact(t.info().unit, probe, Target::Wait::automatic), t.info());
       if (!r.silent()) return "";
     } catch (const std::logic_error&) {
-      return "";  // the gate or the target cannot probe: nothing learnt, the verdict stands
+      return "";  // the policy or the target cannot probe (Refused): nothing learnt, the verdict stands
     } catch (const std::exception& e) {
       return fmt::format("it no longer answers ({})", e.what());
     }
@@ -194,18 +197,18 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   c.requirement = inv.requirement;
   c.title = inv.name;
   auto t0 = std::chrono::steady_clock::now();
-  std::unique_ptr<Target> probe = source.open();
+  Link& link = *source.link;
   const spec::Spec& spec = *source.spec;
   c.id = fmt::format("prop.{}.{}", inv.name, spec.device.id);
   const DeviceFacts* facts = facts_for(spec);
-  SpecView probe_view(spec, probe->info(), options.policy);
-  if (std::string why = inv.skip_reason ? inv.skip_reason(probe_view, probe->info(), facts) : ""; !why.empty()) {
+  const TargetInfo info = link.info();
+  SpecView probe_view(spec, info, options.policy);
+  if (std::string why = inv.skip_reason ? inv.skip_reason(probe_view, info, facts) : ""; !why.empty()) {
     c.outcome = Outcome::skip;
     c.message = why;
     return c;
   }
-  const bool fresh_per_case = !probe->info().live;
-  std::shared_ptr<Target> shared = std::move(probe);
+  const bool fresh_per_case = !info.live && source.afresh;
 
   uint64_t seed = options.seed;
   if (seed == 0) seed = std::random_device{}() | (uint64_t(std::random_device{}()) << 32);
@@ -219,7 +222,7 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   // On a live line every drive takes a broadcast write: the report names each one sent.
   nlohmann::json broadcasts = nlohmann::json::array();
   auto note_broadcasts = [&](const Session& session) {
-    if (!shared->info().live) return;
+    if (!info.live) return;
     for (const auto& st : session.steps())
       if (st.kind == Step::Kind::frame && st.frame.size() >= 2 && st.frame[0] == 0 && (st.frame[1] < 1 || st.frame[1] > 4))
         broadcasts.push_back(fmt::format("{} ({})", to_hex(st.frame), st.note));
@@ -230,10 +233,10 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   int held_back = 0;
   std::string first_held_back;
   auto property = [&] {
-    std::shared_ptr<Target> target = fresh_per_case ? std::shared_ptr<Target>(source.open()) : shared;
+    if (fresh_per_case) source.afresh();  // power-on state (throws Stopped after a stop)
     // One view for every run: RapidCheck keeps generated values (and the
     // stateful commands' model) across runs while it shrinks.
-    Session session(*target, probe_view, facts);
+    Session session(link, probe_view, facts);
     ++runs;
     std::string gone;
     bool discarded = false;
@@ -275,7 +278,7 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   // A live target that fails and then no longer answers (its connection
   // closed and cannot be opened again, a line gone) was lost: no verdict.
   rc::detail::FailureResult failure;
-  if (lost.empty() && shared->info().live && result.match(failure)) lost = still_there(*shared, spec);
+  if (lost.empty() && info.live && result.match(failure)) lost = still_there(link, spec);
   if (!broadcasts.empty()) c.extra["broadcast_writes"] = broadcasts;
 
   if (!probe_view.not_held().empty()) c.extra["not_held"] = probe_view.not_held();
@@ -359,7 +362,7 @@ std::vector<CaseResult> run_all(const TargetSource& source, const Options& optio
 TargetSource source_for(const std::string& uri, const spec::Spec* spec_override) {
   TargetSource s;
   s.uri = uri;
-  std::shared_ptr<Target> first(open_target(uri));
+  std::unique_ptr<Target> first = open_target(uri);
   if (spec_override) {
     s.spec = spec_override;
   } else {
@@ -370,32 +373,10 @@ TargetSource source_for(const std::string& uri, const spec::Spec* spec_override)
     if (!slot) slot = std::make_unique<spec::Spec>(spec::load_spec_by_id(first->info().device_id));
     s.spec = slot.get();
   }
-  if (first->info().live) {
-    s.open = [first] {
-      // The same live target for every case: a view that does not own it.
-      struct Borrowed final : Target {
-        std::shared_ptr<Target> t;
-        explicit Borrowed(std::shared_ptr<Target> t) : t(std::move(t)) {}
-        const TargetInfo& info() const override { return t->info(); }
-        Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override { return t->transact(unit, pdu); }
-        Reply send_raw(std::span<const uint8_t> b, std::optional<size_t> g) override { return t->send_raw(b, g); }
-        std::chrono::microseconds silence_window() const override { return t->silence_window(); }
-        void set_wait(Wait w) override { t->set_wait(w); }
-        uint64_t late_replies() const override { return t->late_replies(); }
-        bool reconnect() override { return t->reconnect(); }
-        void advance(std::chrono::microseconds dt) override { t->advance(dt); }
-        void power_cycle() override { t->power_cycle(); }
-        bool trip_fault() override { return t->trip_fault(); }
-        std::vector<Reply> transact_all(std::span<const Request> r, size_t depth) override { return t->transact_all(r, depth); }
-        bool pipelines() const override { return t->pipelines(); }
-        std::optional<std::chrono::microseconds> split_gap() const override { return t->split_gap(); }
-        void set_split_gap(std::chrono::microseconds g) override { t->set_split_gap(g); }
-      };
-      return std::unique_ptr<Target>(new Borrowed(first));
-    };
-  } else {
-    s.open = [uri] { return open_target(uri); };
-  }
+  auto link = std::make_shared<DirectLink>(std::move(first));
+  s.owned = link;
+  s.link = link.get();
+  if (!link->info().live) s.afresh = [uri, l = link.get()] { l->replace(open_target(uri)); };
   return s;
 }
 

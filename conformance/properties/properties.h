@@ -1,7 +1,8 @@
 // Property tests of the profile invariants (issue 6), with RapidCheck. Each
 // invariant is stated once, from the spec and the Modbus standard, and holds
-// for every device whose spec has the feature it needs; it runs against any
-// conf::Target: the reference devices in ctest (`ref:ID`, and `ref:ID?fault=`
+// for every device whose spec has the feature it needs; it runs over any
+// Link (session/link.h; the command's Session: its frame policy and journal),
+// every frame through check::Exchange: the reference devices in ctest (`ref:ID`, and `ref:ID?fault=`
 // to show it can fail), a live drive or a served device from
 // `mbconform props --target URI`.
 //
@@ -23,9 +24,11 @@
 #include "properties/spec_view.h"
 #include "report/result.h"
 #include "safety/safety.h"
+#include "check/exchange.h"
 #include "check/judge.h"
 #include "check/text.h"
 #include "spec.h"
+#include "session/link.h"
 #include "targets/target.h"
 
 namespace mbc::conf::props {
@@ -49,14 +52,20 @@ struct Step {
 };
 
 // The target a property case runs on, plus the record of what was done.
+// Every frame goes through one check::Exchange over the Link (the
+// command's Session: the frame policy, then the journal). A frame the Link
+// refuses throws Refused (the case is discarded: extra.held_back), one
+// after sending stopped Stopped, a lost target std::runtime_error.
 class Session {
  public:
-  Session(Target& target, const SpecView& view, const DeviceFacts* facts) : target_(target), view_(view), facts_(facts) {}
-  Target& target() { return target_; }
+  Session(Link& link, const SpecView& view, const DeviceFacts* facts) : x_(link), view_(view), facts_(facts) {}
+  // The exchange, where a property needs the target itself: info(),
+  // transact() (not recorded as a step), trip_fault(), link().
+  check::Exchange& target() { return x_; }
   const SpecView& view() const { return view_; }
   const spec::Spec& spec() const { return view_.spec(); }
   const DeviceFacts* facts() const { return facts_; }
-  uint8_t unit() const { return target_.info().unit; }
+  uint8_t unit() const { return x_.info().unit; }
 
   Reply send(std::span<const uint8_t> pdu, const std::string& note = "");                    // to the unit
   Reply send_to(uint8_t unit, std::span<const uint8_t> pdu, const std::string& note = "");   // 0 = broadcast
@@ -80,7 +89,7 @@ class Session {
   }
 
  private:
-  Target& target_;
+  check::Exchange x_;
   const SpecView& view_;
   const DeviceFacts* facts_;
   std::vector<Step> steps_;
@@ -95,12 +104,16 @@ struct Options {
   std::vector<std::string> only;  // invariant names; empty = all
 };
 
-// A target to run on: `open()` gives a fresh one per generated case when the
-// target is in-process (ref:, so each case starts at power-on), else the same one.
+// What to run on: every frame through `link` (a command's Session, or a
+// DirectLink in tests). `afresh`, when set, starts the target afresh before
+// each generated case (in-process targets: power-on state,
+// Session::restart); unset: the same target throughout (a live one).
 struct TargetSource {
   std::string uri;
   const spec::Spec* spec = nullptr;
-  std::function<std::unique_ptr<Target>()> open;
+  Link* link = nullptr;
+  std::function<void()> afresh;
+  std::shared_ptr<Link> owned;  // source_for's link
 };
 
 struct Invariant {
@@ -122,7 +135,8 @@ const Invariant* find_invariant(const std::string& name);
 CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const Options& options);
 std::vector<CaseResult> run_all(const TargetSource& source, const Options& options);
 
-// A TargetSource for a URI: ref: targets reopen per case; others are opened once.
+// A TargetSource for a URI with no policy or journal (a DirectLink: tests):
+// ref: targets reopen per case; others are opened once.
 TargetSource source_for(const std::string& uri, const spec::Spec* spec_override = nullptr);
 
 }  // namespace mbc::conf::props

@@ -132,65 +132,6 @@ LineSettings line_settings(const std::string& uri, const spec::Spec* spec) {
   return ls;
 }
 
-// ---- the Target view --------------------------------------------------------
-
-class Session::View final : public Target {
- public:
-  View(Session& s, Target* inner, std::unique_ptr<Target> owned) : s_(s), inner_(inner), owned_(std::move(owned)) {}
-  const TargetInfo& info() const override { return inner_->info(); }
-  Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override { return take(s_.send_on(*inner_, unit, pdu, wait_)); }
-  Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
-    return take(s_.send_raw_on(*inner_, bytes, gap_after, wait_));
-  }
-  // Pipelined where the target pipelines (Modbus TCP): every request of the
-  // batch passes the policy (and the journal) before the batch goes out; a
-  // batch with a refused request goes one by one, so the refusal is that
-  // request's.
-  bool pipelines() const override { return inner_->pipelines(); }
-  std::vector<Reply> transact_all(std::span<const Request> requests, size_t depth) override {
-    if (!inner_->pipelines() || requests.size() < 2) return Target::transact_all(requests, depth);
-    if (s_.stopped()) return Target::transact_all(requests, depth);
-    for (const auto& r : requests)
-      if (s_.before_write(*inner_, r.unit, r.pdu)) return Target::transact_all(requests, depth);
-    inner_->set_wait(wait_);
-    auto replies = inner_->transact_all(requests, depth);
-    for (size_t k = 0; k < replies.size(); ++k) s_.count_frame();
-    return replies;
-  }
-  std::optional<std::chrono::microseconds> split_gap() const override { return inner_->split_gap(); }
-  void set_split_gap(std::chrono::microseconds g) override { inner_->set_split_gap(g); }
-  std::chrono::microseconds silence_window() const override { return inner_->silence_window(); }
-  void set_wait(Wait w) override { wait_ = w; }
-  uint64_t late_replies() const override { return inner_->late_replies(); }
-  bool reconnect() override { return inner_->reconnect(); }
-  void advance(std::chrono::microseconds dt) override {
-    s_.check_running();
-    inner_->advance(dt);
-  }
-  void power_cycle() override {
-    s_.check_running();
-    inner_->power_cycle();
-  }
-  bool trip_fault() override {
-    s_.check_running();
-    return inner_->trip_fault();
-  }
-
- private:
-  Reply take(Sent sent) {
-    if (sent.refused) {
-      if (auto why = s_.stopped()) throw Stopped(*why);
-      throw Refused(*sent.refused);
-    }
-    if (sent.lost) throw std::runtime_error(fmt::format("the target {} was lost", inner_->info().uri));
-    return std::move(sent.reply);
-  }
-  Session& s_;
-  Target* inner_;
-  std::unique_ptr<Target> owned_;
-  Wait wait_ = Wait::automatic;
-};
-
 // ---- the session ------------------------------------------------------------
 
 Session::Session(const std::string& uri, const spec::Spec* spec, SessionOptions options)
@@ -208,7 +149,6 @@ Session::Session(const std::string& uri, const spec::Spec* spec, SessionOptions 
                                               {"started", utc_now()}});
     set_stop_journal(journal_.path());
   }
-  view_ = std::make_unique<View>(*this, inner_.get(), nullptr);
 }
 
 Session::~Session() {
@@ -369,20 +309,52 @@ std::optional<Refusal> Session::journal_write(Target& t, uint8_t unit, std::span
   return journal_range(t, *w);
 }
 
-Sent Session::send_on(Target& t, uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait) {
-  if (auto why = stopped(); why && (opt_.stop_mid_exchange || !stop_requested())) {
+std::optional<std::string> Session::stops_frames() const {
+  auto why = stopped();
+  if (why && (opt_.stop_mid_exchange || !stop_requested())) return why;
+  return std::nullopt;
+}
+
+Sent Session::transact(uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait) {
+  if (auto why = stops_frames()) {
     ++refused_;
-    return Sent{{}, Refusal{*why, ""}, false};
+    return Sent{{}, Refusal{*why, ""}, false, true};
   }
-  if (auto r = before_write(t, unit, pdu)) {
+  if (auto r = before_write(*inner_, unit, pdu)) {
     ++refused_;
     return Sent{{}, std::move(r), false};
   }
-  t.set_wait(wait);
-  Sent sent{t.transact(unit, pdu), std::nullopt, false};
+  inner_->set_wait(wait);
+  Sent sent{inner_->transact(unit, pdu), std::nullopt, false};
   count_frame();
   note_zeroed(unit, pdu, sent.reply);
   return sent;
+}
+
+std::vector<Sent> Session::transact_all(std::span<const Target::Request> requests, size_t depth, Target::Wait wait) {
+  // Up to the first refusal: it is that request's, and the rest are not sent.
+  auto one_by_one = [&] {
+    std::vector<Sent> out;
+    for (const auto& r : requests) {
+      out.push_back(transact(r.unit, r.pdu, wait));
+      if (out.back().refused) break;
+    }
+    return out;
+  };
+  if (!inner_->pipelines() || requests.size() < 2 || stops_frames()) return one_by_one();
+  for (const auto& r : requests)
+    if (Decision d = allowed(facts_, r.unit, r.pdu); !d) return one_by_one();
+  for (const auto& r : requests)
+    if (journal_write(*inner_, r.unit, r.pdu)) return one_by_one();
+  inner_->set_wait(wait);
+  std::vector<Sent> out;
+  auto replies = inner_->transact_all(requests, depth);
+  for (size_t k = 0; k < replies.size(); ++k) {
+    count_frame();
+    if (k < requests.size()) note_zeroed(requests[k].unit, requests[k].pdu, replies[k]);
+    out.push_back(Sent{std::move(replies[k]), std::nullopt, false});
+  }
+  return out;
 }
 
 void Session::note_zeroed(uint8_t unit, std::span<const uint8_t> pdu, const Reply& reply) {
@@ -401,45 +373,34 @@ void Session::note_zeroed(uint8_t unit, std::span<const uint8_t> pdu, const Repl
   }
 }
 
-Sent Session::send_raw_on(Target& t, std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait) {
-  if (auto why = stopped(); why && (opt_.stop_mid_exchange || !stop_requested())) {
+Sent Session::send_raw(std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait) {
+  if (auto why = stops_frames()) {
     ++refused_;
-    return Sent{{}, Refusal{*why, ""}, false};
+    return Sent{{}, Refusal{*why, ""}, false, true};
   }
   if (Decision d = allowed_raw(facts_, adu, gap_after); !d) {
     ++refused_;
     return Sent{{}, std::move(d.refused), false};
   }
-  for (const auto& [unit, pdu] : frames_in(t.info().framing, adu, gap_after))
-    if (auto r = journal_write(t, unit, pdu)) {
+  for (const auto& [unit, pdu] : frames_in(inner_->info().framing, adu, gap_after))
+    if (auto r = journal_write(*inner_, unit, pdu)) {
       ++refused_;
       return Sent{{}, std::move(r), false};
     }
-  t.set_wait(wait);
-  Sent sent{t.send_raw(adu, gap_after), std::nullopt, false};
+  inner_->set_wait(wait);
+  Sent sent{inner_->send_raw(adu, gap_after), std::nullopt, false};
   count_frame();
   return sent;
 }
 
-Sent Session::transact(uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait) {
-  return send_on(*inner_, unit, pdu, wait);
-}
-
-Sent Session::send_raw(std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait) {
-  return send_raw_on(*inner_, adu, gap_after, wait);
-}
-
-std::unique_ptr<Target> Session::open_another(bool reopen) {
-  if (auto why = stopped(); why && (opt_.stop_mid_exchange || !stop_requested())) throw Stopped(*why);
+void Session::restart() {
+  if (auto why = stops_frames()) throw Stopped(*why);
   if (!inner_->info().live) {
-    if (!reopen) return std::make_unique<View>(*this, inner_.get(), nullptr);
-    auto fresh = opt_.wrap ? opt_.wrap(open_target(line_.uri)) : open_target(line_.uri);
-    Target* raw = fresh.get();
-    return std::make_unique<View>(*this, raw, std::move(fresh));
+    inner_ = opt_.wrap ? opt_.wrap(open_target(line_.uri)) : open_target(line_.uri);
+    return;
   }
-  if (reopen && !inner_->reconnect())
+  if (!inner_->reconnect())
     throw std::runtime_error(fmt::format("the target {} cannot be opened again", inner_->info().uri));
-  return std::make_unique<View>(*this, inner_.get(), nullptr);
 }
 
 std::string Session::preflight(std::string& identity) {

@@ -20,9 +20,10 @@
 //     JOURNAL` runs the same restore from the journal alone.
 //   - A stop signal (session/signals.h) or the deadline ends the sending.
 //
-// Code that still takes a Target& (runner, properties, fuzzer, replay, map
-// probe) gets one from target(): the same policy and journal behind the
-// Target interface (a refused frame throws Refused).
+// Every command sends through the Session as a Link (run and replay through
+// the runner, props and fuzz through check::Exchange); code that still takes
+// a Target& (the map probe, the timing checks) gets target(): a LinkTarget
+// over this same Link (a refused frame throws Refused, a stop Stopped).
 #pragma once
 
 #include <chrono>
@@ -41,25 +42,15 @@
 
 namespace mbc::conf {
 
-// A frame the policy held back, thrown by the target() view. A logic_error:
-// the frame cannot be sent with these opt-ins (replay reports "cannot run").
-struct Refused : std::logic_error {
-  Refusal refusal;
-  explicit Refused(Refusal r) : std::logic_error("refused by the frame policy: " + r.reason), refusal(std::move(r)) {}
-};
-// Sending stopped: a stop signal, or the command's deadline ran out.
-struct Stopped : std::runtime_error {
-  using std::runtime_error::runtime_error;
-};
-
 struct SessionOptions {
   std::string command = "run";  // for messages ("mbconform run: ...") and the journal
   WritePolicy policy;  // the opt-ins (policy/policy.h)
   // Where the journal goes (the command's output directory); a live target
   // without one cannot be written (every write is refused).
   std::string out_dir;
-  // After a stop signal, target() throws Stopped at the next frame (props,
-  // fuzz, replay); false: the caller stops between its own steps (run).
+  // After a stop signal, the next frame is refused as stopped (Sent::stopped;
+  // props, fuzz, replay), and advance(), power_cycle(), trip_fault() and
+  // restart() throw Stopped; false: the caller stops between its own steps (run).
   bool stop_mid_exchange = true;
   // No frame goes out after this (fuzz --duration, --deadline).
   std::optional<std::chrono::steady_clock::time_point> deadline;
@@ -98,13 +89,29 @@ class Session final : public Link {
   const TargetInfo& info() const override { return inner_->info(); }
   Sent transact(uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait) override;
   Sent send_raw(std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait) override;
+  // Pipelined where the target pipelines (Modbus TCP): every request of the
+  // batch passes the policy (and the journal) before the batch goes out; a
+  // batch with a refused request goes one by one, so the refusal is that
+  // request's, and stops there (fewer Sents than requests: the rest were not sent).
+  std::vector<Sent> transact_all(std::span<const Target::Request> requests, size_t depth, Target::Wait wait) override;
+  bool pipelines() const override { return inner_->pipelines(); }
   std::chrono::microseconds silence_window() const override { return inner_->silence_window(); }
   uint64_t late_replies() const override { return inner_->late_replies(); }
   std::optional<std::chrono::microseconds> split_gap() const override { return inner_->split_gap(); }
   void set_split_gap(std::chrono::microseconds g) override { inner_->set_split_gap(g); }
   bool reconnect() override { return inner_->reconnect(); }
-  void advance(std::chrono::microseconds dt) override { inner_->advance(dt); }
-  void power_cycle() override { inner_->power_cycle(); }
+  void advance(std::chrono::microseconds dt) override {
+    if (opt_.stop_mid_exchange) check_running();
+    inner_->advance(dt);
+  }
+  void power_cycle() override {
+    if (opt_.stop_mid_exchange) check_running();
+    inner_->power_cycle();
+  }
+  bool trip_fault() override {
+    if (opt_.stop_mid_exchange) check_running();
+    return inner_->trip_fault();
+  }
 
   // ---- the command's side ----
   const LineSettings& line() const { return line_; }
@@ -131,13 +138,13 @@ class Session final : public Link {
   RestoreReport restore();
   bool restored() const { return restored_; }
 
-  // The target behind the policy and journal, as a Target (see above).
-  Target& target() { return *view_; }
-  // Another Target through the same policy and journal: a fresh in-process
-  // target for ref: (power-on state), the same connection reopened for a
-  // live one. Throws Stopped after a stop or the deadline, std::runtime_error
-  // when the target cannot be reopened.
-  std::unique_ptr<Target> open_another(bool reopen = true);
+  // This Link as a Target (see above): for the map probe and the timing checks.
+  Target& target() { return as_target_; }
+  // Starts the target afresh: a new in-process target at power-on (not
+  // live: ref:, plugin), the same connection reopened for a live one. The
+  // fuzzer's fresh runs and the properties' cases. Throws Stopped after a
+  // stop or the deadline, std::runtime_error when it cannot be reopened.
+  void restart();
   // What the frame policy judges this session's frames by (its makers ask
   // the same before they make a check).
   const PolicyFacts& policy_facts() const { return facts_; }
@@ -149,11 +156,9 @@ class Session final : public Link {
   // Throws Stopped when sending stopped (for steps that send no frame).
   void check_running() const;
 
-  class View;
-
  private:
-  Sent send_on(Target& t, uint8_t unit, std::span<const uint8_t> pdu, Target::Wait wait);
-  Sent send_raw_on(Target& t, std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait);
+  // Why sending stopped, when it stops this frame (stop_mid_exchange).
+  std::optional<std::string> stops_frames() const;
   // The policy, then the journal: why the frame may not go out, or nullopt.
   std::optional<Refusal> before_write(Target& t, uint8_t unit, std::span<const uint8_t> pdu);
   // Journals what a write to `unit` is about to change (live targets).
@@ -176,7 +181,7 @@ class Session final : public Link {
   std::unique_ptr<Target> inner_;
   PolicyFacts facts_;  // what the frame policy judges by
   Journal journal_;
-  std::unique_ptr<Target> view_;
+  LinkTarget as_target_{*this};
   std::vector<std::string> notes_;
   bool restored_ = false;
   bool identity_recorded_ = false;

@@ -103,14 +103,15 @@ int run_fuzz(FuzzArgs& a) {
   const spec::Spec& s = *opened.spec;
   const conf::TargetInfo info = session.info();
   for (const auto& n : info.notes) fmt::print(stderr, "note: {}\n", n);  // how it was opened (a USB latency timer, ...)
-  conf::blackbox::Open open = [&] { return session.open_another(true); };
+  // Fresh runs (a later round, a reduction) start the session's target afresh:
+  // every frame still goes through the session's policy and journal.
+  conf::blackbox::Open open = [&] { session.restart(); };
   std::vector<std::string> notes;
   if (std::string why = prepare_live(session, a.t, notes); !why.empty()) {
     fmt::print(stderr, "mbconform fuzz: error: {}\n", why);
     return kExitUsage;
   }
   for (const auto& n : notes) fmt::print(stderr, "mbconform fuzz: {}\n", n);
-  auto target = session.open_another(false);
   conf::blackbox::Options o;
   o.duration = *duration;
   o.seed = a.seed.value_or(uint64_t(std::chrono::steady_clock::now().time_since_epoch().count()));
@@ -125,7 +126,7 @@ int run_fuzz(FuzzArgs& a) {
   std::fflush(stdout);
 
   size_t saved = 0;
-  auto out = conf::blackbox::fuzz(std::move(target), open, plan, o, [&](const conf::blackbox::Reported& r) {
+  auto out = conf::blackbox::fuzz(session, open, plan, o, [&](const conf::blackbox::Reported& r) {
     // A finding whose reduction a stop or the deadline cut off is saved as
     // far as it got: it was seen on the target, and is never dropped.
     ++saved;

@@ -69,11 +69,10 @@ int replay_files(const PropsArgs& a) {
       std::string out = a.t.out.empty() ? default_out_dir("props") : a.t.out;
       auto opened = open_session(named, uri, session_options(a.t, "props", out));
       const spec::Spec& s = *opened.spec;
-      conf::Target& target = opened.session->target();
       std::vector<std::string> notes;
       if (std::string why = prepare_live(*opened.session, a.t, notes); !why.empty()) throw std::runtime_error(why);
-      conf::props::SpecView view(s, target.info(), a.t.policy);
-      conf::props::Session session(target, view, conf::props::facts_for(s));
+      conf::props::SpecView view(s, opened.session->info(), a.t.policy);
+      conf::props::Session session(*opened.session, view, conf::props::facts_for(s));
       std::string why = conf::props::replay(session, r.steps);
       restore_and_say(*opened.session, "props");
       if (auto stop = opened.session->stopped()) {
@@ -175,7 +174,8 @@ int run(PropsArgs& a) {
     src.uri = info.uri;
     src.spec = opened.spec.get();
     // In-process targets start each generated case at power-on; a live one is the same drive throughout.
-    src.open = [&session, live = info.live] { return session.open_another(!live); };
+    src.link = &session;
+    if (!info.live) src.afresh = [&session] { session.restart(); };
     conf::DeviceRun dr;
     if (std::string why = prepare_live(session, a.t, dr.safety_notes); !why.empty()) {
       fmt::print(stderr, "mbconform props: error: {}\n", why);

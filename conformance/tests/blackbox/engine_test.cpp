@@ -276,12 +276,13 @@ TEST(Reducer, RealTargetReducesToTheFrameThatFails) {
   Step bc = check::raw_rtu(rtu_frame(0, write_single_register(0x0000, 1)));
   bc.expect = expect_for(p, bc);
   steps.insert(steps.begin() + 23, bc);
-  Open open = [&] { return open_target(uri); };
-  auto f = run_fresh(open, p, steps);
+  DirectLink link(open_target(uri));
+  Open open = [&] { link.replace(open_target(uri)); };
+  auto f = run_fresh(link, open, p, steps);
   ASSERT_TRUE(f);
   ASSERT_EQ(f->kind, FindingKind::answered_broadcast);
   std::function<bool(const std::vector<Step>&)> fails = [&](const std::vector<Step>& v) {
-    auto g = run_fresh(open, p, v);
+    auto g = run_fresh(link, open, p, v);
     return g && g->kind == FindingKind::answered_broadcast;
   };
   int runs = 0;
@@ -289,8 +290,9 @@ TEST(Reducer, RealTargetReducesToTheFrameThatFails) {
   ASSERT_EQ(min.size(), 1u);
   EXPECT_EQ(check::line(min[0]), check::line(bc));
   // The correct device does not fail it.
-  Open correct = [] { return open_target("ref:hsc60"); };
-  EXPECT_FALSE(run_fresh(correct, p, min));
+  DirectLink good(open_target("ref:hsc60"));
+  Open correct = [&] { good.replace(open_target("ref:hsc60")); };
+  EXPECT_FALSE(run_fresh(good, correct, p, min));
 }
 
 }  // namespace
@@ -301,15 +303,15 @@ namespace {
 
 // Sending stops (a stop signal, fuzz's deadline) while a finding is being
 // reduced: the finding is kept, as far as its reduction got, and says so.
-// The session's fresh targets then cannot be opened (Session::open_another
+// The session's target then cannot start afresh (Session::restart
 // throws Stopped): here the first reopen stops, as the deadline would.
 TEST(Reducer, AFindingWhoseReductionIsCutOffIsKeptUnreduced) {
   const std::string uri = "ref:hsc60?fault=answer-broadcast";
   spec::Spec s = spec::load_spec_by_id("hsc60");
-  auto first = open_target(uri);
-  Plan p = make_plan(s, first->info(), WritePolicy{});
+  DirectLink first(open_target(uri));
+  Plan p = make_plan(s, first.info(), WritePolicy{});
   bool stopped = false;
-  Open open = [&]() -> std::unique_ptr<Target> {
+  Open open = [&] {
     stopped = true;
     throw std::runtime_error("sending stopped: the deadline ran out");
   };
@@ -318,7 +320,7 @@ TEST(Reducer, AFindingWhoseReductionIsCutOffIsKeptUnreduced) {
   o.seed = 7;
   o.stopped = [&] { return stopped; };
   std::vector<Reported> heard;
-  Outcome out = fuzz(std::move(first), open, p, o, [&](const Reported& r) { heard.push_back(r); });
+  Outcome out = fuzz(first, open, p, o, [&](const Reported& r) { heard.push_back(r); });
   ASSERT_EQ(out.findings.size(), 1u);
   ASSERT_EQ(heard.size(), 1u);
   const Reported& r = out.findings[0];
@@ -337,18 +339,18 @@ TEST(Reducer, AFindingWhoseReductionIsCutOffIsKeptUnreduced) {
 TEST(Reducer, ACutOffAfterTheFindingReproducedKeepsWhatReproduces) {
   const std::string uri = "ref:hsc60?fault=answer-broadcast";
   spec::Spec s = spec::load_spec_by_id("hsc60");
-  auto first = open_target(uri);
-  Plan p = make_plan(s, first->info(), WritePolicy{});
+  DirectLink first(open_target(uri));
+  Plan p = make_plan(s, first.info(), WritePolicy{});
   int opened = 0;
   Open open = [&] {
     ++opened;
-    return open_target(uri);
+    first.replace(open_target(uri));
   };
   Options o;
   o.duration = std::chrono::milliseconds(10'000);
   o.seed = 7;
   o.stopped = [&] { return opened > 0; };  // stops as the first fresh target opens
-  Outcome out = fuzz(std::move(first), open, p, o, {});
+  Outcome out = fuzz(first, open, p, o, {});
   ASSERT_EQ(out.findings.size(), 1u);
   const Reported& r = out.findings[0];
   EXPECT_TRUE(r.cut_off);
@@ -391,13 +393,13 @@ class Paced final : public Target {
 // 500 ms leave a slow host (ASan, under load) the time to start the batch.
 TEST(Fuzz, TheDeadlineIsLookedAtBeforeEachExchange) {
   spec::Spec s = spec::load_spec_by_id("hsc60");
-  auto first = std::make_unique<Paced>(open_target("ref:hsc60"), std::chrono::milliseconds(2));
-  Plan p = make_plan(s, first->info(), WritePolicy{});
+  DirectLink first(std::make_unique<Paced>(open_target("ref:hsc60"), std::chrono::milliseconds(2)));
+  Plan p = make_plan(s, first.info(), WritePolicy{});
   Options o;
   o.duration = std::chrono::milliseconds(500);
   o.batch = 1000;
-  Open open = [] { return std::make_unique<Paced>(open_target("ref:hsc60"), std::chrono::milliseconds(2)); };
-  Outcome out = fuzz(std::move(first), open, p, o, {});
+  Open open = [&] { first.replace(std::make_unique<Paced>(open_target("ref:hsc60"), std::chrono::milliseconds(2))); };
+  Outcome out = fuzz(first, open, p, o, {});
   EXPECT_TRUE(out.findings.empty());
   EXPECT_GT(out.frames, 0);
   EXPECT_LT(out.frames, o.batch) << "the whole batch went out past the deadline";
@@ -460,7 +462,9 @@ TEST(Fuzz, ASplitFrameAnsweredIsSentAgainWithALongPauseBeforeItIsAFinding) {
     HeldUpReceiver t(always);
     Plan p = make_plan(s, t.info(), WritePolicy{});
     split.expect = expect_for(p, split);
-    auto f = execute(t, p, split);
+    DirectLink link(t);
+    check::Exchange x(link);
+    auto f = execute(x, p, split);
     ASSERT_EQ(t.pauses.size(), 2u);
     EXPECT_EQ(t.pauses[0], std::chrono::microseconds(3500));
     EXPECT_EQ(t.pauses[1], std::chrono::milliseconds(250));

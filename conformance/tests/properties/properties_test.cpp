@@ -175,14 +175,16 @@ TEST(PropertyRegressions, ReplayOnTheReferenceDevicesAndStillCatchTheirFault) {
       auto target = open_target("ref:" + r.device_id);
       spec::Spec s = spec::load_spec_by_id(r.device_id);
       SpecView view(s, target->info(), policy);
-      Session session(*target, view, facts_for(s));
+      DirectLink link(*target);
+      Session session(link, view, facts_for(s));
       EXPECT_EQ(replay(session, r.steps), "") << "the clean device disagrees with the model";
     }
     if (!r.fault.empty()) {
       auto target = open_target(fmt::format("ref:{}?fault={}", r.device_id, r.fault));
       spec::Spec s = spec::load_spec_by_id(r.device_id);
       SpecView view(s, target->info(), policy);
-      Session session(*target, view, facts_for(s));
+      DirectLink link(*target);
+      Session session(link, view, facts_for(s));
       EXPECT_NE(replay(session, r.steps), "") << "fault " << r.fault << " is no longer caught by this sequence";
     }
   }

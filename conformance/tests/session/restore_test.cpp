@@ -510,6 +510,11 @@ class RefusesWritesBack final : public Link {
   bool reconnect() override { return d_.reconnect(); }
   void advance(std::chrono::microseconds dt) override { d_.advance(dt); }
   void power_cycle() override { d_.power_cycle(); }
+  std::vector<Sent> transact_all(std::span<const Target::Request> requests, size_t depth, Target::Wait wait) override {
+    return d_.transact_all(requests, depth, wait);
+  }
+  bool pipelines() const override { return false; }
+  bool trip_fault() override { return d_.trip_fault(); }
 
  private:
   DirectLink d_;

@@ -576,13 +576,13 @@ TEST_F(Cia402, TheMotionFreeWalkSendsNoMotion) {
   o.out_dir = out.path();
   Session session(uri_, &spec_, o);
   session.keep();
-  props::SpecView view(spec_, session.target().info(), {});
-  props::Session walker(session.target(), view, nullptr);
+  props::SpecView view(spec_, session.info(), {});
+  props::Session walker(session, view, nullptr);
   std::vector<std::string> skipped;
   EXPECT_EQ(props::control_walk(walker, skipped), "");
   for (const auto& line : skipped) std::cout << "walk: skipped " << line << "\n";
   // The frames sent, judged again by the policy with what they themselves wrote before.
-  PolicyFacts f{&spec_, session.target().info(), {}};
+  PolicyFacts f{&spec_, session.info(), {}};
   int writes = 0, enables = 0;
   for (const auto& st : walker.steps()) {
     if (st.kind != props::Step::Kind::frame) continue;
@@ -600,7 +600,7 @@ TEST_F(Cia402, TheMotionFreeWalkSendsNoMotion) {
   EXPECT_GT(writes, 5);
   EXPECT_EQ(regs()[1] & 0x4F, 0x40) << "the walk ends in the safe state";
   // Without the set-points written 0 first, the same enable is motion.
-  PolicyFacts cold{&spec_, session.target().info(), {}};
+  PolicyFacts cold{&spec_, session.info(), {}};
   EXPECT_NE(control_motion(cold, write_single_register(0, 0x0F)), "");
   session.restore();
 }
