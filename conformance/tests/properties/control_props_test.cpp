@@ -15,6 +15,7 @@
 #include "modbus/pdu.h"
 #include "properties/properties.h"
 #include "readings.h"
+#include "session/link.h"
 #include "targets/target.h"
 
 namespace mbc::conf::props {
@@ -161,7 +162,9 @@ TEST(ControlZeroSetpointsStill, HoldsOnTheDrivesAndCatchesOneThatIgnoresAZero) {
     EXPECT_EQ(c.outcome, Outcome::pass) << d << ": " << c.message;
   }
   spec::Spec s = spec::load_spec_by_id("cia402-modbus");
-  TargetSource broken{"ref:cia402-modbus (ignores a 0 target velocity)", &s, [] { return std::make_unique<IgnoresZeroVelocity>(); }};
+  auto link = std::make_shared<DirectLink>(std::make_unique<IgnoresZeroVelocity>());
+  TargetSource broken{"ref:cia402-modbus (ignores a 0 target velocity)", &s, link.get(),
+                      [l = link.get()] { l->replace(std::make_unique<IgnoresZeroVelocity>()); }, link};
   CaseResult c = run_invariant(*inv, broken, options());
   EXPECT_EQ(c.outcome, Outcome::fail) << "a drive that runs with its set-points 0 went unnoticed: " << c.message;
 }
