@@ -1,8 +1,12 @@
 // report.json (everything) and the files on disk.
 #include <fmt/core.h>
 
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <stdexcept>
 
 #include "report/report.h"
@@ -24,10 +28,25 @@ nlohmann::json frame_json(const FrameRecord& f) {
   return j;
 }
 
+// Whole or not at all: written to NAME.part and renamed over NAME once every
+// byte went out (a full disk must not leave a torn report that reads as a
+// whole one; an ofstream also dropped the error of its last flush).
 void write_file(const std::filesystem::path& p, const std::string& text) {
-  std::ofstream out(p, std::ios::binary);
-  out << text;
-  if (!out) throw std::runtime_error(fmt::format("cannot write {}", p.string()));
+  const std::string part = p.string() + ".part";
+  int fd = ::open(part.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  int err = fd < 0 ? errno : 0;
+  for (size_t at = 0; !err && at < text.size();) {
+    ssize_t n = ::write(fd, text.data() + at, text.size() - at);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) err = n < 0 ? errno : ENOSPC;
+    else at += size_t(n);
+  }
+  if (fd >= 0 && ::close(fd) != 0 && !err) err = errno;
+  if (!err && ::rename(part.c_str(), p.c_str()) != 0) err = errno;
+  if (err) {
+    ::unlink(part.c_str());
+    throw std::runtime_error(fmt::format("cannot write {}: {}", p.string(), std::strerror(err)));
+  }
 }
 
 }  // namespace
@@ -144,10 +163,21 @@ void write_reports(const RunReport& rep, const std::string& dir, bool junit_only
   std::error_code ec;
   std::filesystem::create_directories(d, ec);
   if (ec) throw std::runtime_error(fmt::format("cannot create {}: {}", dir, ec.message()));
-  write_file(d / "junit.xml", junit_xml(rep));
-  if (junit_only) return;
-  write_file(d / "report.json", report_json(rep).dump(1) + "\n");
-  write_file(d / "report.html", html_report(rep));
+  // All or none: when one cannot be written, the ones this call wrote go too.
+  std::vector<std::filesystem::path> written;
+  auto put = [&](const char* name, const std::string& text) {
+    write_file(d / name, text);
+    written.push_back(d / name);
+  };
+  try {
+    put("junit.xml", junit_xml(rep));
+    if (junit_only) return;
+    put("report.json", report_json(rep).dump(1) + "\n");
+    put("report.html", html_report(rep));
+  } catch (...) {
+    for (const auto& p : written) std::filesystem::remove(p, ec);
+    throw;
+  }
 }
 
 }  // namespace mbc::conf

@@ -79,7 +79,8 @@ std::string claim_new_dir(const std::string& parent, const std::string& stem);
 std::string incomplete_line(const RunReport&);
 
 // Writes junit.xml, report.json and (unless junit_only) report.html into
-// `dir` (created). Throws std::runtime_error when a file cannot be written.
+// `dir` (created), each whole or not at all. Throws std::runtime_error when
+// a file cannot be written (a full disk), having removed the ones it wrote.
 void write_reports(const RunReport&, const std::string& dir, bool junit_only = false);
 
 }  // namespace mbc::conf

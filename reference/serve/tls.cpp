@@ -487,7 +487,7 @@ constexpr std::chrono::seconds kHandshakeLimit{5};
 // either cap the oldest such handshake makes room for the newcomer.
 constexpr size_t kMaxHandshakes = 256;
 constexpr size_t kMaxPeerHandshakes = 32;
-// Descriptors kept free of TLS connections: listeners, the epoll set, wake
+// Descriptors kept free of TLS connections: listeners, the epoll sets, wake
 // pipes, stdio, and what the serve loop opens beside them.
 constexpr size_t kReservedFds = 64;
 // An established server-side connection holds three descriptors: its TCP
@@ -496,13 +496,17 @@ constexpr size_t kFdsPerConnection = 3;
 // Decrypted bytes held for the plain side at once; past it, nothing more is
 // read from the TLS side until they are written.
 constexpr size_t kBufferBound = 64 * 1024;
-// Keys of the epoll set that are no connection (a connection's key is the
+// The door thread's nice value above the process's: under load the
+// handshakes (the CPU an attacker can make serve spend) yield to the relay
+// of the established connections and to the serve loop.
+constexpr int kDoorNice = 5;
+// Keys of the epoll sets that are no connection (a connection's key is the
 // address of its Watch, far below these).
 constexpr uint64_t kWakeKey = uint64_t(1) << 62;
 constexpr uint64_t kListenerKey = uint64_t(1) << 61;
 
 struct Pipe;
-// One descriptor of a connection in the epoll set.
+// One descriptor of a connection in an epoll set.
 struct Watch {
   Pipe* pipe = nullptr;
   bool plain = false;
@@ -517,6 +521,7 @@ struct Pipe {
   bool handshaking = true;
   Clock::time_point started;
   std::function<int(const Peer&)> inner;  // server side: where the plain side comes from
+  Peer info;                              // server side: set when the handshake is done
   std::string to_plain, to_tls;
   bool tls_eof = false;     // close_notify from the TLS peer
   bool plain_eof = false;   // EOF from the plain side
@@ -526,7 +531,7 @@ struct Pipe {
   bool queued = false;      // queued for a step this round
   std::string peer;         // the peer's address without the port (the per-peer cap)
   Watch net_watch, plain_watch;
-  std::list<Pipe>::iterator self;                // in Impl::pipes, least recently active first
+  std::list<Pipe>::iterator self;                // in its loop's pipes (the relay's: least recently active first)
   std::list<Pipe*>::iterator shaking;            // in Impl::handshakes while handshaking
   bool counted = false;                          // in the handshake counts
 
@@ -559,42 +564,64 @@ std::string host_of(const sockaddr_storage& ss) {
   return buf;
 }
 
+// One thread's epoll set (level triggered: a round costs the connections
+// that are ready, no limit on descriptors) and the connections it owns.
+struct Loop {
+  int epfd = -1;
+  int wake[2] = {-1, -1};
+  std::list<Pipe> pipes;
+  std::vector<Pipe*> doomed;
+  size_t fds_used = 0;  // by its connections
+  size_t fd_budget = 0;
+};
+
 }  // namespace
 
-// One thread, one epoll set (no limit on the number of descriptors), level
-// triggered: a round costs the connections that are ready. Every SSL call
-// starts with an empty error queue (OpenSSL's error queue is per thread: an
-// error one connection left behind made SSL_get_error report it for the next
+// Two threads. The door thread accepts and runs the handshakes (their
+// caps, their time limit); a connection whose handshake is done goes to the
+// relay thread, which pumps the bytes of the established connections. So
+// an attacker's handshakes (milliseconds of CPU each, an OpenSSL 3 server
+// handshake with a client certificate) never stand before a good client's
+// bytes in one thread's queue, and the relay thread, asleep most of the
+// time, is woken at once when they come; the door thread runs kDoorNice
+// lower. The descriptor budget is split: the handshakes' share (one each)
+// and the established connections' (three each). Every SSL call starts with
+// an empty error queue (OpenSSL's error queue is per thread: an error one
+// connection left behind made SSL_get_error report it for the next
 // connection, which was then dropped).
 struct Relay::Impl {
   std::vector<Ctx> ctxs;
   std::vector<TlsListener> listeners;
-  std::list<Pipe> pipes;         // least recently active first
-  std::list<Pipe*> handshakes;   // oldest first
+  Loop door, relay;
+  std::list<Pipe*> handshakes;   // the door's, oldest first
   std::map<std::string, size_t> peer_handshakes;
-  std::vector<Pipe*> doomed;
-  size_t fds_used = 0;           // by the connections (kFdsPerConnection once established)
-  size_t fd_budget = 0;
+  size_t max_handshakes = kMaxHandshakes;
+  std::mutex handoff_mutex;
+  std::list<Pipe> handoff;       // handshakes done, for the relay thread
   int spare = -1;                // a descriptor given up to refuse a connection cleanly at the file limit
-  int epfd = -1;
-  int wake[2] = {-1, -1};
-  std::thread thread;
+  std::thread door_thread, relay_thread;
   std::atomic<bool> stop{false};
   mutable std::mutex error_mutex;
   std::string last_error;
 
   ~Impl() {
     stop = true;
-    if (wake[1] >= 0) {
-      char c = 1;
-      (void)!::write(wake[1], &c, 1);
-    }
-    if (thread.joinable()) thread.join();
-    pipes.clear();
+    for (Loop* l : {&door, &relay})
+      if (l->wake[1] >= 0) {
+        char c = 1;
+        (void)!::write(l->wake[1], &c, 1);
+      }
+    if (door_thread.joinable()) door_thread.join();
+    if (relay_thread.joinable()) relay_thread.join();
+    door.pipes.clear();
+    handoff.clear();
+    relay.pipes.clear();
     for (auto& l : listeners) ::close(l.fd);
-    if (wake[0] >= 0) ::close(wake[0]);
-    if (wake[1] >= 0) ::close(wake[1]);
-    if (epfd >= 0) ::close(epfd);
+    for (Loop* l : {&door, &relay}) {
+      if (l->wake[0] >= 0) ::close(l->wake[0]);
+      if (l->wake[1] >= 0) ::close(l->wake[1]);
+      if (l->epfd >= 0) ::close(l->epfd);
+    }
     if (spare >= 0) ::close(spare);
   }
 
@@ -605,27 +632,27 @@ struct Relay::Impl {
 
   // ---- bookkeeping ----
 
-  void arm(Watch& w, int fd, uint32_t want) {
+  static void arm(Loop& l, Watch& w, int fd, uint32_t want) {
     if (fd < 0) return;
     if (w.registered && w.armed == want) return;
     epoll_event e{};
     e.events = want;
     e.data.u64 = reinterpret_cast<uintptr_t>(&w);
-    if (epoll_ctl(epfd, w.registered ? EPOLL_CTL_MOD : EPOLL_CTL_ADD, fd, &e) == 0) {
+    if (epoll_ctl(l.epfd, w.registered ? EPOLL_CTL_MOD : EPOLL_CTL_ADD, fd, &e) == 0) {
       w.registered = true;
       w.armed = want;
     }
   }
 
   // Registers the connection for what it can use now.
-  void update(Pipe& p) {
+  static void update(Loop& l, Pipe& p) {
     if (p.done) return;
     uint32_t net = (p.to_plain.size() < kBufferBound && !p.tls_eof ? uint32_t(EPOLLIN) : 0u) | (p.want_write ? uint32_t(EPOLLOUT) : 0u);
     if (p.handshaking) net = uint32_t(EPOLLIN) | (p.want_write ? uint32_t(EPOLLOUT) : 0u);
-    arm(p.net_watch, p.net, net);
+    arm(l, p.net_watch, p.net, net);
     if (!p.handshaking && p.plain >= 0) {
       uint32_t plain = (p.to_tls.size() < kBufferBound && !p.plain_eof ? uint32_t(EPOLLIN) : 0u) | (!p.to_plain.empty() ? uint32_t(EPOLLOUT) : 0u);
-      arm(p.plain_watch, p.plain, plain);
+      arm(l, p.plain_watch, p.plain, plain);
     }
   }
 
@@ -638,37 +665,37 @@ struct Relay::Impl {
 
   // Closes the connection now (its descriptors come free at once) and queues
   // it for removal at the end of the round.
-  void doom(Pipe& p) {
+  void doom(Loop& l, Pipe& p) {
     if (p.doomed) return;
     p.done = p.doomed = true;
     uncount(p);
     size_t held = size_t(p.net >= 0) + (p.plain >= 0 ? kFdsPerConnection - 1 : 0);
-    fds_used -= std::min(fds_used, held);
+    l.fds_used -= std::min(l.fds_used, held);
     if (p.ssl) SSL_free(p.ssl);
     p.ssl = nullptr;
     if (p.net >= 0) ::close(p.net);
     if (p.plain >= 0) ::close(p.plain);
     p.net = p.plain = -1;
-    doomed.push_back(&p);
+    l.doomed.push_back(&p);
   }
 
-  void bury() {
-    for (Pipe* p : doomed) pipes.erase(p->self);
-    doomed.clear();
+  static void bury(Loop& l) {
+    for (Pipe* p : l.doomed) l.pipes.erase(p->self);
+    l.doomed.clear();
   }
 
-  // The connection unused the longest (Modbus Messaging on TCP/IP
-  // Implementation Guide V1.0b §4.2.1.2) makes room, `except` kept.
+  // The established connection unused the longest (Modbus Messaging on
+  // TCP/IP Implementation Guide V1.0b §4.2.1.2) makes room, `except` kept.
   bool make_room(const Pipe* except) {
-    for (auto& p : pipes)
+    for (auto& p : relay.pipes)
       if (!p.doomed && &p != except) {
-        doom(p);
+        doom(relay, p);
         return true;
       }
     return false;
   }
 
-  // ---- accepting ----
+  // ---- the door: accepting and handshakes ----
 
   void accept_tls(TlsListener& l, Clock::time_point now) {
     for (int n = 0; n < 256; ++n) {  // bounded: the others are served between bursts
@@ -684,7 +711,7 @@ struct Relay::Impl {
           int refused = accept4(l.fd, nullptr, nullptr, SOCK_CLOEXEC);
           if (refused >= 0) ::close(refused);
           spare = ::open("/dev/null", O_RDONLY | O_CLOEXEC);
-          make_room(nullptr);
+          if (!handshakes.empty()) doom(door, *handshakes.front());
           continue;
         }
         return;  // EAGAIN, or an aborted connection
@@ -695,44 +722,40 @@ struct Relay::Impl {
         accept_plain(l, fd);
         continue;
       }
-      Pipe& p = pipes.emplace_back();
-      p.self = std::prev(pipes.end());
+      Pipe& p = door.pipes.emplace_back();
+      p.self = std::prev(door.pipes.end());
       p.net = fd;
-      ++fds_used;
+      ++door.fds_used;
       p.peer = host_of(ss);
       p.started = now;
       p.inner = l.inner;
       // The caps: the oldest handshake of this peer, else the oldest of all,
-      // else the connection unused the longest, makes room.
+      // makes room.
       size_t& mine = peer_handshakes[p.peer];
       if (mine >= kMaxPeerHandshakes)
         for (Pipe* q : handshakes)
           if (q->peer == p.peer) {
-            doom(*q);
+            doom(door, *q);
             break;
           }
-      if (handshakes.size() >= kMaxHandshakes) doom(*handshakes.front());
-      while (fds_used + kFdsPerConnection - 1 > fd_budget && make_room(&p)) {
-      }
+      if (handshakes.size() >= max_handshakes) doom(door, *handshakes.front());
       ++peer_handshakes[p.peer];
       handshakes.push_back(&p);
       p.shaking = std::prev(handshakes.end());
       p.counted = true;
       p.ssl = SSL_new(l.ctx);
       if (!p.ssl) {
-        doom(p);
+        doom(door, p);
         continue;
       }
       SSL_set_fd(p.ssl, fd);
       SSL_set_accept_state(p.ssl);
-      step(p);
-      if (p.done) doom(p);
-      else update(p);
+      shake(p);
     }
   }
 
   // Client side: a connection from this process goes out over TLS. The
-  // outgoing connect and handshake block this thread (bounded by the
+  // outgoing connect and handshake block the door thread (bounded by the
   // timeout): a target has one connection at a time.
   void accept_plain(TlsListener& l, int fd) {
     if (!from_this_process(fd)) {
@@ -762,65 +785,136 @@ struct Relay::Impl {
     }
     set_error("");
     set_nonblocking(net);
-    Pipe& p = pipes.emplace_back();
-    p.self = std::prev(pipes.end());
+    Pipe& p = door.pipes.emplace_back();
+    p.self = std::prev(door.pipes.end());
     p.net = net;
     p.plain = fd;
     p.ssl = ssl;
     p.handshaking = false;
-    fds_used += kFdsPerConnection;
-    step(p);
-    if (p.done) doom(p);
-    else update(p);
+    hand_over(p);
   }
 
-  // ---- one connection ----
-
-  // Does everything that can be done without blocking.
-  void step(Pipe& p) {
+  // Runs the handshake as far as it goes without blocking; when it is done,
+  // hands the connection to the relay thread.
+  void shake(Pipe& p) {
     if (p.done || !p.ssl) return;
-    if (p.handshaking) {
+    ERR_clear_error();
+    int rc = SSL_do_handshake(p.ssl);
+    if (rc != 1) {
+      int e = SSL_get_error(p.ssl, rc);
       ERR_clear_error();
-      int rc = SSL_do_handshake(p.ssl);
-      if (rc != 1) {
-        int e = SSL_get_error(p.ssl, rc);
-        ERR_clear_error();
-        if (e == SSL_ERROR_WANT_READ || e == SSL_ERROR_WANT_WRITE) {
-          p.want_write = e == SSL_ERROR_WANT_WRITE;
-          return;
-        }
-        // Refused: the alert went out with the failure. Close the write side
-        // and read what the client already sent, so that closing does not
-        // reset the connection and drop the alert before the client reads it.
-        ::shutdown(p.net, SHUT_WR);
-        char sink[4096];
-        for (int i = 0; i < 16 && ::recv(p.net, sink, sizeof sink, 0) > 0; ++i) {
-        }
-        p.done = true;
+      if (e == SSL_ERROR_WANT_READ || e == SSL_ERROR_WANT_WRITE) {
+        p.want_write = e == SSL_ERROR_WANT_WRITE;
+        update(door, p);
         return;
       }
-      p.handshaking = false;
-      uncount(p);
-      Peer peer;
-      sockaddr_storage ss{};
-      socklen_t len = sizeof ss;
-      getpeername(p.net, reinterpret_cast<sockaddr*>(&ss), &len);
-      peer.address = sockaddr_text(ss);
-      peer.version = SSL_get_version(p.ssl);
-      X509* cert = SSL_get1_peer_certificate(p.ssl);
-      peer.role = role_of(cert).name;
-      X509_free(cert);
-      p.plain = p.inner ? p.inner(peer) : -1;
+      // Refused: the alert went out with the failure. Close the write side
+      // and read what the client already sent, so that closing does not
+      // reset the connection and drop the alert before the client reads it.
+      ::shutdown(p.net, SHUT_WR);
+      char sink[4096];
+      for (int i = 0; i < 16 && ::recv(p.net, sink, sizeof sink, 0) > 0; ++i) {
+      }
+      doom(door, p);
+      return;
+    }
+    p.handshaking = false;
+    p.want_write = false;
+    sockaddr_storage ss{};
+    socklen_t len = sizeof ss;
+    getpeername(p.net, reinterpret_cast<sockaddr*>(&ss), &len);
+    p.info.address = sockaddr_text(ss);
+    p.info.version = SSL_get_version(p.ssl);
+    X509* cert = SSL_get1_peer_certificate(p.ssl);
+    p.info.role = role_of(cert).name;
+    X509_free(cert);
+    hand_over(p);
+  }
+
+  // Out of the door's epoll set and bookkeeping, into the relay's hands.
+  void hand_over(Pipe& p) {
+    uncount(p);
+    if (p.net_watch.registered) epoll_ctl(door.epfd, EPOLL_CTL_DEL, p.net, nullptr);
+    p.net_watch.registered = p.plain_watch.registered = false;
+    p.net_watch.armed = p.plain_watch.armed = 0;
+    if (p.handshaking == false && p.plain < 0) door.fds_used -= std::min<size_t>(door.fds_used, 1);
+    {
+      std::lock_guard<std::mutex> g(handoff_mutex);
+      handoff.splice(handoff.end(), door.pipes, p.self);
+    }
+    char c = 1;
+    (void)!::write(relay.wake[1], &c, 1);
+  }
+
+  void run_door() {
+    NoSigpipe no_sigpipe;  // a peer that closed must not kill the process
+    errno = 0;
+    const int base = getpriority(PRIO_PROCESS, 0);
+    if (errno == 0) (void)setpriority(PRIO_PROCESS, pid_t(gettid()), std::min(19, base + kDoorNice));
+    std::vector<epoll_event> ready(256);
+    std::vector<Pipe*> stepped;
+    while (!stop) {
+      // Wake for the oldest handshake's time limit, at the latest.
+      int timeout_ms = 1000;
+      if (!handshakes.empty()) {
+        auto due = handshakes.front()->started + kHandshakeLimit - Clock::now();
+        timeout_ms = int(std::clamp<int64_t>(std::chrono::duration_cast<std::chrono::milliseconds>(due).count() + 1, 0, 1000));
+      }
+      int n = epoll_wait(door.epfd, ready.data(), int(ready.size()), timeout_ms);
+      if (stop) break;
+      auto now = Clock::now();
+      stepped.clear();
+      for (int i = 0; i < std::max(n, 0); ++i) {
+        uint64_t key = ready[size_t(i)].data.u64;
+        if (key == kWakeKey) continue;
+        if (key & kListenerKey) {
+          accept_tls(listeners[size_t(key & 0xFFFFFFFF)], now);
+          continue;
+        }
+        auto* w = reinterpret_cast<Watch*>(uintptr_t(key));
+        Pipe& p = *w->pipe;
+        if (p.doomed || p.queued) continue;
+        p.queued = true;
+        stepped.push_back(&p);
+      }
+      for (Pipe* p : stepped) {
+        p->queued = false;
+        if (!p->doomed) shake(*p);
+      }
+      // Handshakes past their time limit.
+      while (!handshakes.empty() && now - handshakes.front()->started > kHandshakeLimit) doom(door, *handshakes.front());
+      bury(door);
+    }
+  }
+
+  // ---- the relay: established connections ----
+
+  // A connection the door handed over: its plain side (server side, from
+  // `inner`), within the established connections' share of descriptors.
+  void adopt(Pipe& p) {
+    while (relay.fds_used + kFdsPerConnection > relay.fd_budget && make_room(&p)) {
+    }
+    relay.fds_used += kFdsPerConnection - (p.plain < 0 ? 2 : 0);  // the socketpair: counted when made
+    if (p.plain < 0) {
+      p.plain = p.inner ? p.inner(p.info) : -1;
       if (p.plain < 0) {
         ERR_clear_error();
         SSL_shutdown(p.ssl);
         ERR_clear_error();
-        p.done = true;
+        doom(relay, p);
         return;
       }
-      fds_used += kFdsPerConnection - 1;
+      relay.fds_used += kFdsPerConnection - 1;
       set_nonblocking(p.plain);
     }
+    step(p);
+    if (p.done) doom(relay, p);
+    else update(relay, p);
+  }
+
+  // Does everything that can be done without blocking.
+  void step(Pipe& p) {
+    if (p.done || !p.ssl) return;
     // TLS -> plain
     while (!p.tls_eof && p.to_plain.size() < kBufferBound) {
       char buf[4096];
@@ -895,43 +989,19 @@ struct Relay::Impl {
     }
   }
 
-  // ---- the loop ----
-
-  void run() {
-    NoSigpipe no_sigpipe;  // a peer that closed must not kill the process
-    rlimit nofile{};
-    getrlimit(RLIMIT_NOFILE, &nofile);
-    size_t limit = nofile.rlim_cur == RLIM_INFINITY ? size_t(1) << 20 : size_t(nofile.rlim_cur);
-    fd_budget = limit > 2 * kReservedFds ? limit - kReservedFds : limit / 2;
-    spare = ::open("/dev/null", O_RDONLY | O_CLOEXEC);
-    epfd = epoll_create1(EPOLL_CLOEXEC);
-    if (epfd < 0) return;
-    epoll_event e{};
-    e.events = EPOLLIN;
-    e.data.u64 = kWakeKey;
-    epoll_ctl(epfd, EPOLL_CTL_ADD, wake[0], &e);
-    for (size_t i = 0; i < listeners.size(); ++i) {
-      e.data.u64 = kListenerKey | i;
-      epoll_ctl(epfd, EPOLL_CTL_ADD, listeners[i].fd, &e);
-    }
+  void run_relay() {
+    NoSigpipe no_sigpipe;
     std::vector<epoll_event> ready(256);
     std::vector<Pipe*> stepped;
     while (!stop) {
-      // Wake for the oldest handshake's time limit, at the latest.
-      int timeout_ms = 1000;
-      if (!handshakes.empty()) {
-        auto due = handshakes.front()->started + kHandshakeLimit - Clock::now();
-        timeout_ms = int(std::clamp<int64_t>(std::chrono::duration_cast<std::chrono::milliseconds>(due).count() + 1, 0, 1000));
-      }
-      int n = epoll_wait(epfd, ready.data(), int(ready.size()), timeout_ms);
+      int n = epoll_wait(relay.epfd, ready.data(), int(ready.size()), 1000);
       if (stop) break;
-      auto now = Clock::now();
       stepped.clear();
+      bool woken = false;
       for (int i = 0; i < std::max(n, 0); ++i) {
         uint64_t key = ready[size_t(i)].data.u64;
-        if (key == kWakeKey) continue;
-        if (key & kListenerKey) {
-          accept_tls(listeners[size_t(key & 0xFFFFFFFF)], now);
+        if (key == kWakeKey) {
+          woken = true;
           continue;
         }
         auto* w = reinterpret_cast<Watch*>(uintptr_t(key));
@@ -943,25 +1013,65 @@ struct Relay::Impl {
       for (Pipe* p : stepped) {
         p->queued = false;
         if (p->doomed) continue;
-        bool was_established = !p->handshaking;
         step(*p);
         if (p->done) {
-          doom(*p);
+          doom(relay, *p);
           continue;
         }
-        // Used now: last in line for make_room.
-        if (was_established || !p->handshaking) pipes.splice(pipes.end(), pipes, p->self);
-        update(*p);
+        relay.pipes.splice(relay.pipes.end(), relay.pipes, p->self);  // used now: last in line for make_room
+        update(relay, *p);
       }
-      // Handshakes past their time limit.
-      while (!handshakes.empty() && now - handshakes.front()->started > kHandshakeLimit) doom(*handshakes.front());
-      bury();
+      if (woken) {
+        char buf[256];
+        while (::read(relay.wake[0], buf, sizeof buf) > 0) {
+        }
+        std::list<Pipe> taken;
+        {
+          std::lock_guard<std::mutex> g(handoff_mutex);
+          taken.splice(taken.end(), handoff);
+        }
+        while (!taken.empty()) {
+          auto it = taken.begin();
+          relay.pipes.splice(relay.pipes.end(), taken, it);
+          adopt(*it);
+        }
+      }
+      bury(relay);
     }
+  }
+
+  void run() {
+    rlimit nofile{};
+    getrlimit(RLIMIT_NOFILE, &nofile);
+    size_t limit = nofile.rlim_cur == RLIM_INFINITY ? size_t(1) << 20 : size_t(nofile.rlim_cur);
+    size_t budget = limit > 2 * kReservedFds ? limit - kReservedFds : limit / 2;
+    // The handshakes' share: one descriptor each, at most a quarter.
+    max_handshakes = std::max<size_t>(1, std::min(kMaxHandshakes, budget / 4));
+    door.fd_budget = max_handshakes;
+    relay.fd_budget = budget - max_handshakes;
+    spare = ::open("/dev/null", O_RDONLY | O_CLOEXEC);
+    for (Loop* l : {&door, &relay}) {
+      l->epfd = epoll_create1(EPOLL_CLOEXEC);
+      if (l->epfd < 0) return;
+      epoll_event e{};
+      e.events = EPOLLIN;
+      e.data.u64 = kWakeKey;
+      epoll_ctl(l->epfd, EPOLL_CTL_ADD, l->wake[0], &e);
+    }
+    for (size_t i = 0; i < listeners.size(); ++i) {
+      epoll_event e{};
+      e.events = EPOLLIN;
+      e.data.u64 = kListenerKey | i;
+      epoll_ctl(door.epfd, EPOLL_CTL_ADD, listeners[i].fd, &e);
+    }
+    relay_thread = std::thread([this] { run_relay(); });
+    door_thread = std::thread([this] { run_door(); });
   }
 };
 
 Relay::Relay() : impl_(std::make_unique<Impl>()) {
-  if (pipe2(impl_->wake, O_CLOEXEC) != 0) throw std::runtime_error("pipe: " + strerr());
+  for (Loop* l : {&impl_->door, &impl_->relay})
+    if (pipe2(l->wake, O_CLOEXEC | O_NONBLOCK) != 0) throw std::runtime_error("pipe: " + strerr());
 }
 Relay::~Relay() = default;
 
@@ -981,9 +1091,7 @@ uint16_t Relay::listen_plain(const std::string& host, uint16_t port, Ctx ctx, in
   return uint16_t(std::stoi(bound.substr(bound.rfind(':') + 1)));
 }
 
-void Relay::start() {
-  impl_->thread = std::thread([this] { impl_->run(); });
-}
+void Relay::start() { impl_->run(); }
 
 std::string Relay::last_error() const {
   std::lock_guard<std::mutex> g(impl_->error_mutex);

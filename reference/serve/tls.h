@@ -114,12 +114,17 @@ struct Peer {
 // a loopback port, opens a TLS connection to `remote` for each, and relays.
 // close_notify: a peer's close_notify half-closes the plain side; the plain
 // side's end sends close_notify and closes. A FIN without close_notify ends
-// that connection only. The loop is one epoll set (no limit on descriptors);
-// a handshake has 5 s and at most 256 run at once, 32 per peer address (past
-// a cap the oldest makes room); the connections fit RLIMIT_NOFILE (three
-// descriptors each), the one unused the longest making room for a newcomer,
-// and at the file limit a newcomer is refused cleanly (accepted and closed
-// with a descriptor kept for it), never by a loop that spins.
+// that connection only. Two threads, each with one epoll set (no limit on
+// descriptors): the door accepts and runs the handshakes, at a lower
+// priority, and hands each connection whose handshake is done to the relay,
+// which pumps the established connections' bytes (so a flood of handshakes
+// never queues before a good client's bytes). A handshake has 5 s and at
+// most 256 run at once (a quarter of the descriptors at most), 32 per peer
+// address (past a cap the oldest makes room); the established connections
+// fit the rest of RLIMIT_NOFILE (three descriptors each), the one unused the
+// longest making room for a newcomer, and at the file limit a newcomer is
+// refused cleanly (accepted and closed with a descriptor kept for it), never
+// by a loop that spins.
 class Relay {
  public:
   Relay();

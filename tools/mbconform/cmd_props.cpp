@@ -196,6 +196,7 @@ int run(PropsArgs& a) {
       progress.reset();
       if (auto stop = session.stopped()) {
         // Cut off inside the property: no verdict, the report says so.
+        fmt::print("  {:<34} INCOMPLETE: {}\n", c.id, *stop);
         c.outcome = conf::Outcome::error;
         c.message = "not finished: " + *stop;
         c.extra.erase("regression");
@@ -235,7 +236,7 @@ int run(PropsArgs& a) {
       for (const auto& [name, text] : regressions) std::ofstream(out + "/regressions/" + name) << text;
     }
   } catch (const std::exception& e) {
-    fmt::print(stderr, "mbconform props: error: writing reports: {}\n", e.what());
+    fmt::print(stderr, "mbconform props: error: writing reports: {}; no report written\n", e.what());
     return kExitUsage;
   }
   fmt::print("{}", conf::summary_table(report));

@@ -716,6 +716,90 @@ TEST(RestoreCommand, AFullDiskStopsTheCommandBeforeTheWriteItCannotJournal) {
   EXPECT_NE(text.find("cut off"), std::string::npos) << text;
 }
 
+// The same for `props` (issue 41: a full disk during props left 19 points
+// changed, and both its own restore and the printed `restore` failed). A
+// file-size limit stands for the full disk, first inside the journal's first
+// record of a write made during a property, then past the whole journal but
+// short of the reports: one INCOMPLETE line for the property cut off, exit
+// 2, the drive put back from memory, the journal on disk still restores, and
+// no report is left torn or presented as whole.
+TEST(RestoreCommand, AFullDiskDuringPropsStopsItRestoresAndLeavesNoTornReport) {
+  TempDir dir;
+  Served sv = serve_tcp("hsc60");
+  auto t = open_target(sv.uri);
+  const auto before = holding_points(*t, sv.spec);
+  ASSERT_FALSE(before.empty());
+  // Two properties that write: mapped registers (journaled before the first
+  // frame) and, in responses-well-formed, unmapped addresses (journaled at
+  // their write, during the run).
+  auto props = [&](const std::string& out, rlim_t fsize, std::string& text) {
+    return mbconform({"props", "--target", sv.uri, "--device", "hsc60", "--allow-writes", "--seed", "7", "--cases", "20",
+                      "--only", "read-after-write", "--only", "responses-well-formed", "--out", out, "-q"},
+                     &text, fsize);
+  };
+  auto journal_in = [](const std::string& out) {
+    for (const auto& e : std::filesystem::directory_iterator(out))
+      if (e.path().filename().string().rfind("journal", 0) == 0) return e.path().string();
+    return std::string();
+  };
+  auto slurp = [](const std::string& path) {
+    std::ifstream in(path);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+  };
+  auto no_report = [&](const std::string& out, const std::string& text) {
+    for (const char* name : {"junit.xml", "report.json", "report.html", "junit.xml.part", "report.json.part", "report.html.part"})
+      EXPECT_FALSE(std::filesystem::exists(std::filesystem::path(out) / name)) << name << "\n" << text;
+    EXPECT_NE(text.find("no report written"), std::string::npos) << text;
+    EXPECT_EQ(text.find("reports: " + out), std::string::npos) << text;
+  };
+  // Without a limit: where the first record written during the run starts,
+  // and how long the journal and the reports grow.
+  std::string text;
+  const std::string free_out = dir / "free";
+  ASSERT_EQ(props(free_out, 0, text), 0) << text;
+  const std::string free_journal = journal_in(free_out);
+  ASSERT_FALSE(free_journal.empty()) << text;
+  const std::string jtext = slurp(free_journal);
+  const auto at = jtext.find("\nunread holding ");
+  ASSERT_NE(at, std::string::npos) << jtext;
+  const auto report_size = std::filesystem::file_size(std::filesystem::path(free_out) / "report.json");
+  ASSERT_GT(report_size, jtext.size() + 1024) << "the reports must outgrow the journal for the second limit";
+  EXPECT_EQ(holding_points(*t, sv.spec), before);
+
+  // 1. The disk full inside the first record written during a property.
+  const std::string full_out = dir / "full";
+  int rc = props(full_out, rlim_t(at + 9), text);
+  EXPECT_EQ(rc, 2) << text;
+  EXPECT_NE(text.find("INCOMPLETE: the journal could not be written"), std::string::npos) << text;
+  EXPECT_NE(text.find("the journal could not record"), std::string::npos) << text;
+  EXPECT_EQ(text.find("NOT RESTORED"), std::string::npos) << text;
+  EXPECT_EQ(text.find("falsified"), std::string::npos) << text;
+  EXPECT_EQ(holding_points(*t, sv.spec), before) << text;
+  no_report(full_out, text);
+  const std::string journal = journal_in(full_out);
+  ASSERT_FALSE(journal.empty()) << text;
+  EXPECT_LE(std::filesystem::file_size(journal), at + 9);
+  // The journal on disk still restores (its torn record named), and the drive is as it was.
+  EXPECT_EQ(mbconform({"restore", journal}, &text), 0) << text;
+  EXPECT_NE(text.find("cut off"), std::string::npos) << text;
+  EXPECT_EQ(holding_points(*t, sv.spec), before) << text;
+
+  // 2. The journal whole, the disk full at the reports.
+  const std::string late_out = dir / "late";
+  rc = props(late_out, rlim_t(jtext.size() + 512), text);
+  EXPECT_EQ(rc, 2) << text;
+  EXPECT_NE(text.find("mbconform props: error: writing reports: cannot write"), std::string::npos) << text;
+  EXPECT_EQ(text.find("NOT RESTORED"), std::string::npos) << text;
+  EXPECT_EQ(holding_points(*t, sv.spec), before) << text;
+  no_report(late_out, text);
+  const std::string late_journal = journal_in(late_out);
+  ASSERT_FALSE(late_journal.empty()) << text;
+  EXPECT_EQ(mbconform({"restore", late_journal}, &text), 0) << text;
+  EXPECT_EQ(holding_points(*t, sv.spec), before) << text;
+}
+
 // Issue 37: a drive that stays silent when its command registers are read
 // runs every printed example of every device: each example of the spec is a
 // case of the run, none is skipped, and none because its value "could not be
