@@ -309,6 +309,19 @@ std::set<uint16_t> control_setpoints(const spec::Spec& s) {
   return out;
 }
 
+void note_zeroed(const spec::Spec& s, std::span<const uint8_t> pdu, std::set<uint16_t>& zeroed) {
+  if (!s.control || pdu.size() < 5 || (pdu[0] != 0x06 && pdu[0] != 0x10)) return;
+  const std::set<uint16_t> setpoints = control_setpoints(s);
+  const uint16_t start = be16(pdu, 1);
+  const uint16_t qty = pdu[0] == 0x06 ? 1 : be16(pdu, 3);
+  for (uint16_t k = 0; k < qty; ++k) {
+    const size_t at = pdu[0] == 0x06 ? 3 : size_t(6 + 2 * k);
+    if (at + 1 >= pdu.size() || !setpoints.count(uint16_t(start + k))) continue;
+    if ((pdu[at] | pdu[at + 1]) == 0) zeroed.insert(uint16_t(start + k));
+    else zeroed.erase(uint16_t(start + k));
+  }
+}
+
 std::string control_motion(const PolicyFacts& p, std::span<const uint8_t> pdu) {
   if (!p.spec || !p.spec->control || pdu.empty()) return "";
   const spec::Spec& s = *p.spec;

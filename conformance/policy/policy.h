@@ -102,8 +102,12 @@ spec::Role role_of(const spec::Spec&, const spec::Register&);
 // command (it follows its set-points at once). Mode
 // selection, and commands that do not move, are not motion.
 std::string control_motion(const PolicyFacts&, std::span<const uint8_t> pdu);
-// The set-point registers of the spec's control modes (every word's address).
+// The set-point registers of the spec's control modes, and the commands' own
+// (every word's address).
 std::set<uint16_t> control_setpoints(const spec::Spec&);
+// After a write (FC 06, 16) the drive took: which set-points it made 0, and
+// which it made non-zero, in `zeroed` (PolicyFacts::zeroed).
+void note_zeroed(const spec::Spec&, std::span<const uint8_t> request_pdu, std::set<uint16_t>& zeroed);
 
 // Whether the spec's facts are a manual's (device.manual.source: manual);
 // otherwise an importer's, a probe's or a map's: a claim.

@@ -70,18 +70,7 @@ Reply Session::send_to(uint8_t unit, std::span<const uint8_t> pdu, const std::st
   // Automatic: up to the timeout to the unit, the silence window otherwise.
   Reply r = reply_or_throw(x_.send(check::frame(x_.info().framing, unit, Bytes(pdu.begin(), pdu.end())), Target::Wait::automatic), x_.info());
   // A write the drive echoed: the control's set-points it made 0 (or not).
-  if (spec().control && unit == this->unit() && r.pdu && !r.pdu->empty() && !((*r.pdu)[0] & 0x80) && pdu.size() >= 5 &&
-      (pdu[0] == 0x06 || pdu[0] == 0x10)) {
-    const std::set<uint16_t> setpoints = control_setpoints(spec());
-    const uint16_t start = uint16_t(pdu[1] << 8 | pdu[2]);
-    const uint16_t qty = pdu[0] == 0x06 ? 1 : uint16_t(pdu[3] << 8 | pdu[4]);
-    for (uint16_t k = 0; k < qty; ++k) {
-      const size_t at = pdu[0] == 0x06 ? 3 : size_t(6 + 2 * k);
-      if (at + 1 >= pdu.size() || !setpoints.count(uint16_t(start + k))) continue;
-      if ((pdu[at] | pdu[at + 1]) == 0) zeroed_.insert(uint16_t(start + k));
-      else zeroed_.erase(uint16_t(start + k));
-    }
-  }
+  if (unit == this->unit() && r.pdu && !r.pdu->empty() && !((*r.pdu)[0] & 0x80)) note_zeroed(spec(), pdu, zeroed_);
   // The model reads RTU frames; the step prints in the framing that was sent.
   steps_.push_back(frame_step(r, x_.info(), rtu_frame(unit, pdu), note));
   return r;

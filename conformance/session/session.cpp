@@ -360,17 +360,8 @@ std::vector<Sent> Session::transact_all(std::span<const Target::Request> request
 void Session::note_zeroed(uint8_t unit, std::span<const uint8_t> pdu, const Reply& reply) {
   // A write the drive echoed: which of the control's set-points it made 0
   // (the frame policy's PolicyFacts::zeroed).
-  if (!spec_ || !spec_->control || unit != inner_->info().unit || pdu.size() < 5 || (pdu[0] != 0x06 && pdu[0] != 0x10)) return;
-  if (!reply.pdu || reply.pdu->empty() || ((*reply.pdu)[0] & 0x80)) return;
-  const std::set<uint16_t> setpoints = control_setpoints(*spec_);
-  const uint16_t start = uint16_t(pdu[1] << 8 | pdu[2]);
-  const uint16_t qty = pdu[0] == 0x06 ? 1 : uint16_t(pdu[3] << 8 | pdu[4]);
-  for (uint16_t k = 0; k < qty; ++k) {
-    const size_t at = pdu[0] == 0x06 ? 3 : size_t(6 + 2 * k);
-    if (at + 1 >= pdu.size() || !setpoints.count(uint16_t(start + k))) continue;
-    if ((pdu[at] | pdu[at + 1]) == 0) facts_.zeroed.insert(uint16_t(start + k));
-    else facts_.zeroed.erase(uint16_t(start + k));
-  }
+  if (!spec_ || unit != inner_->info().unit || !reply.pdu || reply.pdu->empty() || ((*reply.pdu)[0] & 0x80)) return;
+  mbc::conf::note_zeroed(*spec_, pdu, facts_.zeroed);
 }
 
 Sent Session::send_raw(std::span<const uint8_t> adu, std::optional<size_t> gap_after, Target::Wait wait) {

@@ -266,7 +266,7 @@ class RtuTarget final : public Target {
   // RTU over TCP: a new socket to the gateway. A serial line: the device
   // opened again (an adapter that was replugged, a pty whose other side is
   // still there), what waits on it dropped; false when it cannot be opened.
-  // The fuzzer's fresh targets on a live line are this (Session::open_another).
+  // The fuzzer's fresh targets on a live line are this (Session::restart).
   bool reconnect() override {
     if (serial_) {
       modbus_close(ctx_);

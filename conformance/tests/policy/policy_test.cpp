@@ -452,7 +452,8 @@ TEST(Policy, AMotionCommandWhoseSpeedTheManualLeavesUnsaidNeedsAllowMotionWithEv
     EXPECT_NE(control_motion(f, w06(command_word, word)).find("the manual does not say what sets its speed"), std::string::npos)
         << control_motion(f, w06(command_word, word));
   }
-  EXPECT_TRUE(allowed(f, 1, w06(command_word, 0x0000))) << "stop moves nothing";
+  EXPECT_EQ(control_motion(f, w06(command_word, 0x0000)), "") << "stop moves nothing";
+  EXPECT_NE(control_motion(f, w06(command_word, 0x0111)).find("starts a mode's motion"), std::string::npos) << "a mode's start, as before";
   f.opt_ins.allow_motion = true;
   EXPECT_TRUE(allowed(f, 1, w06(command_word, 0x0151)));
 

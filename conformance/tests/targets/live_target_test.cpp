@@ -228,7 +228,7 @@ TEST_P(LiveTarget, ReconnectsAfterTheServerClosedTheConnection) {
 }
 
 // A fresh target on a live link (the fuzzer's reductions and its rounds
-// after a finding: Session::open_another) is the link opened again: a new
+// after a finding: Session::restart) is the link opened again: a new
 // socket, or the serial line (here a pty) opened again.
 TEST_P(LiveTarget, OpensAgainForAFreshStart) {
   const auto& r = served.default_word();
