@@ -199,7 +199,8 @@ std::string write_script(const spec::Spec& s, int unit) {
       if (r.table != spec::Table::holding || r.access != spec::Access::rw || r.words != 1 || !r.range || r.command) continue;
       if (!allowed_write(PolicyFacts{&s, live_rtu(uint8_t(unit)), {}}, r)) continue;
       Bytes f{uint8_t(unit)};
-      Bytes pdu = write_single_register(r.address, uint16_t(round % 2 ? r.range->min : r.range->max));
+      // A signed register's minimum (-3000) as its two's-complement word, by way of an integer.
+      Bytes pdu = write_single_register(r.address, uint16_t(int64_t(round % 2 ? r.range->min : r.range->max)));
       f.insert(f.end(), pdu.begin(), pdu.end());
       append_crc(f);
       text += "rtu " + to_hex(f) + "\nwait 20\n";
