@@ -230,9 +230,19 @@ struct Builder {
   std::set<std::string> roles;
   std::map<std::string, std::string> mapping;  // role -> device register key
 
+  // Every diagnostic is a line of the device's file: one about a profile's
+  // entry stands at the device's `control:` mapping (what the user wrote, and
+  // can change) and names where the entry is in the profile.
   void error(const Origin& o, const std::string& sub, const std::string& rule, const std::string& msg) {
     SourceLoc l = o.loc(sub);
-    out.push_back({o.file, l.line, l.col, rule, msg});
+    if (!o.profile) {
+      out.push_back({o.file, l.line, l.col, rule, msg});
+      return;
+    }
+    SourceLoc at = doc.where(mapping_pointer());
+    std::string where = std::filesystem::path(o.file).filename().string();
+    if (l.line > 0) where += ":" + std::to_string(l.line) + ":" + std::to_string(l.col);
+    out.push_back({file, at.line, at.col, rule, msg + " [profile entry at " + where + "]"});
   }
   Origin device(const std::string& p) const { return {&doc, file, p, false}; }
 
@@ -319,15 +329,41 @@ struct Builder {
         kept.push_back(std::move(e));
         continue;
       }
+      dropped.insert({kind_of(e.value), e.value.id});  // what names it is not told again
       if (unmapped.empty() || drop_unmapped) continue;  // a mode the device lacks: left out
-      std::string list_roles;
-      for (const auto& u : unmapped) list_roles += (list_roles.empty() ? "'" : ", '") + u + "'";
-      error(device(mapping_pointer()), "", "control-unmapped-role",
-            std::string(kind_of(e.value)) + " " + e.value.id + " of profile " + c.profile + " reads or writes role " +
-                list_roles + ", which control.registers does not map: map it, or override the entry by id");
+      for (const auto& u : unmapped) {
+        auto& users = unmapped_users[u];
+        std::string who = std::string(kind_of(e.value)) + " " + e.value.id;
+        if (std::find(users.begin(), users.end(), who) == users.end()) users.push_back(who);
+      }
     }
     list = std::move(kept);
   }
+
+  // One line per role the profile's entries need and control.registers does
+  // not map, naming the entries that need it.
+  std::map<std::string, std::vector<std::string>> unmapped_users;
+  void tell_unmapped() {
+    for (const auto& [role, users] : unmapped_users) {
+      std::string names;
+      for (size_t i = 0; i < users.size() && i < 4; ++i) names += (i ? ", " : "") + users[i];
+      if (users.size() > 4) names += " and " + std::to_string(users.size() - 4) + " more";
+      error(device(mapping_pointer()), "", "control-unmapped-role",
+            "role '" + role + "' of profile " + c.profile + ", which control.registers does not map, is read or written by " + names +
+                ": map it, or override those entries by id");
+    }
+  }
+
+  std::string roles_list() const {
+    std::string all;
+    for (const auto& r : roles) all += (all.empty() ? "" : ", ") + r;
+    return all;
+  }
+
+  // Profile entries left out because a role they use is not mapped (already
+  // reported, or a mode the device lacks): (kind, id).
+  std::set<std::pair<std::string, std::string>> dropped;
+  bool was_dropped(const char* kind, const std::string& id) const { return dropped.count({kind, id}) > 0; }
 
   std::string mapping_pointer() const { return doc.root["control"].contains("registers") ? "/control/registers" : "/control/profile"; }
 
@@ -349,7 +385,10 @@ struct Builder {
         mapping[role] = key.get<std::string>();
         if (profile_doc && !roles.count(role))
           error(device("/control/registers/" + role), "", "control-unknown-role",
-                "'" + role + "' is not a role of profile " + c.profile + " (its roles: list)");
+                "'" + role + "' is not a role of profile " + c.profile + " (its roles: " + roles_list() + ")");
+        else if (profile_doc && !s.find_by_key(mapping[role]))
+          error(device("/control/registers/" + role), "", "unknown-register-key",
+                "role '" + role + "' is mapped to '" + mapping[role] + "', which is no register's key");
       }
     }
     Reader rd{doc, file, false, c.section};
@@ -359,6 +398,7 @@ struct Builder {
       resolve_all(commands, false);
       resolve_all(transitions, false);
       resolve_all(modes, true);
+      tell_unmapped();
       // A profile's condition on a role the device has not mapped: error above.
     }
     if (ctl.contains("motion")) c.motion = motion(ctl["motion"], "/control/motion");
@@ -427,7 +467,7 @@ struct Builder {
 
   const Register* key(const Origin& o, const std::string& sub, const std::string& k, const std::string& what) {
     const Register* r = s.find_by_key(k);
-    if (!r)
+    if (!r && !o.profile)  // a profile's key is a mapped role's: told at the mapping
       error(o, sub, "unknown-register-key",
             "no register has key '" + k + "' (" + what + o.from() + ")");
     return r;
@@ -526,12 +566,12 @@ struct Builder {
     for (const auto& e : transitions) {
       const auto& x = e.value;
       std::string what = "transition " + x.id;
-      if (x.from != "*" && !has_state(x.from))
+      if (x.from != "*" && !has_state(x.from) && !was_dropped("state", x.from))
         error(e.origin, "/from", "control-unknown-state", what + " starts from '" + x.from + "', which states: does not define" + e.origin.from());
-      if (!has_state(x.to))
+      if (!has_state(x.to) && !was_dropped("state", x.to))
         error(e.origin, "/to", "control-unknown-state", what + " goes to '" + x.to + "', which states: does not define" + e.origin.from());
       const ControlCommand* cmd = nullptr;
-      if (!x.command.empty() && !(cmd = find_command(x.command)))
+      if (!x.command.empty() && !(cmd = find_command(x.command)) && !was_dropped("command", x.command))
         error(e.origin, "/command", "control-unknown-command", what + " is given by '" + x.command + "', which commands: does not define" + e.origin.from());
       if (x.automatic() && x.event.empty())
         error(e.origin, "", "control-automatic-needs-event", what + " has no command: an automatic step names what ends it (event: power_on, motion_done, fault, reaction_done or time)" + e.origin.from());
@@ -555,10 +595,10 @@ struct Builder {
       for (size_t i = 0; i < x.setpoint_keys.size(); ++i) key(e.origin, "/setpoints/" + std::to_string(i), x.setpoint_keys[i], what);
       if (!x.actual_key.empty()) key(e.origin, "/actual", x.actual_key, what);
       if (x.done) key(e.origin, "/done/register", x.done->register_key, what);
-      if (!x.start_command.empty() && !find_command(x.start_command))
+      if (!x.start_command.empty() && !find_command(x.start_command) && !was_dropped("command", x.start_command))
         error(e.origin, "/start", "control-unknown-command", what + " is started by '" + x.start_command + "', which commands: does not define" + e.origin.from());
       for (size_t i = 0; i < x.select_in.size(); ++i)
-        if (!has_state(x.select_in[i]))
+        if (!has_state(x.select_in[i]) && !was_dropped("state", x.select_in[i]))
           error(e.origin, "/select_in/" + std::to_string(i), "control-unknown-state", what + " is selectable in '" + x.select_in[i] + "', which states: does not define");
       basis(e.origin, x.basis, what);
     }
@@ -569,7 +609,7 @@ struct Builder {
       for (auto [name, id, o] : {std::tuple{"initial", &c.initial, &initial_o}, std::tuple{"safe", &c.safe, &safe_o}}) {
         if (id->empty())
           error(here, "", "control-initial-safe", std::string("control: names no ") + name + " state (" + name + ": <state id>)");
-        else if (!has_state(*id))
+        else if (!has_state(*id) && !was_dropped("state", *id))
           error(*o, "", "control-unknown-state", std::string(name) + " state '" + *id + "' is not one of states:" + o->from());
       }
     } else if (!transitions.empty() || !commands.empty()) {
@@ -578,7 +618,8 @@ struct Builder {
     // A state in which the axis may move has a command that stops it.
     bool moving = std::any_of(states.begin(), states.end(), [](const auto& e) { return e.value.motion; });
     bool stop = std::any_of(commands.begin(), commands.end(), [](const auto& e) { return e.value.stops; });
-    if (moving && !stop)
+    bool command_dropped = std::any_of(dropped.begin(), dropped.end(), [](const auto& d) { return d.first == "command"; });
+    if (moving && !stop && !command_dropped)  // a stop left out for an unmapped role is told already
       error(device("/control"), "", "control-stop-command",
             "a state moves the axis (motion: true) but no command stops it: mark the command that stops the axis from every moving state (stops: true)");
     if (c.undefined.kind == UndefinedCommand::Kind::exception && c.undefined.code == 0)
