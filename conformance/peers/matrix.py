@@ -44,10 +44,20 @@ BAUD = 38400
 OUTCOMES = ("pass", "fail", "observed", "unsupported", "skip", "error")
 
 
+_ports_given = set()
+_ports_lock = threading.Lock()
+
+
 def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A port free now and not given to another row of this run (rows run side by side)."""
+    with _ports_lock:
+        while True:
+            with socket.socket() as s:
+                s.bind(("127.0.0.1", 0))
+                port = s.getsockname()[1]
+            if port not in _ports_given:
+                _ports_given.add(port)
+                return port
 
 
 def fill(cmd, ctx):
@@ -259,13 +269,16 @@ def run_master(lib, transport, ctx, args, row, run_dir):
 
 
 def make_rows(libs, args, ctx, out):
-    rows = []
+    """Every row, in matrix.yaml's order; the runnable ones run args.jobs at a
+    time (each has its own pty or port, server, run directory and mbconform)."""
+    rows, runs = [], []
     for lib in libs:
         for side in SIDES:
             spec = lib.get(side, {})
             for transport in TRANSPORTS:
                 rid = "%s-%s-%s" % (lib["name"].replace("/", "-"), side, transport)
                 row = {"id": rid, "library": lib["name"], "version": lib["version_found"], "side": side, "transport": transport}
+                rows.append(row)
                 unsupported = spec.get("unsupported", {}).get(transport)
                 runnable = spec.get(transport) if side == "server" else transport in spec.get("deviations", {})
                 if unsupported or not runnable:
@@ -274,33 +287,60 @@ def make_rows(libs, args, ctx, out):
                         "not run over TLS: the library has no Modbus/TCP Security transport of its own, or none "
                         "this matrix wires up (conformance/peers/matrix.yaml)" if transport == "tls" else
                         "not in conformance/peers/matrix.yaml")
-                    rows.append(row)
                     continue
-                run_dir = os.path.join(out, "runs", rid)
-                shutil.rmtree(run_dir, ignore_errors=True)
-                os.makedirs(run_dir)
-                t0 = time.monotonic()
-                print("matrix: %s ..." % rid, end="", flush=True)
-                try:
-                    if side == "server":
-                        run_server(lib, transport, spec[transport], ctx, args, row, run_dir)
-                    else:
-                        run_master(lib, transport, ctx, args, row, run_dir)
-                    row["status"] = "run"
-                except (RuntimeError, OSError, ValueError, KeyError) as e:
-                    row["status"] = "not-run"
-                    row["reason"] = str(e)
-                row["seconds"] = round(time.monotonic() - t0, 1)
-                # The page links report.html and the verdicts are in matrix.json; the
-                # rest stays only where --check writes (the build tree), for a look.
-                for name in ("report.json", "junit.xml") + (() if args.check else ("mbconform.log", "server.log", "adapter.log")):
-                    if os.path.exists(os.path.join(run_dir, name)):
-                        os.remove(os.path.join(run_dir, name))
-                row["report"] = "runs/%s/report.html" % rid
-                counts = totals(row)
-                print(" %s, %.0f s: %d pass, %d fail, %d observed" % (row["status"], row["seconds"], counts["pass"],
-                                                                      counts["fail"], counts["observed"]), flush=True)
-                rows.append(row)
+                runs.append((lib, side, spec, transport, row))
+    printing = threading.Lock()
+
+    def run_row(lib, side, spec, transport, row):
+        rid = row["id"]
+        run_dir = os.path.join(out, "runs", rid)
+        shutil.rmtree(run_dir, ignore_errors=True)
+        os.makedirs(run_dir)
+        t0 = time.monotonic()
+        try:
+            if side == "server":
+                run_server(lib, transport, spec[transport], ctx, args, row, run_dir)
+            else:
+                run_master(lib, transport, ctx, args, row, run_dir)
+            row["status"] = "run"
+        except (RuntimeError, OSError, ValueError, KeyError) as e:
+            row["status"] = "not-run"
+            row["reason"] = str(e)
+        row["seconds"] = round(time.monotonic() - t0, 1)
+        # The page links report.html and the verdicts are in matrix.json; the
+        # rest stays only where --check writes (the build tree), for a look.
+        for name in ("report.json", "junit.xml") + (() if args.check else ("mbconform.log", "server.log", "adapter.log")):
+            if os.path.exists(os.path.join(run_dir, name)):
+                os.remove(os.path.join(run_dir, name))
+        row["report"] = "runs/%s/report.html" % rid
+        counts = totals(row)
+        with printing:
+            print("matrix: %s %s, %.0f s: %d pass, %d fail, %d observed" % (rid, row["status"], row["seconds"], counts["pass"],
+                                                                           counts["fail"], counts["observed"]), flush=True)
+
+    # The longest rows first would finish soonest, but the order a reader sees
+    # is matrix.yaml's: rows keeps it, whatever order they end in.
+    pending = list(runs)
+    errors = []
+
+    def worker():
+        while True:
+            with printing:
+                if not pending:
+                    return
+                job = pending.pop(0)
+            try:
+                run_row(*job)
+            except BaseException as e:  # noqa: BLE001 -- told once the others are done
+                errors.append(e)
+
+    threads = [threading.Thread(target=worker) for _ in range(max(1, args.jobs))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    if errors:
+        raise errors[0]
     return rows
 
 
@@ -470,6 +510,8 @@ def main():
     ap.add_argument("--only", help="library names, comma-separated")
     ap.add_argument("--mbconform")
     ap.add_argument("--check", metavar="MATRIX_JSON")
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                    help="rows run side by side (default: the number of CPUs)")
     args = ap.parse_args()
     args.build = os.path.abspath(args.build)
     args.out = os.path.abspath(args.out or (os.path.join(args.build, "matrix") if args.check else os.path.join(SOURCE, "docs/matrix")))
