@@ -235,24 +235,7 @@ std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r) {
   return Finding{kind, msg};
 }
 
-namespace {
-// What an exchange adds to the fuzzing's counts and, on a serial line, to the
-// wire-time bound: each frame's characters plus the t3.5 before it (MB-SL
-// v1.02 §2.5.1.1), a split frame's pause, the reply when one came.
-void account(Outcome& out, const Plan& p, const Step& s, const Reply& r) {
-  ++out.exchanges;
-  out.silences += r.silent();
-  if (!p.info.baud) return;
-  if (!r.silent()) out.reply_latencies.push_back(r.latency);
-  const int baud = *p.info.baud;
-  auto b = wire_time(r.request.size(), baud) + frame_gap(baud);
-  if (s.gap) b += frame_gap(baud);
-  if (!r.silent()) b += wire_time(r.frame.size(), baud) + frame_gap(baud);
-  out.wire_time_bound_seconds += std::chrono::duration<double>(b).count();
-}
-}  // namespace
-
-std::optional<Finding> execute(check::Exchange& x, const Plan& p, const Step& s, Outcome* out) {
+std::optional<Finding> execute(check::Exchange& x, const Plan& p, const Step& s) {
   // As round() waits: the probe for its reply, a generated frame (which may
   // be dropped) the silence window; a live target's reconnect() keeps what
   // it learnt of its latency, so a dropped frame costs a window, not the timeout.
@@ -267,7 +250,6 @@ std::optional<Finding> execute(check::Exchange& x, const Plan& p, const Step& s,
       case Step::Kind::raw:
       case Step::Kind::frame: r = reply_or_throw(x.send(s, wait), t.info()); break;
     }
-    if (out) account(*out, p, s, r);
     // A split frame answered where the target chose the pause (a live line):
     // a receiver a busy host held up past the pause read both parts as one
     // frame, which says nothing of the device. It is sent again with a pause
@@ -282,8 +264,7 @@ std::optional<Finding> execute(check::Exchange& x, const Plan& p, const Step& s,
           throw;
         }
         t.set_split_gap(*gap);
-        if (out) account(*out, p, s, r);
-      }
+          }
     return judge(p, s, r);
   } catch (const std::exception& e) {
     return Finding{FindingKind::target_error, fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(s))};
@@ -513,7 +494,7 @@ using Known = std::function<bool(const Finding&, const Step&)>;
 // probe must be answered, so it waits for the reply.
 std::optional<Finding> round(Link& link, const Plan& p, uint64_t seed, int batch, size_t depth, Clock::time_point deadline,
                              const std::function<void(const Step&)>& journal, const Known& known, Outcome& out) {
-  check::Exchange x(link);
+  check::Exchange x(link, out.counters, Outcome::kKeptLatencies);  // every exchange of the fuzzing counted, as anywhere
   Generator gen(p, seed);
   const Step probe = probe_step(p);
   auto keep = [&](std::optional<Finding> f, const Step& st) -> std::optional<Finding> {
@@ -522,7 +503,7 @@ std::optional<Finding> round(Link& link, const Plan& p, uint64_t seed, int batch
   };
   auto send = [&](const Step& st) -> std::optional<Finding> {
     journal(st);
-    return keep(execute(x, p, st, &out), st);
+    return keep(execute(x, p, st), st);
   };
   const bool pipelined = depth > 1 && link.pipelines();
   auto send_probe = [&]() { return send(probe); };
@@ -550,7 +531,6 @@ std::optional<Finding> round(Link& link, const Plan& p, uint64_t seed, int batch
         return Finding{FindingKind::target_error, fmt::format("the target failed: {}\n  step: {}", e.what(), check::line(steps.back()))};
       }
       out.frames += long(steps.size());
-      for (size_t i = 0; i < steps.size(); ++i) account(out, p, steps[i], replies[i]);
       for (size_t i = 0; i < steps.size(); ++i)
         if (auto f = keep(judge(p, steps[i], replies[i]), steps[i])) return f;
     } else {
@@ -717,10 +697,7 @@ Outcome fuzz(Link& link, const Open& open, const Plan& p, const Options& o,
     if (on_finding) on_finding(out.findings.back());
   }
   out.seconds = std::chrono::duration<double>(Clock::now() - started - reducing).count();
-  if (!out.reply_latencies.empty()) {
-    out.reply_latency_p99_seconds =
-        std::chrono::duration<double>(percentile(std::span(out.reply_latencies), 99)).count();
-  }
+  if (auto& l = out.counters.latencies_us; !l.empty()) out.reply_latency_p99_seconds = percentile(std::span(l), 99) / 1e6;
   return out;
 }
 

@@ -115,9 +115,8 @@ std::optional<Finding> judge(const Plan& p, const Step& s, const Reply& r);
 // journal): the probe waits for its reply, a generated frame the target's
 // silence window. A target that throws (connection lost, plugin error), or a
 // frame refused or stopped on the way, is a target-error finding.
-struct Outcome;
-// `out`: counts the exchange (frames, silences, wire time).
-std::optional<Finding> execute(check::Exchange& x, const Plan& p, const Step& s, Outcome* out = nullptr);
+// The exchange counts it (check::Exchange's counters).
+std::optional<Finding> execute(check::Exchange& x, const Plan& p, const Step& s);
 
 class Generator {
  public:
@@ -220,20 +219,20 @@ struct Reported {
 struct Outcome {
   long frames = 0, batches = 0, rounds = 0;
   double seconds = 0;  // time spent fuzzing (reductions left out)
-  long exchanges = 0, silences = 0;  // probes included
-  // Serial line at a known baud: the least the exchanges could take on the
-  // wire (characters + t3.5 per frame, MB-SL v1.02 §2.5.1.1); 0 otherwise.
-  double wire_time_bound_seconds = 0;
-  // Serial line at a known baud: each answered exchange's latency (request
-  // sent -> the reply's last byte), and their p99 once fuzzing ended: a
-  // silence costs a master at least that long to call, which no wire-time
-  // bound counts.
-  std::vector<std::chrono::microseconds> reply_latencies;
+  // What the fuzzing's exchanges (probes included; reductions left out)
+  // counted, as check::Exchange counts every frame: frames, silences, bytes,
+  // on a serial line at a known baud the wire-time bound (characters + t3.5
+  // per frame, MB-SL v1.02 §2.5.1.1) and a sample of at most
+  // kKeptLatencies reply latencies (request sent -> the reply's last byte).
+  DeviceRun counters;
+  static constexpr size_t kKeptLatencies = 100'000;
+  // Their p99 once fuzzing ended: a silence costs a master at least that long
+  // to call, which no wire-time bound counts.
   double reply_latency_p99_seconds = 0;
   // The wire-time bound plus the p99 reply latency for each exchange that
   // got no reply (bench/bench_run.cpp's second bound for the runner).
   double bound_with_silences_seconds() const {
-    return wire_time_bound_seconds + double(silences) * reply_latency_p99_seconds;
+    return counters.wire_time_bound_seconds + double(counters.silences) * reply_latency_p99_seconds;
   }
   double frames_per_second() const { return seconds > 0 ? double(frames) / seconds : 0; }
   std::vector<Reported> findings;  // each distinct finding once, in the order found

@@ -20,7 +20,8 @@ double frame_wire_seconds(size_t bytes, int baud) {
   return std::chrono::duration<double>(wire_time(bytes, baud) + frame_gap(baud)).count();
 }
 
-Exchange::Exchange(Link& link, DeviceRun& counters) : link_(link), counters_(counters) {}
+Exchange::Exchange(Link& link, DeviceRun& counters, size_t keep_latencies)
+    : link_(link), counters_(counters), keep_latencies_(keep_latencies) {}
 Exchange::Exchange(Link& link) : link_(link), counters_(own_), latencies_(false) {}
 
 namespace {
@@ -78,13 +79,30 @@ Sent Exchange::quiet(uint8_t unit, std::span<const uint8_t> pdu) {
   return s;
 }
 
+// Algorithm R over every answered exchange counted into counters_ (the
+// n-th replaces a kept one with probability keep / n), with a fixed hash of
+// n for the draw: the same run keeps the same sample.
+void Exchange::keep_latency(double us) {
+  auto& kept = counters_.latencies_us;
+  if (kept.size() < keep_latencies_) {
+    kept.push_back(us);
+    return;
+  }
+  uint64_t n = counters_.frames_sent - counters_.silences;  // answered so far, this one included
+  uint64_t z = n + 0x9E3779B97F4A7C15ull;  // splitmix64
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  z ^= z >> 31;
+  if (uint64_t j = z % n; j < kept.size()) kept[j] = us;
+}
+
 void Exchange::account(const Reply& r, int extra_gaps) {
   last_silent_ = r.silent();
   counters_.frames_sent++;
   counters_.bytes_sent += r.request.size();
   counters_.bytes_received += r.frame.size();
   if (r.silent()) counters_.silences++;
-  else if (latencies_) counters_.latencies_us.push_back(double(r.latency.count()));
+  else if (latencies_) keep_latency(double(r.latency.count()));
   if (auto baud = link_.info().baud) {
     double b = frame_wire_seconds(r.request.size(), *baud) +
                extra_gaps * std::chrono::duration<double>(frame_gap(*baud)).count();

@@ -4,6 +4,7 @@
 // back after, a frame record per step for the reports.
 #pragma once
 
+#include <cstdint>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -37,8 +38,11 @@ struct LineState {
 class Exchange {
  public:
   // Counts every frame into `counters` (frames, bytes, latencies, silences,
-  // the wire-time lower bound).
-  Exchange(Link& link, DeviceRun& counters);
+  // the wire-time lower bound). The latencies kept are at most
+  // `keep_latencies`: past that, a uniform sample of every answered exchange
+  // counted into `counters` (reservoir sampling), so a percentile of them
+  // stands for the whole run and a fuzz run of hours keeps a bounded list.
+  Exchange(Link& link, DeviceRun& counters, size_t keep_latencies = SIZE_MAX);
   // Counts into counters() of its own (props, fuzz), without each frame's
   // latency (a fuzz run of hours would keep millions).
   explicit Exchange(Link& link);
@@ -71,10 +75,12 @@ class Exchange {
 
  private:
   void account(const Reply& r, int extra_gaps);
+  void keep_latency(double us);
   Link& link_;
   DeviceRun own_;
   DeviceRun& counters_;
   bool latencies_ = true;
+  size_t keep_latencies_ = SIZE_MAX;
   bool last_silent_ = false;
 };
 

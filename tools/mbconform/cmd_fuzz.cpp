@@ -154,10 +154,10 @@ int run_fuzz(FuzzArgs& a) {
   const bool ran_out = session.stopped().has_value();  // the deadline: --duration + the reduction's time
   if (out.declared) fmt::print("{} finding(s) of a kind {} declares left aside\n", out.declared, a.quirks_file);
   if (ran_out) fmt::print("the time allowed (--duration + {} s) ran out; what was left of a reduction was cut off\n", kAfterDuration.count());
-  if (out.wire_time_bound_seconds > 0) {
+  if (out.counters.wire_time_bound_seconds > 0) {
     fmt::print("{} exchanges ({} silent) in {:.2f} s against a wire-time bound of {:.2f} s at {} baud: {:.2f}x\n",
-               out.exchanges, out.silences, out.seconds, out.wire_time_bound_seconds, *info.baud,
-               out.seconds / out.wire_time_bound_seconds);
+               out.counters.frames_sent, out.counters.silences, out.seconds, out.counters.wire_time_bound_seconds, *info.baud,
+               out.seconds / out.counters.wire_time_bound_seconds);
     // A silence takes at least the time a reply may take to be told apart:
     // the same bound with the p99 reply latency of this run per silent exchange.
     fmt::print("with each silence counted at the p99 reply latency ({:.2f} ms): a bound of {:.2f} s: {:.2f}x\n",
