@@ -104,7 +104,7 @@ std::vector<SeedTier> seed_tiers() {
 
 class Prober {
  public:
-  Prober(Target& t, const ProbeLimits& limits) : t_(t), limits_(limits) {}
+  Prober(Link& t, const ProbeLimits& limits) : t_(t), limits_(limits) {}
 
   Map run() {
     m_.source = "probe of " + t_.info().uri;
@@ -112,9 +112,7 @@ class Prober {
     // Replies are expected to reads; an unmapped address may be silent, so
     // a read waits the adaptive window, and a read whose reply came late is
     // read again.
-    t_.set_wait(Target::Wait::window);
     explore();
-    t_.set_wait(Target::Wait::automatic);
     m_.requests = used_;
     m_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0_).count();
     for (const auto& ti : kTables) {
@@ -167,7 +165,7 @@ class Prober {
       ++used_;
       if (limits_.on_request) limits_.on_request(used_, limits_.budget);
       uint64_t late = t_.late_replies();
-      Reply r = t_.transact(t_.info().unit, req);
+      Reply r = reply_or_throw(t_.transact(t_.info().unit, req, Target::Wait::window), t_.info());
       if (t_.late_replies() != late && attempt < 2) continue;  // the window widened: ask again
       double ms = std::chrono::duration<double, std::milli>(r.latency).count();
       std::string answer;
@@ -312,7 +310,7 @@ class Prober {
 
   static constexpr uint32_t kDenseGap = 64, kClusterGap = 16;
 
-  Target& t_;
+  Link& t_;
   ProbeLimits limits_;
   int used_ = 0;
   std::chrono::steady_clock::time_point t0_;
@@ -399,9 +397,9 @@ std::vector<std::string> probe_notes(const Map& m) {
 
 const char* table_name(Table t) { return info_of(t).name; }
 
-Map probe(Target& target, const ProbeLimits& limits) { return Prober(target, limits).run(); }
+Map probe(Link& target, const ProbeLimits& limits) { return Prober(target, limits).run(); }
 
-Map probe(Target& target, int budget) { return probe(target, ProbeLimits{budget, std::nullopt, nullptr}); }
+Map probe(Link& target, int budget) { return probe(target, ProbeLimits{budget, std::nullopt, nullptr}); }
 
 Map parse_inline(const std::string& text) {
   Map m;

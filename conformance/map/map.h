@@ -17,6 +17,7 @@
 
 #include "cases/case.h"
 #include "spec.h"
+#include "session/link.h"
 #include "targets/target.h"
 
 namespace mbc::conf::map {
@@ -77,8 +78,8 @@ struct ProbeLimits {
 // over a gap fails, so single reads find what block reads cannot. An address
 // is unmapped when a read of it gets an exception or silence; `unmapped`
 // records which. Stops when the budget or the time runs out (partial).
-Map probe(Target& target, const ProbeLimits& limits);
-Map probe(Target& target, int budget = kDefaultBudget);
+Map probe(Link& target, const ProbeLimits& limits);
+Map probe(Link& target, int budget = kDefaultBudget);
 inline constexpr uint32_t kDenseSpan = 256;
 
 // What a probe found and learned, one line each, for the run's notes and

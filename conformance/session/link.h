@@ -125,39 +125,6 @@ class DirectLink final : public Link {
   Target* t_;
 };
 
-// The Target interface over a Link, for code that still takes a Target&
-// (the map probe, the timing checks, spec discover): every frame goes
-// through the Link (the session's policy and journal) and nowhere else; a
-// refused frame throws as reply_or_throw says.
-class LinkTarget final : public Target {
- public:
-  explicit LinkTarget(Link& l) : l_(l) {}
-  const TargetInfo& info() const override { return l_.info(); }
-  Reply transact(uint8_t unit, std::span<const uint8_t> pdu) override { return reply_or_throw(l_.transact(unit, pdu, wait_), info()); }
-  Reply send_raw(std::span<const uint8_t> bytes, std::optional<size_t> gap_after) override {
-    return reply_or_throw(l_.send_raw(bytes, gap_after, wait_), info());
-  }
-  std::vector<Reply> transact_all(std::span<const Request> requests, size_t depth) override {
-    std::vector<Reply> out;
-    for (auto& s : l_.transact_all(requests, depth, wait_)) out.push_back(reply_or_throw(std::move(s), info()));
-    return out;
-  }
-  bool pipelines() const override { return l_.pipelines(); }
-  std::optional<std::chrono::microseconds> split_gap() const override { return l_.split_gap(); }
-  void set_split_gap(std::chrono::microseconds g) override { l_.set_split_gap(g); }
-  std::chrono::microseconds silence_window() const override { return l_.silence_window(); }
-  void set_wait(Wait w) override { wait_ = w; }
-  uint64_t late_replies() const override { return l_.late_replies(); }
-  bool reconnect() override { return l_.reconnect(); }
-  void advance(std::chrono::microseconds dt) override { l_.advance(dt); }
-  void power_cycle() override { l_.power_cycle(); }
-  bool trip_fault() override { return l_.trip_fault(); }
-
- private:
-  Link& l_;
-  Wait wait_ = Wait::automatic;
-};
-
 inline Reply reply_or_throw(Sent sent, const TargetInfo& info) {
   if (sent.refused) {
     if (sent.stopped) throw Stopped(sent.refused->reason);

@@ -20,10 +20,10 @@
 //     JOURNAL` runs the same restore from the journal alone.
 //   - A stop signal (session/signals.h) or the deadline ends the sending.
 //
-// Every command sends through the Session as a Link (run and replay through
-// the runner, props and fuzz through check::Exchange); code that still takes
-// a Target& (the map probe, the timing checks) gets target(): a LinkTarget
-// over this same Link (a refused frame throws Refused, a stop Stopped).
+// Every command sends through the Session as a Link: run and replay through
+// the runner, props and fuzz through check::Exchange, the map probe (run
+// --map auto, spec discover) and the timing checks with the Link itself
+// (reply_or_throw: a refused frame throws Refused, a stop Stopped).
 #pragma once
 
 #include <chrono>
@@ -138,8 +138,6 @@ class Session final : public Link {
   RestoreReport restore();
   bool restored() const { return restored_; }
 
-  // This Link as a Target (see above): for the map probe and the timing checks.
-  Target& target() { return as_target_; }
   // Starts the target afresh: a new in-process target at power-on (not
   // live: ref:, plugin), the same connection reopened for a live one. The
   // fuzzer's fresh runs and the properties' cases. Throws Stopped after a
@@ -181,7 +179,6 @@ class Session final : public Link {
   std::unique_ptr<Target> inner_;
   PolicyFacts facts_;  // what the frame policy judges by
   Journal journal_;
-  LinkTarget as_target_{*this};
   std::vector<std::string> notes_;
   bool restored_ = false;
   bool identity_recorded_ = false;

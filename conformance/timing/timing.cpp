@@ -220,8 +220,11 @@ void verdict(CaseResult& c, bool measurable, bool ok, std::string text) {
 
 }  // namespace
 
-std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options& o) {
+std::vector<CaseResult> check_line(Link& t, const spec::Spec& s, const Options& o) {
   const TargetInfo& info = t.info();
+  // Every frame through the Link (a live run's session: its frame policy and
+  // journal); a read waits for its reply, the gapped request the window.
+  auto ask = [&](const Bytes& pdu) { return reply_or_throw(t.transact(info.unit, pdu, Target::Wait::reply), info); };
   const LineFacts f = line_facts(info);
   std::vector<CaseResult> out;
   auto list = probes(s);
@@ -240,7 +243,6 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
   auto between = [&] {
     std::this_thread::sleep_for(std::max<microseconds>(2 * t35, std::chrono::milliseconds(2)) + microseconds(jitter() % 17000));
   };
-  t.set_wait(Target::Wait::reply);
 
   // ---- sampling: the response time of each read ----
   std::map<uint8_t, std::vector<Timed>> by_fc;
@@ -249,7 +251,7 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
   for (const auto& p : list)
     for (int k = 0; k < o.samples; ++k) {
       between();
-      Reply r = t.transact(info.unit, p.pdu);
+      Reply r = ask(p.pdu);
       by_fc[p.fc].push_back(measure(r, r.request.size(), f));
       all.push_back(r);
       replies[p.fc].push_back(std::move(r));
@@ -324,18 +326,15 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
       t.set_split_gap(pause);
       for (int k = 0; k < o.tries; ++k) {
         between();
-        t.set_wait(Target::Wait::window);
         Reply g;
         try {
-          g = t.send_raw(adu, half);
-        } catch (const std::runtime_error& e) {  // the frame policy's refusal (session/): no verdict
-          t.set_wait(Target::Wait::reply);
+          g = reply_or_throw(t.send_raw(adu, half, Target::Wait::window), info);
+        } catch (const Refused& e) {  // the frame policy's refusal (session/): no verdict
           why = std::string("the gapped request could not be sent: ") + e.what();
           break;
         }
-        t.set_wait(Target::Wait::reply);
         between();
-        Reply next = t.transact(info.unit, pdu);  // a late reply to the gapped request shows in front of this one's
+        Reply next = ask(pdu);  // a late reply to the gapped request shows in front of this one's
         ++sent;
         // Answered: a reply decoded in time, or one found late that answers this very frame (not stray bytes
         // such as the rest of an adapter's echo).
@@ -405,10 +404,10 @@ std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options
     if (why.empty()) {
       for (int k = 0; k < 2 * o.tries; ++k) {
         between();
-        Reply a = t.transact(info.unit, pdu);
+        Reply a = ask(pdu);
         if (a.silent() || a.arrivals.empty()) continue;
         std::this_thread::sleep_until(a.arrivals.back().at + f.t35);
-        Reply b = t.transact(info.unit, pdu);
+        Reply b = ask(pdu);
         double pause = us(b.sent_at - a.arrivals.back().at);
         if (pause > bound) continue;
         ++counted;

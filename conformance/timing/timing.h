@@ -23,6 +23,7 @@
 
 #include "report/result.h"
 #include "spec.h"
+#include "session/link.h"
 #include "targets/target.h"
 
 namespace mbc::conf::timing {
@@ -76,6 +77,6 @@ std::vector<CheckListing> check_listing();
 // Runs every check against `t` (a serial RTU target); ids are
 // "<device>/timing/<what>". Reads only: the spec's first readable register of
 // each table its profile reads (FC 01-04).
-std::vector<CaseResult> check_line(Target& t, const spec::Spec& s, const Options& o = {});
+std::vector<CaseResult> check_line(Link& t, const spec::Spec& s, const Options& o = {});
 
 }  // namespace mbc::conf::timing

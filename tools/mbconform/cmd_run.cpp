@@ -219,7 +219,7 @@ TargetEnd run_target(const RunArgs& a, const RunSetup& c, const std::string& uri
   // Every frame goes through the session: its gate, its journal (in the
   // report directory), its restore (conformance/session/session.h).
   std::unique_ptr<conf::Session> session;
-  conf::Target* target = nullptr;
+  conf::Link* target = nullptr;  // the session, as the one Link every frame goes through
   conf::TargetInfo info;
   try {
     if (!c.dry || (uri.rfind("ref:", 0) == 0 && !c.named)) {
@@ -229,7 +229,7 @@ TargetEnd run_target(const RunArgs& a, const RunSetup& c, const std::string& uri
       if (!session->journal_path().empty())
         fmt::print(stderr, "journal: {} (if this command is killed: mbconform restore {})\n", session->journal_path(),
                    session->journal_path());
-      target = &session->target();
+      target = session.get();
       info = target->info();
       for (const auto& n : info.notes) fmt::print(stderr, "note: {}\n", n);  // how it was opened (a USB latency timer, ...)
     } else {

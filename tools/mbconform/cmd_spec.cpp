@@ -272,16 +272,15 @@ void add_spec_commands(CLI::App& app, int& exit_code) {
       conf::SessionOptions so;
       so.command = "spec discover";
       conf::Session session(discover_target, nullptr, so);
-      conf::Target* target = &session.target();
       if (std::string why = session.reachable(); !why.empty()) throw std::runtime_error(why);
       conf::map::ProbeLimits limits{discover_budget, discover_time, nullptr};
       conf::Progress progress("spec discover", discover_progress, discover_quiet);
       limits.on_request = [&](int sent, int budget) { progress.update(uint64_t(sent), uint64_t(budget), "requests"); };
-      conf::map::Map m = conf::map::probe(*target, limits);
+      conf::map::Map m = conf::map::probe(session, limits);
       progress.clear();
       if (auto stop = session.stopped()) throw std::runtime_error("INCOMPLETE: " + *stop + "; no spec written");
       std::string id = discover_id.empty() ? fs::path(discover_out).stem().string() : discover_id;
-      if (!write_file(discover_out, conf::map::skeleton_yaml(m, id, target->info().unit)))
+      if (!write_file(discover_out, conf::map::skeleton_yaml(m, id, session.info().unit)))
         throw std::runtime_error("cannot write " + discover_out);
       std::cout << fmt::format("{}: {} ({} requests, {:.1f} s{})\n", discover_out, m.describe(), m.requests, m.seconds,
                                m.partial ? ", PARTIAL: the " + m.partial_by + " ran out at " + m.partial_at : "");

@@ -69,7 +69,8 @@ std::string found_blocks(const map::Map& m, spec::Table t) {
 
 TEST(Map, ProbeFindsTheServedBlocksWithReadsOnly) {
   auto t = open_target("ref:modbus-standard");
-  map::Map m = map::probe(*t);
+  DirectLink link(*t);
+  map::Map m = map::probe(link);
   // Four tables of seeds outrun the budget (the map says so, partial); the
   // blocks are found before that.
   EXPECT_LE(m.requests, map::kDefaultBudget);
@@ -93,7 +94,8 @@ TEST(Map, ProbeFindsTheGappedMapsOfTheDrives) {
   for (const char* id : {"sihong-57hs-r", "hsc60", "hanstar-7trsm5740q", "rieding-dhe"}) {
     spec::Spec s = spec::load_spec_by_id(id);
     auto t = open_target(std::string("ref:") + id);
-    map::Map m = map::probe(*t);
+    DirectLink link(*t);
+    map::Map m = map::probe(link);
     EXPECT_LE(m.requests, map::kDefaultBudget) << id;
     size_t readable = 0, found = 0;
     std::string missed;
@@ -155,7 +157,8 @@ class BitsPastTheEnd : public Target {
 
 TEST(Map, BitsAnsweredPastTheTablesEndAreADeviationNotTheMap) {
   BitsPastTheEnd t;
-  map::Map m = map::probe(t);
+  DirectLink link(t);
+  map::Map m = map::probe(link);
   EXPECT_EQ(m.describe(), "coils 0x0000-0x00C7");
   ASSERT_FALSE(m.deviations.empty());
   EXPECT_NE(m.deviations.front().find("past its table's end"), std::string::npos) << m.deviations.front();
@@ -163,14 +166,16 @@ TEST(Map, BitsAnsweredPastTheTablesEndAreADeviationNotTheMap) {
 
 TEST(Map, ATimeBoundStopsTheProbe) {
   auto t = open_target("ref:hanstar-7trsm5740q");
-  map::Map m = map::probe(*t, map::ProbeLimits{map::kDefaultBudget, std::chrono::milliseconds(0), nullptr});
+  DirectLink link(*t);
+  map::Map m = map::probe(link, map::ProbeLimits{map::kDefaultBudget, std::chrono::milliseconds(0), nullptr});
   EXPECT_TRUE(m.partial);
   EXPECT_EQ(m.partial_by, "time");
 }
 
 TEST(Map, ABudgetTooSmallGivesAPartialMap) {
   auto t = open_target("ref:modbus-standard");
-  map::Map m = map::probe(*t, 20);
+  DirectLink link(*t);
+  map::Map m = map::probe(link, 20);
   EXPECT_TRUE(m.partial);
   EXPECT_FALSE(m.partial_at.empty());
   EXPECT_LE(m.requests, 20);

@@ -203,7 +203,8 @@ std::map<std::string, CaseResult> checks(std::vector<std::string> serve_args, in
   Options o;
   o.samples = 16;
   std::map<std::string, CaseResult> out;
-  for (auto& r : check_line(*t, spec, o)) {
+  DirectLink link(*t);
+  for (auto& r : check_line(link, spec, o)) {
     std::string what = r.id.substr(r.id.find("/timing/") + 8);
     out[what] = std::move(r);
   }
