@@ -75,9 +75,6 @@ struct RunArgs {
   std::string scan_units = "1-247", scan_budget = "10m";
 };
 
-// A PARTIAL run under --require-complete (MUST cases skipped for want of an opt-in).
-constexpr int kExitPartial = 3;
-
 // What --filter selects (conf::select_cases: literal unless it holds '*'
 // or '?', a glob over the whole id, '*' crossing '/'; or "re:REGEX", searched
 // in the id), matched with RE2 in time linear in the id whatever the
@@ -763,6 +760,12 @@ int run_fleet(RunArgs& a) {
 
 }  // namespace
 
+void add_require_complete_flag(CLI::App& cmd, bool& require_complete) {
+  cmd.add_flag("--require-complete", require_complete,
+               "a PARTIAL run (MUST cases skipped for want of an opt-in such as --allow-writes) exits 3 instead of 0: "
+               "for a CI gate that must see every MUST case run");
+}
+
 void add_run_command(CLI::App& app, int& exit_code) {
   auto a = std::make_shared<RunArgs>();
   auto* cmd = app.add_subcommand("run", "Run the conformance cases generated from a spec against targets; write reports");
@@ -782,9 +785,7 @@ void add_run_command(CLI::App& app, int& exit_code) {
                   "reasons) reported apart, not failed (conformance/README.md, Quirks files)");
   cmd->add_option("--deadline", a->deadline, "the whole run's time (e.g. 10m): then the run stops between cases, restores, "
                   "and names the cases not run (report INCOMPLETE, exit 2)");
-  cmd->add_flag("--require-complete", a->require_complete,
-                "a PARTIAL run (MUST cases skipped for want of an opt-in such as --allow-writes) exits 3 instead of 0: "
-                "for a CI gate that must see every MUST case run");
+  add_require_complete_flag(*cmd, a->require_complete);
   cmd->add_flag("--scan", a->scan,
                 "a fleet: scan each --target line first (read-only, as `mbconform scan`), then qualify every drive it "
                 "identified on the spec it matched, one drive at a time per line, the lines at once; a report per drive "
