@@ -109,7 +109,14 @@ conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   i.kind = conf::kind_of_uri(u, uri);
   i.framing = conf::framing_of(i.kind);  // what open_target's target would say
   i.live = conf::is_live(i.kind);
-  i.raw = true;  // every kind sends raw frames in its own framing (tcp: raw MBAP), as the opened target says
+  // `raw`: send_raw() is available, so the cases of malformed frames run. A
+  // transport carries ADU bytes as they are (tcp: raw MBAP; rtu, rtu-tcp,
+  // mbtls), and so does the in-process ref:. A plugin takes raw RTU ADUs only
+  // when it exports handle_rtu (a PDU-only stack does not): that is the
+  // plugin's own description, read by loading it as a real run does (in
+  // process: nothing reaches a wire) and asking it.
+  if (i.kind == conf::TargetKind::plugin) return conf::open_target(uri)->info();
+  i.raw = true;
   i.unit = uint8_t(std::stoi(u.param("unit").value_or(std::to_string(s.serial.slave_default.value_or(1)))));
   if (auto b = u.param("baud")) i.baud = std::stoi(*b);
   else if (u.scheme == "ref") i.baud = s.serial.baud_default;
