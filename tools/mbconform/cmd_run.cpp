@@ -100,8 +100,8 @@ std::function<conf::Matcher(const std::string&)> pattern_for(const std::string& 
   bool regex = filter.rfind("re:", 0) == 0;
   return [regex](const std::string& text) { return re2_matcher(text, !regex); };
 }
-// What a target will be, without opening it (for --list and --plan on live
-// targets: nothing is connected, nothing is sent).
+// What a target will be, for --list and --plan: a live one is not opened
+// (nothing is connected, nothing is sent); an in-process one says itself.
 conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   conf::Uri u = conf::parse_uri(uri);
   conf::TargetInfo i;
@@ -109,17 +109,16 @@ conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   i.kind = conf::kind_of_uri(u, uri);
   i.framing = conf::framing_of(i.kind);  // what open_target's target would say
   i.live = conf::is_live(i.kind);
-  // `raw`: send_raw() is available, so the cases of malformed frames run. A
-  // transport carries ADU bytes as they are (tcp: raw MBAP; rtu, rtu-tcp,
-  // mbtls), and so does the in-process ref:. A plugin takes raw RTU ADUs only
-  // when it exports handle_rtu (a PDU-only stack does not): that is the
-  // plugin's own description, read by loading it as a real run does (in
-  // process: nothing reaches a wire) and asking it.
-  if (i.kind == conf::TargetKind::plugin) return conf::open_target(uri)->info();
+  // An in-process target (ref:, plugin:) describes itself once opened, as the
+  // run opens it (nothing reaches a wire): a plugin takes raw RTU ADUs
+  // (`raw`: the cases of malformed frames) only when it exports handle_rtu,
+  // and power cycles or a clock only when it exports them; a ref: device
+  // has both. The scheme does not say.
+  if (!i.live) return conf::open_target(uri)->info();
+  // A transport carries ADU bytes as they are (tcp: raw MBAP; rtu, rtu-tcp, mbtls).
   i.raw = true;
   i.unit = uint8_t(std::stoi(u.param("unit").value_or(std::to_string(s.serial.slave_default.value_or(1)))));
   if (auto b = u.param("baud")) i.baud = std::stoi(*b);
-  else if (u.scheme == "ref") i.baud = s.serial.baud_default;
   return i;
 }
 

@@ -608,12 +608,12 @@ TEST(RunCli, PluginStackAgainstTheStandard) {
 }
 #endif
 
-// `run --plan` against a plugin lists what a real run sends: a stack that
+// `run --plan` against a plugin (and a ref:) lists what a real run sends: a stack that
 // takes PDUs only cannot be sent malformed frames, so the plan marks the
 // raw-frame cases skipped as the run does (the plan used to call every
 // plugin raw and list their bad-CRC frames). Nothing here sends FC 0x41, the
 // one code this plugin breaks on.
-TEST(RunCli, PlanAgainstAPduOnlyPluginListsWhatTheRunSends) {
+TEST(RunCli, PlanAgainstAnInProcessTargetListsWhatTheRunSends) {
   TempDir dir;
   const std::string uri = std::string("plugin:") + PDU_PLUGIN;
   const std::vector<std::string> common{"--target", uri, "--device", "modbus-standard", "--filter", "*/framing/*"};
@@ -642,6 +642,13 @@ TEST(RunCli, PlanAgainstAPduOnlyPluginListsWhatTheRunSends) {
   std::map<std::string, bool> ran_skip;
   for (const auto& c : j["devices"][0]["cases"]) ran_skip[c["id"].get<std::string>()] = c["outcome"] == "skip";
   EXPECT_EQ(planned_skip, ran_skip) << plan.text;
+
+  // A ref: device power-cycles (its spec named, the target is not opened
+  // through a session for --list): the case that needs it is listed to run, as it runs.
+  Out list = run({"run", "--list", "--target", "ref:hsc60", "--device", "hsc60", "--filter", "hsc60/registers/0x0048/volatile"});
+  EXPECT_EQ(list.rc, 0) << list.text;
+  EXPECT_NE(list.text.find("hsc60/registers/0x0048/volatile"), std::string::npos) << list.text;
+  EXPECT_EQ(list.text.find("skip"), std::string::npos) << list.text;
 }
 
 }  // namespace
