@@ -452,7 +452,9 @@ bool may_send(const SpecView& v, const Ctl& m, const Write& w) {
   if (!r) return false;
   PolicyFacts f = v.policy_facts();
   f.zeroed = m.zeroed;
-  return bool(allowed(f, f.target.unit, v.write_request(*r, w.word)));
+  Decision d = allowed(f, f.target.unit, v.write_request(*r, w.word));
+  if (!d) v.note_refusal(*d.refused);  // a case given up for it is skipped for want of its opt-in
+  return bool(d);
 }
 
 // Every state reachable from `start` by command writes the policy lets go

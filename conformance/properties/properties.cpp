@@ -5,6 +5,7 @@
 #include <fmt/core.h>
 #include <rapidcheck.h>
 
+#include <algorithm>
 #include <chrono>
 #include <random>
 #include <sstream>
@@ -176,6 +177,36 @@ std::string still_there(Link& t, const spec::Spec& spec) {
   return "it no longer answers a liveness probe, even after a reconnect";
 }
 
+// The opt-in a skip is for: the flag which, given, makes the invariant
+// apply on this target, asked of the invariant's own skip_reason with the
+// flag granted (the frame policy then says what may be written), the flag the
+// reason names first. Empty when no single flag would (a reason no opt-in
+// lifts; a flag the reason names but which alone does not enable it: `alone`
+// then says why, the reason with the flag given).
+std::string opt_in_for(const Invariant& inv, const std::string& why, const spec::Spec& spec, const TargetInfo& info,
+                       const WritePolicy& given, const DeviceFacts* facts, std::string& alone) {
+  static const std::pair<const char*, bool WritePolicy::*> kFlags[] = {
+      {"--allow-writes", &WritePolicy::allow_writes},         {"--allow-motion", &WritePolicy::allow_motion},
+      {"--allow-eeprom-writes", &WritePolicy::allow_eeprom_writes}, {"--allow-broadcast", &WritePolicy::allow_broadcast},
+      {"--allow-disruptive", &WritePolicy::allow_disruptive},
+  };
+  const std::string named = opt_in_named(why);
+  auto lifts = [&](const char* flag, bool WritePolicy::*member) -> std::string {
+    WritePolicy p = given;
+    p.*member = true;
+    std::string still = inv.skip_reason(SpecView(spec, info, p), info, facts);
+    if (flag == named && !still.empty()) alone = still;
+    return still.empty() ? flag : "";
+  };
+  for (const auto& [flag, member] : kFlags)
+    if (flag == named && !(given.*member))
+      if (std::string f = lifts(flag, member); !f.empty()) return f;
+  for (const auto& [flag, member] : kFlags)
+    if (flag != named && !(given.*member))
+      if (std::string f = lifts(flag, member); !f.empty()) return f;
+  return "";
+}
+
 }  // namespace
 
 CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const Options& options) {
@@ -195,6 +226,10 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   if (std::string why = inv.skip_reason ? inv.skip_reason(probe_view, info, facts) : ""; !why.empty()) {
     c.outcome = Outcome::skip;
     c.message = why;
+    // A MUST skipped for want of an opt-in makes the run PARTIAL (report/result.h's verdict()).
+    std::string alone;
+    c.opt_in = opt_in_for(inv, why, spec, info, options.policy, facts, alone);
+    if (c.opt_in.empty() && !alone.empty()) c.message += fmt::format(" (and with {}: {})", opt_in_named(why), alone);
     return c;
   }
   const bool fresh_per_case = !info.live && source.afresh;
@@ -220,7 +255,7 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
   // generated frame needs): that case is discarded, never a counterexample.
   // The device did nothing wrong; the property ran on the other cases.
   int held_back = 0;
-  std::string first_held_back;
+  std::string first_held_back, held_back_opt_in;
   auto property = [&] {
     if (fresh_per_case) source.afresh();  // power-on state (throws Stopped after a stop)
     // One view for every run: RapidCheck keeps generated values (and the
@@ -233,7 +268,10 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
       try {
         inv.check(session);
       } catch (const Refused& r) {
-        if (held_back++ == 0) first_held_back = r.refusal.reason;
+        if (held_back++ == 0) {
+          first_held_back = r.refusal.reason;
+          held_back_opt_in = r.refusal.opt_in;  // the gate's own word
+        }
         discarded = true;
         note_broadcasts(session);
         RC_DISCARD("a generated frame the frame policy holds back");
@@ -329,6 +367,16 @@ CaseResult run_invariant(const Invariant& inv, const TargetSource& source, const
                                         held_back == 1 ? "" : "s", gave_up.numSuccess, first_held_back)
                           : fmt::format("skipped: too few cases could be generated ({} ran): {}", gave_up.numSuccess,
                                         why_gave_up(gave_up.description));
+    if (held_back) c.opt_in = held_back_opt_in;
+    // Cases the generator discarded because the frame policy refused a frame
+    // they needed: the opt-in refused most often.
+    const auto& refused = probe_view.refused_opt_ins();
+    if (c.opt_in.empty() && !refused.empty()) {
+      auto most = std::max_element(refused.begin(), refused.end(), [](const auto& a, const auto& b) { return a.second < b.second; });
+      c.opt_in = most->first;
+      c.message += fmt::format(" (the frame policy refused the frames the cases needed, {} time{}: {})", most->second,
+                               most->second == 1 ? "" : "s", c.opt_in);
+    }
   } else if (result.match(error)) {
     c.outcome = Outcome::fail;
     c.message = "could not run: " + error.description;

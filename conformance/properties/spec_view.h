@@ -73,6 +73,15 @@ class SpecView {
   // device (spec/README.md): "register 0x0024 range: inferred (...)". A run
   // reports them with its outcome.
   const std::vector<std::string>& not_held() const { return not_held_; }
+  // The frames the frame policy refused a property's generator (a case
+  // discarded before it sent anything, unlike a frame held back at sending):
+  // each refusal's opt-in, how often. A property that could not generate
+  // enough cases for want of them is skipped for want of that opt-in
+  // (properties.cpp). Kept across runs, as the view is.
+  void note_refusal(const Refusal& r) const {
+    if (!r.opt_in.empty()) ++refused_opt_ins_[r.opt_in];
+  }
+  const std::map<std::string, int>& refused_opt_ins() const { return refused_opt_ins_; }
 
   Expected expected(spec::Violation v) const;
 
@@ -102,6 +111,7 @@ class SpecView {
   std::vector<std::string> not_held_;
   std::vector<std::pair<uint16_t, uint16_t>> image_reads_;
   std::string broadcast_unavailable_;
+  mutable std::map<std::string, int> refused_opt_ins_;
 };
 
 // Sends one request PDU to the unit and returns the reply (a Session's send,

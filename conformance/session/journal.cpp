@@ -9,7 +9,6 @@
 #include <array>
 #include <cerrno>
 #include <charconv>
-#include <csignal>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -128,10 +127,6 @@ const char* journal_table_name(spec::Table t) {
 }
 
 Journal Journal::create(const std::string& dir, const std::map<std::string, std::string>& header) {
-  // A file-size limit (RLIMIT_FSIZE) would kill the command at the journal
-  // write that crosses it; ignored, the write fails with EFBIG and the
-  // command stops sending and restores, as it does on a full disk.
-  std::signal(SIGXFSZ, SIG_IGN);
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   Journal j;

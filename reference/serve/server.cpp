@@ -12,6 +12,7 @@
 #include <termios.h>
 #include <signal.h>
 #include <sys/epoll.h>
+#include <sys/inotify.h>
 #include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/signalfd.h>
@@ -203,6 +204,12 @@ struct PtyEndpoint {
   int slave = -1;  // kept open so the master never sees a hang-up between clients
   std::string link_path;
   std::string device_path;
+  // The line as serve opened it (raw), put back when the last client closes
+  // the pty: the next one finds it as the first did (clients_closed()).
+  termios initial{};
+  int watch = -1;   // its inotify watch (opens and closes of device_path), or -1
+  int clients = 0;  // opens of the slave by clients not yet closed
+  bool watch_closed = false;  // a close seen in the events being read
 };
 
 }  // namespace
@@ -219,6 +226,7 @@ struct Server::Impl {
   std::vector<StoredImage> saved;      // per device: the image last written to disk
   Clock::time_point clock_at;          // the bus clock stands at this real time
   int stop_fd = -1;                    // SIGINT and SIGTERM, read as a descriptor (signalfd)
+  int pty_watch_fd = -1;               // inotify: clients opening and closing the served ptys
   bool stopping = false;
   Clock::time_point accept_resume;     // listeners rest until then after EMFILE
   size_t max_links = 0;                // opt.max_connections, lowered to what RLIMIT_NOFILE leaves room for
@@ -231,6 +239,7 @@ struct Server::Impl {
   ~Impl() {
     if (epfd >= 0) ::close(epfd);
     if (stop_fd >= 0) ::close(stop_fd);
+    if (pty_watch_fd >= 0) ::close(pty_watch_fd);
     for (auto& l : listeners) ::close(l.fd);
     for (auto& l : links)
       if (!l.closed) ::close(l.fd);
@@ -288,9 +297,44 @@ struct Server::Impl {
 
   void open_pty(const Endpoint& e) {
     RawPty p = open_raw_pty(e.path);
-    ptys.push_back({p.slave, e.path, p.name});  // ~Impl closes the slave and removes the link
+    PtyEndpoint pe{p.slave, e.path, p.name};  // ~Impl closes the slave and removes the link
+    tcgetattr(p.slave, &pe.initial);
+    // A client's termios outlives it on a pty (serve holds the slave), and
+    // Linux's pty driver drops PARENB: a client that asks 9600-8E1 of a pty
+    // the last one left at 9600-8E1 changes nothing the kernel keeps, and
+    // glibc's tcsetattr then reports the parity it did not get as EINVAL.
+    // So the line is put back as opened when its last client closes
+    // (SIGKILL too), seen through inotify.
+    if (pty_watch_fd < 0) pty_watch_fd = inotify_init1(IN_NONBLOCK | IN_CLOEXEC);
+    if (pty_watch_fd >= 0) pe.watch = inotify_add_watch(pty_watch_fd, p.name.c_str(), IN_OPEN | IN_CLOSE);
+    if (pe.watch < 0)
+      std::fputs(fmt::format("pty {}: cannot watch its clients ({}): a client reopening it at a parity may get EINVAL\n",
+                             e.path, std::strerror(errno)).c_str(), stderr);
+    ptys.push_back(std::move(pe));
     links.emplace_back(p.master, Transport::pty, "pty " + e.path);
     listening.push_back(fmt::format("listening pty {}", e.path));
+  }
+
+  // Clients opened and closed served ptys: a pty none holds open any more
+  // gets the termios it was opened with. The events are counted first, so a
+  // client that opened it meanwhile keeps what it set.
+  void pty_clients_changed() {
+    alignas(inotify_event) char buf[4096];
+    for (ssize_t n; (n = ::read(pty_watch_fd, buf, sizeof buf)) > 0;)
+      for (char* at = buf; at < buf + n;) {
+        const auto* ev = reinterpret_cast<const inotify_event*>(at);
+        at += sizeof(inotify_event) + ev->len;
+        for (auto& p : ptys) {
+          if (p.watch != ev->wd) continue;
+          if (ev->mask & IN_OPEN) ++p.clients;
+          if ((ev->mask & IN_CLOSE) && p.clients > 0) --p.clients;
+          if (ev->mask & IN_CLOSE) p.watch_closed = true;
+        }
+      }
+    for (auto& p : ptys) {
+      if (p.watch_closed && p.clients == 0) tcsetattr(p.slave, TCSANOW, &p.initial);
+      p.watch_closed = false;
+    }
   }
 
   void open_tls(const Endpoint& e) {
@@ -800,6 +844,7 @@ struct Server::Impl {
   // interest is updated).
   static constexpr uint64_t kListenerKey = uint64_t(1) << 32;
   static constexpr uint64_t kStopKey = uint64_t(1) << 33;
+  static constexpr uint64_t kPtyWatchKey = uint64_t(1) << 34;
   int epfd = -1;
   std::vector<epoll_event> ready = std::vector<epoll_event>(256);
   std::vector<size_t> slot;  // fd -> index in links
@@ -820,6 +865,7 @@ struct Server::Impl {
       if (epfd < 0) fail("epoll_create1");
       for (size_t i = 0; i < listeners.size(); ++i) watch(listeners[i].fd, kListenerKey | i, 0, true);
       watch(stop_fd, kStopKey, EPOLLIN, true);
+      if (pty_watch_fd >= 0) watch(pty_watch_fd, kPtyWatchKey, EPOLLIN, true);
     }
     bool accepting = now >= accept_resume;
     if (accepting != listeners_armed) {
@@ -931,6 +977,10 @@ struct Server::Impl {
         const uint32_t ev = ready[size_t(e)].events;
         if (key == kStopKey) {
           stopping = true;
+          continue;
+        }
+        if (key == kPtyWatchKey) {
+          pty_clients_changed();
           continue;
         }
         if (key & kListenerKey) {

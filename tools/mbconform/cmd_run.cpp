@@ -75,9 +75,6 @@ struct RunArgs {
   std::string scan_units = "1-247", scan_budget = "10m";
 };
 
-// A PARTIAL run under --require-complete (MUST cases skipped for want of an opt-in).
-constexpr int kExitPartial = 3;
-
 // What --filter selects (conf::select_cases: literal unless it holds '*'
 // or '?', a glob over the whole id, '*' crossing '/'; or "re:REGEX", searched
 // in the id), matched with RE2 in time linear in the id whatever the
@@ -103,8 +100,8 @@ std::function<conf::Matcher(const std::string&)> pattern_for(const std::string& 
   bool regex = filter.rfind("re:", 0) == 0;
   return [regex](const std::string& text) { return re2_matcher(text, !regex); };
 }
-// What a target will be, without opening it (for --list and --plan on live
-// targets: nothing is connected, nothing is sent).
+// What a target will be, for --list and --plan: a live one is not opened
+// (nothing is connected, nothing is sent); an in-process one says itself.
 conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   conf::Uri u = conf::parse_uri(uri);
   conf::TargetInfo i;
@@ -112,10 +109,16 @@ conf::TargetInfo planned_info(const std::string& uri, const spec::Spec& s) {
   i.kind = conf::kind_of_uri(u, uri);
   i.framing = conf::framing_of(i.kind);  // what open_target's target would say
   i.live = conf::is_live(i.kind);
-  i.raw = true;  // every kind sends raw frames in its own framing (tcp: raw MBAP), as the opened target says
+  // An in-process target (ref:, plugin:) describes itself once opened, as the
+  // run opens it (nothing reaches a wire): a plugin takes raw RTU ADUs
+  // (`raw`: the cases of malformed frames) only when it exports handle_rtu,
+  // and power cycles or a clock only when it exports them; a ref: device
+  // has both. The scheme does not say.
+  if (!i.live) return conf::open_target(uri)->info();
+  // A transport carries ADU bytes as they are (tcp: raw MBAP; rtu, rtu-tcp, mbtls).
+  i.raw = true;
   i.unit = uint8_t(std::stoi(u.param("unit").value_or(std::to_string(s.serial.slave_default.value_or(1)))));
   if (auto b = u.param("baud")) i.baud = std::stoi(*b);
-  else if (u.scheme == "ref") i.baud = s.serial.baud_default;
   return i;
 }
 
@@ -763,6 +766,12 @@ int run_fleet(RunArgs& a) {
 
 }  // namespace
 
+void add_require_complete_flag(CLI::App& cmd, bool& require_complete) {
+  cmd.add_flag("--require-complete", require_complete,
+               "a PARTIAL run (MUST cases skipped for want of an opt-in such as --allow-writes) exits 3 instead of 0: "
+               "for a CI gate that must see every MUST case run");
+}
+
 void add_run_command(CLI::App& app, int& exit_code) {
   auto a = std::make_shared<RunArgs>();
   auto* cmd = app.add_subcommand("run", "Run the conformance cases generated from a spec against targets; write reports");
@@ -782,9 +791,7 @@ void add_run_command(CLI::App& app, int& exit_code) {
                   "reasons) reported apart, not failed (conformance/README.md, Quirks files)");
   cmd->add_option("--deadline", a->deadline, "the whole run's time (e.g. 10m): then the run stops between cases, restores, "
                   "and names the cases not run (report INCOMPLETE, exit 2)");
-  cmd->add_flag("--require-complete", a->require_complete,
-                "a PARTIAL run (MUST cases skipped for want of an opt-in such as --allow-writes) exits 3 instead of 0: "
-                "for a CI gate that must see every MUST case run");
+  add_require_complete_flag(*cmd, a->require_complete);
   cmd->add_flag("--scan", a->scan,
                 "a fleet: scan each --target line first (read-only, as `mbconform scan`), then qualify every drive it "
                 "identified on the spec it matched, one drive at a time per line, the lines at once; a report per drive "

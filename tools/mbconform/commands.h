@@ -1,5 +1,6 @@
 // The mbconform subcommands. Exit codes (documented in README.md):
-//   0 success; 1 checks failed (spec errors, failing MUST cases); 2 could not run.
+//   0 success (or PARTIAL); 1 checks failed (spec errors, failing MUST cases); 2 could not run;
+//   3 PARTIAL under --require-complete.
 #pragma once
 
 #include <CLI/CLI.hpp>
@@ -9,6 +10,10 @@ namespace mbc::cli {
 inline constexpr int kExitOk = 0;
 inline constexpr int kExitFailed = 1;
 inline constexpr int kExitUsage = 2;
+// A PARTIAL run (MUST cases skipped for want of an opt-in) under --require-complete.
+inline constexpr int kExitPartial = 3;
+// `--require-complete`, the same words in every command that has a PARTIAL verdict (run, props).
+void add_require_complete_flag(CLI::App& cmd, bool& require_complete);
 
 // Registers `spec check|dump|errata|list` on `app`; the result code is
 // written to `exit_code` when one of them runs.

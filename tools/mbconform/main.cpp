@@ -1,4 +1,5 @@
 #include <algorithm>
+#include <csignal>
 #include <cstdio>
 #include <exception>
 #include <string>
@@ -7,6 +8,12 @@
 #include "conventions.h"
 
 int main(int argc, char** argv) {
+  // A file grown past RLIMIT_FSIZE (a quota, `ulimit -f`) is a full disk to
+  // every command: write() fails with EFBIG and the command's own error path
+  // runs (the reports written as .part and dropped, one line, the drive
+  // restored), where SIGXFSZ's default action would end the process with
+  // the drive not restored and a torn .part left behind.
+  std::signal(SIGXFSZ, SIG_IGN);
   // Named, so that every usage line names the program ("Usage: mbconform run [OPTIONS]").
   CLI::App app{"mbconform: Modbus conformance and fuzz test suite for motor drives", "mbconform"};
   app.require_subcommand(1);

@@ -160,5 +160,46 @@ TEST(PropsCli, ALiveCleanDriveWithoutOptInsFailsNoProperty) {
                                 dir / "bad"), &out), 1) << out;
 }
 
+// A live drive whose control commands may move it (sihong-57hs-r's): without
+// --allow-motion the frame policy refuses every command the control
+// properties would give, so they run no case. That is no PASS: the run is
+// PARTIAL, names --allow-motion in the summary, report.json and junit.xml,
+// and exits 0, or 3 under --require-complete; with the flag the same
+// properties run and pass. A property the flag alone would not enable (the
+// stop from motion: a live axis is not sampled yet) names no opt-in.
+TEST(PropsCli, APropertySkippedForWantOfAnOptInMakesThePropsRunPartial) {
+  TempDir dir;
+  ServeProcess server({"--device", "sihong-57hs-r@1", "--tcp", "127.0.0.1:0"});
+  ASSERT_TRUE(server.wait_listening(1)) << server.log();
+  const std::string base = fmt::format("--target 'tcp://127.0.0.1:{}?unit=1' --device sihong-57hs-r --cases 10 --seed 1 -q "
+                                       "--only control-undefined-command --only control-stop-from-motion",
+                                       server.endpoint("tcp")->port());
+  std::string out;
+  EXPECT_EQ(run_cli(base + " --out " + (dir / "partial"), &out), 0) << out;
+  EXPECT_NE(out.find("\nPARTIAL: "), std::string::npos) << out;
+  EXPECT_NE(out.find("--allow-motion would enable 1"), std::string::npos) << out;
+  auto j = nlohmann::json::parse(std::ifstream(dir / "partial/report.json"));
+  EXPECT_EQ(j["verdict"], "PARTIAL") << out;
+  ASSERT_EQ(j["missing_opt_ins"].size(), 1u) << j["missing_opt_ins"].dump();
+  EXPECT_EQ(j["missing_opt_ins"][0]["flag"], "--allow-motion");
+  EXPECT_EQ(j["missing_opt_ins"][0]["must_cases"], 1);
+  for (const auto& c : j["devices"][0]["cases"]) {
+    EXPECT_EQ(c["outcome"], "skip") << c.dump();
+    if (c["id"] == "prop.control-undefined-command.sihong-57hs-r") EXPECT_EQ(c.value("opt_in", ""), "--allow-motion") << c.dump();
+    else EXPECT_FALSE(c.contains("opt_in")) << c.dump();
+  }
+  std::ifstream junit_file(dir / "partial/junit.xml");
+  std::string junit((std::istreambuf_iterator<char>(junit_file)), std::istreambuf_iterator<char>());
+  EXPECT_NE(junit.find("<property name=\"verdict\" value=\"PARTIAL\"/>"), std::string::npos) << junit;
+  EXPECT_NE(junit.find("<property name=\"opt-in\" value=\"--allow-motion: would enable 1"), std::string::npos) << junit;
+
+  EXPECT_EQ(run_cli(base + " --require-complete --out " + (dir / "gate"), &out), 3) << out;
+
+  EXPECT_EQ(run_cli(base + " --allow-motion --require-complete --out " + (dir / "motion"), &out), 0) << out;
+  auto m = nlohmann::json::parse(std::ifstream(dir / "motion/report.json"));
+  EXPECT_EQ(m["verdict"], "PASS") << out;
+  EXPECT_EQ(m["devices"][0]["cases"][0]["outcome"], "pass") << m["devices"][0]["cases"][0].dump();
+}
+
 }  // namespace
 }  // namespace mbc::conf::props

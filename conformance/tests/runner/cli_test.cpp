@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <set>
 #include <sstream>
 #include <thread>
@@ -606,6 +607,49 @@ TEST(RunCli, PluginStackAgainstTheStandard) {
   EXPECT_EQ(all.text.find("FAIL modbus-standard/registers/0x0212/above-max"), std::string::npos) << all.text;
 }
 #endif
+
+// `run --plan` against a plugin (and a ref:) lists what a real run sends: a stack that
+// takes PDUs only cannot be sent malformed frames, so the plan marks the
+// raw-frame cases skipped as the run does (the plan used to call every
+// plugin raw and list their bad-CRC frames). Nothing here sends FC 0x41, the
+// one code this plugin breaks on.
+TEST(RunCli, PlanAgainstAnInProcessTargetListsWhatTheRunSends) {
+  TempDir dir;
+  const std::string uri = std::string("plugin:") + PDU_PLUGIN;
+  const std::vector<std::string> common{"--target", uri, "--device", "modbus-standard", "--filter", "*/framing/*"};
+  auto with = [&](std::vector<std::string> more) {
+    std::vector<std::string> args{"run"};
+    args.insert(args.end(), common.begin(), common.end());
+    args.insert(args.end(), more.begin(), more.end());
+    return run(args);
+  };
+  Out plan = with({"--plan"});
+  ASSERT_EQ(plan.rc, 0) << plan.text;
+  // The plan's cases, each with whether it says it is skipped.
+  std::map<std::string, bool> planned_skip;
+  std::string last;
+  std::istringstream lines(plan.text);
+  for (std::string l; std::getline(lines, l);) {
+    if (l.rfind("case ", 0) == 0) planned_skip[last = l.substr(5, l.find(' ', 5) - 5)] = false;
+    else if (l.rfind("skip ", 0) == 0 && !last.empty()) planned_skip[last] = true;
+  }
+  ASSERT_TRUE(planned_skip.count("modbus-standard/framing/rtu/crc-error")) << plan.text;
+  EXPECT_TRUE(planned_skip["modbus-standard/framing/rtu/crc-error"]) << plan.text;
+
+  Out real = with({"--quiet", "--out", dir / "r"});
+  ASSERT_NE(real.rc, 2) << real.text;
+  auto j = nlohmann::json::parse(slurp(dir / "r/report.json"));
+  std::map<std::string, bool> ran_skip;
+  for (const auto& c : j["devices"][0]["cases"]) ran_skip[c["id"].get<std::string>()] = c["outcome"] == "skip";
+  EXPECT_EQ(planned_skip, ran_skip) << plan.text;
+
+  // A ref: device power-cycles (its spec named, the target is not opened
+  // through a session for --list): the case that needs it is listed to run, as it runs.
+  Out list = run({"run", "--list", "--target", "ref:hsc60", "--device", "hsc60", "--filter", "hsc60/registers/0x0048/volatile"});
+  EXPECT_EQ(list.rc, 0) << list.text;
+  EXPECT_NE(list.text.find("hsc60/registers/0x0048/volatile"), std::string::npos) << list.text;
+  EXPECT_EQ(list.text.find("skip"), std::string::npos) << list.text;
+}
 
 }  // namespace
 

@@ -11,7 +11,10 @@
 #include <fmt/ranges.h>
 
 #include <algorithm>
+#include <fstream>
+#include <functional>
 #include <set>
+#include <sstream>
 
 #include "cases/case.h"
 #include "cases/facts.h"
@@ -21,6 +24,7 @@
 #include "modbus/hex.h"
 #include "readings.h"
 #include "runner/runner.h"
+#include "yaml_json.h"
 
 namespace mbc::conf {
 namespace {
@@ -285,19 +289,76 @@ std::set<std::string> contested_facts(const Spec& s, const spec::Erratum& e) {
   return out;
 }
 
+// The errata the spec's `serial:` objects cite (each takes `erratum:`,
+// spec/README.md "serial"): the loader keeps them in no field of Spec, so
+// they are read from the spec's own file, as the loader's rule erratum-linked
+// reads every `erratum:` of the document.
+std::set<std::string> serial_citations(const Spec& s) {
+  std::set<std::string> out;
+  std::ifstream in(s.path);
+  std::stringstream text;
+  text << in.rdbuf();
+  spec::Diagnostics diags;
+  auto doc = spec::yaml_to_json(text.str(), s.path, diags);
+  if (!doc || !doc->root.contains("serial")) return out;
+  std::function<void(const nlohmann::json&)> walk = [&](const nlohmann::json& j) {
+    if (j.is_array())
+      for (const auto& x : j) walk(x);
+    if (!j.is_object()) return;
+    for (auto it = j.begin(); it != j.end(); ++it) {
+      if (it.key() != "erratum") walk(*it);
+      else if (it->is_string()) out.insert(it->get<std::string>());
+      else if (it->is_array())
+        for (const auto& x : *it)
+          if (x.is_string()) out.insert(x.get<std::string>());
+    }
+  };
+  walk(doc->root["serial"]);
+  return out;
+}
+
+// Whether anything in the spec cites `e`: every place the spec language lets
+// an entry cite an erratum (spec/README.md): a register (`erratum:`, an
+// `area:`, a fact printed two ways), an example (and its basis), a function
+// code (and its facts), an exception policy entry (its basis, its readings),
+// a bit field, `device.manual.erratum`, the control's states, commands,
+// transitions, modes and `undefined` (their basis), and `serial:`.
 bool cited(const Spec& s, const spec::Erratum& e) {
-  for (const auto& r : s.registers)
+  auto by = [&](const spec::FactBasis& b) { return b.erratum == e.id; };
+  for (const auto& r : s.registers) {
     if (cites(r.errata, e.id)) return true;
+    for (const auto& [f, b] : r.basis)
+      if (by(b)) return true;
+  }
   for (const auto& x : s.examples)
-    if (cites(x.errata, e.id)) return true;
-  for (const auto& f : s.profile.function_codes)
+    if (cites(x.errata, e.id) || by(x.basis)) return true;
+  for (const auto& f : s.profile.function_codes) {
     if (f.erratum == e.id) return true;
-  for (const auto& [v, p] : s.profile.exception_policy)
-    if (p.erratum == e.id || p.basis.erratum == e.id) return true;
+    for (const auto& [k, b] : f.basis)
+      if (by(b)) return true;
+  }
+  for (const auto& [v, p] : s.profile.exception_policy) {
+    if (p.erratum == e.id || by(p.basis)) return true;
+    for (const auto& r : p.readings)
+      if (r.erratum == e.id) return true;
+  }
   for (const auto& b : s.bitfields)
     for (const auto& f : b.fields)
       if (f.erratum == e.id) return true;
-  return false;
+  if (s.device.manual.erratum == e.id) return true;
+  if (s.control) {
+    const auto& c = *s.control;
+    for (const auto& x : c.states)
+      if (by(x.basis)) return true;
+    for (const auto& x : c.commands)
+      if (by(x.basis)) return true;
+    for (const auto& x : c.transitions)
+      if (by(x.basis)) return true;
+    for (const auto& x : c.modes)
+      if (by(x.basis)) return true;
+    if (by(c.undefined.basis)) return true;
+  }
+  return serial_citations(s).count(e.id) > 0;
 }
 
 // Why an erratum's claim does not hold, if it does not: a behavioural
@@ -402,6 +463,38 @@ TEST(ErratumClaims, TheChecksCatchAClaimThatHidesAFact) {
   EXPECT_NE(fingerprint(cases_of(changed)), c2.base);
   // And a part no case reads is not: 0x0139's note.
   EXPECT_EQ(fingerprint(cases_of(perturbed(s, x4, {"note"}))), c2.base);
+}
+
+// An erratum cited only from `serial:` or from the control's entries is
+// cited (it was "cited by nothing": the claims of such an erratum went
+// unchecked): the ones the four drives' specs cite that way, and a new one a
+// control transition alone cites, which then must say what it is about.
+TEST(ErratumClaims, AnErratumCitedOnlyFromSerialOrControlIsCited) {
+  const std::vector<std::pair<std::string, std::string>> only_there = {
+      {"sihong-57hs-r", "dip-address-zero"},           // serial.slave_id
+      {"sihong-57hs-r", "alarm-clear-power-cycle"},    // a control transition
+      {"hsc60", "slave-id-default-broadcast"},         // serial.slave_id, serial.broadcast
+      {"hsc60", "baud-unit-hz"},                       // serial.baud_rates
+      {"hanstar-7trsm5740q", "limit-alarm-command"},   // control transitions
+  };
+  for (const auto& [id, erratum] : only_there) {
+    Spec s = spec::load_spec_by_id(id);
+    const spec::Erratum* e = s.find_erratum(erratum);
+    ASSERT_TRUE(e) << id << " " << erratum;
+    EXPECT_TRUE(cited(s, *e)) << id << ": " << erratum << " is cited by nothing";
+  }
+  Spec s = spec::load_spec_by_id("hanstar-7trsm5740q");
+  ASSERT_TRUE(s.control && !s.control->transitions.empty());
+  spec::Erratum x;
+  x.id = "control-only-test";
+  x.kind = "text_vs_text";
+  s.errata.push_back(x);
+  EXPECT_FALSE(cited(s, x));
+  s.control->transitions.front().basis.erratum = x.id;
+  EXPECT_TRUE(cited(s, x));
+  auto p = Claims{s}.problems(x);
+  EXPECT_TRUE(std::any_of(p.begin(), p.end(), [](const std::string& m) { return m.find("is cited and has no variant") != std::string::npos; }))
+      << fmt::format("{}", fmt::join(p, "; "));
 }
 
 }  // namespace mbc::conf::errata_claims

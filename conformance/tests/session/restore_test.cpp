@@ -19,6 +19,7 @@
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -566,6 +567,8 @@ int mbconform(const std::vector<std::string>& args, std::string* out = nullptr, 
     if (fsize) {
       rlimit lim{fsize, fsize};
       setrlimit(RLIMIT_FSIZE, &lim);
+      // As from a shell: SIGXFSZ at its default (end the process), whatever this test process inherited.
+      signal(SIGXFSZ, SIG_DFL);
     }
     std::vector<char*> argv;
     std::string bin = serve_test::mbconform_bin();
@@ -798,6 +801,30 @@ TEST(RestoreCommand, AFullDiskDuringPropsStopsItRestoresAndLeavesNoTornReport) {
   ASSERT_FALSE(late_journal.empty()) << text;
   EXPECT_EQ(mbconform({"restore", late_journal}, &text), 0) << text;
   EXPECT_EQ(holding_points(*t, sv.spec), before) << text;
+}
+
+// A file-size limit (`ulimit -f`, a quota) reached by a command's reports is
+// a full disk, not a signal. Against a ref: target no journal is open: its
+// SIGXFSZ ended the process with no line, a torn junit.xml.part left behind
+// and a signal's exit status. Now, for `run` and `props`: one error line
+// naming the file and EFBIG, exit 2, and no report (nor .part) left.
+TEST(RestoreCommand, AFileSizeLimitAtTheReportsIsOneLineNotASignal) {
+  TempDir dir;
+  for (const std::string command : {"run", "props"}) {
+    const std::string out = dir / command;
+    std::string text;
+    std::vector<std::string> args{command, "--target", "ref:hsc60", "--out", out, command == "run" ? "--quiet" : "-q"};
+    if (command == "props") args.insert(args.end(), {"--cases", "5", "--seed", "1"});
+    EXPECT_EQ(mbconform(args, &text, 8192), 2) << command << ": " << text;
+    size_t errors = 0;
+    for (size_t at = text.find("error:"); at != std::string::npos; at = text.find("error:", at + 1)) ++errors;
+    EXPECT_EQ(errors, 1u) << text;
+    EXPECT_NE(text.find("mbconform " + command + ": error: "), std::string::npos) << text;
+    EXPECT_NE(text.find("cannot write " + out + "/"), std::string::npos) << text;
+    EXPECT_NE(text.find(std::strerror(EFBIG)), std::string::npos) << text;
+    for (const char* name : {"junit.xml", "report.json", "report.html", "junit.xml.part", "report.json.part", "report.html.part"})
+      EXPECT_FALSE(std::filesystem::exists(std::filesystem::path(out) / name)) << command << ": " << name << "\n" << text;
+  }
 }
 
 // Issue 37: a drive that stays silent when its command registers are read
