@@ -201,5 +201,39 @@ TEST(PropsCli, APropertySkippedForWantOfAnOptInMakesThePropsRunPartial) {
   EXPECT_EQ(m["devices"][0]["cases"][0]["outcome"], "pass") << m["devices"][0]["cases"][0].dump();
 }
 
+// A spec from a register sheet (source: csv): its facts are inferred, so a
+// live target takes no write of it without --allow-writes. A control
+// property whose walk needs such a write is skipped for that opt-in; the
+// drive is never failed for a frame that was not sent.
+TEST(PropsCli, AControlWalkTheFramePolicyHoldsBackIsSkippedNotFailed) {
+  TempDir dir;
+  std::string text;
+  {
+    std::ifstream f(spec::load_spec_by_id("hsc60").path);
+    text.assign(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
+  }
+  const std::string manual = "\n  manual:\n";
+  auto at = text.find(manual);
+  ASSERT_NE(at, std::string::npos);
+  text.insert(at + manual.size(), "    source: csv\n");
+  const std::string spec_file = dir / "hsc60.yaml";
+  std::ofstream(spec_file) << text;
+  ServeProcess server({"--device", "hsc60@1", "--tcp", "127.0.0.1:0"});
+  ASSERT_TRUE(server.wait_listening(1)) << server.log();
+  const std::string base = fmt::format("--target 'tcp://127.0.0.1:{}?unit=1' --spec {} --cases 10 --seed 1 -q "
+                                       "--only control-status-names-state --only control-undefined-command",
+                                       server.endpoint("tcp")->port(), spec_file);
+  std::string out;
+  EXPECT_EQ(run_cli(base + " --out " + (dir / "held"), &out), 0) << out;
+  auto j = nlohmann::json::parse(std::ifstream(dir / "held/report.json"));
+  EXPECT_EQ(j["verdict"], "PARTIAL") << out;
+  bool writes_named = false;
+  for (const auto& c : j["devices"][0]["cases"]) {
+    EXPECT_NE(c["outcome"], "fail") << c.dump();
+    writes_named |= c.value("opt_in", "") == "--allow-writes";
+  }
+  EXPECT_TRUE(writes_named) << j["devices"][0]["cases"].dump();
+}
+
 }  // namespace
 }  // namespace mbc::conf::props
