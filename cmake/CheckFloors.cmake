@@ -46,7 +46,7 @@ set(conf_may_session session policy safety targets report)  # report/utc_now.h: 
 set(conf_may_safety safety policy targets)
 set(conf_may_check check policy session targets report)
 set(conf_may_cases cases policy check safety targets report)
-set(conf_may_map map policy cases check safety targets report)
+set(conf_may_map map policy cases check session safety targets report)  # the probe sends through the Link (session/link.h)
 set(conf_may_blackbox blackbox policy check session safety targets report)
 set(conf_may_properties properties policy cases check session safety targets report)  # cases/facts.h: the one classifier
 set(conf_may_runner runner policy check session targets report)
