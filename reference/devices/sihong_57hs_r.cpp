@@ -16,40 +16,88 @@
 //   motion does not require the configuration. Limits always stop at once
 //   (0x0017's coast/disable choices are not modelled).
 // * A released motor (0x0029 = 0) stops and ignores start and homing commands.
+// * The alarm Device::trip_fault causes is the first one 0x002A clears (the
+//   spec's alarm-clear transition to a state without fault: Err2). Err1/Err5
+//   stay until a power cycle (§8 掉电恢复/掉电复位: the first reading of
+//   erratum alarm-clear-power-cycle, as the spec's control writes it).
+// * What the spec states is read from it at power-on, never restated here:
+//   the 0x0027/0x0028/0x0029/0x002A/0x0030 command patterns (control
+//   commands), the 0x0007 bits and the 0x0003 work modes (the readings of the
+//   states released, moving, homing and alarm, the modes' done), which alarms
+//   0x002A clears (the alarm-clear transitions), the 0x002B save and reset
+//   values (operations).
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <optional>
 #include <stdexcept>
 #include <string>
 
+#include "engine/control_facts.h"
 #include "engine/device.h"
 
 namespace mbc::ref {
 namespace {
 
-// §6.1 0x0007 motion status bits; bit 4 is 1 when the motor is RELEASED.
-constexpr uint16_t kInPositionBit = 1u << 0, kHomedBit = 1u << 1, kRunningBit = 1u << 2, kAlarmBit = 1u << 3,
-                   kReleasedBit = 1u << 4;
-// §6.1 0x0003 work modes.
-constexpr int kWorkPositionSpeed = 0, kWorkHoming = 1;
-// §6.1 / §7.6.1 0x0027: bits 0-1 select the mode, bit 2 an absolute position.
-constexpr int kModeMask = 0x3, kPositionMode = 1, kSpeedMode = 2, kAbsoluteBit = 1 << 2;
-// §7.6.2 0x0028 bit 0: emergency stop.
-constexpr int kEmergencyBit = 1;
-// §6.1 0x002B.
-constexpr int kFactoryReset = 1, kSaveParams = 2;
+// Left as constants: the spec states these only as an enum's labels (no
+// control: entry can say "the home switch input"), and keying on a label
+// would restate it as a string.
 // §6.1 0x0043~0x0046 input functions and 0x004C/0x004D output functions
 // (output 2, "驱动器状态信号", is not explained and is left inactive).
 constexpr int kHomeInput = 1, kPositiveLimitInput = 2, kNegativeLimitInput = 3;
 constexpr int kAlarmOutput = 1, kHomedOutput = 3, kInPositionOutput = 4;
 // §6.1 0x0005: 0 = counter-clockwise (positive), 1 = clockwise (negative).
 constexpr int kNegativeDirection = 1;
-// §8 alarm codes (0x0006).
-constexpr int kOverVoltageAlarm = 2;
 constexpr int kInputs = 4, kOutputs = 2;  // X0~X3, Y0~Y1 (§4.2.2)
+
+// What the spec's control: and operations: state (§6.1, §7.6, §8).
+struct Facts {
+  explicit Facts(const spec::Spec& s)
+      : start_relative(facts::command(s, "start_relative")),
+        start_absolute(facts::command(s, "start_absolute")),
+        start_speed(facts::command(s, "start_speed")),
+        stop(facts::command(s, "stop")),
+        emergency_stop(facts::command(s, "emergency_stop")),
+        enable(facts::command(s, "enable")),
+        release(facts::command(s, "release")),
+        start_homing(facts::command(s, "start_homing")),
+        alarm_clear(facts::command(s, "alarm_clear")),
+        alarm_state(facts::fault_step(s).to),
+        in_position(facts::done(s, "position").value),
+        homed(facts::done(s, "homing").value),
+        running(facts::reading(s, "moving", "motion_status").value),
+        alarm(facts::reading(s, alarm_state, "motion_status").value),
+        released(facts::reading(s, "released", "motion_status").value),
+        work_moving(facts::reading(s, "moving", "work_mode").value),
+        work_homing(facts::reading(s, "homing", "work_mode").value),
+        save(facts::save(s)),
+        factory_reset(facts::factory_reset(s)) {
+    // The alarm a fault raises: the first alarm_code the clear recovers from.
+    const spec::Control& c = facts::control(s);
+    for (const auto* t : c.transitions_on(alarm_state, alarm_clear.id))
+      if (const spec::ControlState* to = c.state(t->to); to && !to->fault)
+        for (const auto& when : t->when)
+          if (when.register_key == "alarm_code" && !when.values.empty()) {
+            tripped_alarm = int(when.values.front());
+            return;
+          }
+    throw std::invalid_argument(s.device.id + ": control: no alarm_clear transition names an alarm_code it clears");
+  }
+  // 0x0027 (§7.6.1), 0x0028 (§7.6.2), 0x0029, 0x002A (§6.1), 0x0030 (§7.6.3).
+  spec::ControlCommand start_relative, start_absolute, start_speed, stop, emergency_stop, enable, release,
+      start_homing, alarm_clear;
+  std::string alarm_state;  // the state a fault enters
+  // 0x0007: in position, homing done, running, alarm, released (§6.1).
+  uint16_t in_position, homed, running, alarm, released;
+  int64_t work_moving, work_homing;  // 0x0003 (§6.1)
+  spec::RegisterWrite save, factory_reset;  // 0x002B (§6.1)
+  int tripped_alarm = 0;                    // 0x0006 (§8)
+};
 
 class Sihong57hsR : public Behaviour {
  public:
   void power_on(Device& d) override {
+    f_.emplace(d.spec());
     enabled_ = true;
     homed_ = false;
     alarm_ = 0;
@@ -63,29 +111,36 @@ class Sihong57hsR : public Behaviour {
       const auto& r = d.reg_by_key(key);
       return r.address < address + count && r.last_address() >= address;
     };
-    if (wrote("start_command")) start(d, int(d.value_of("start_command")));
-    if (wrote("stop_command")) {
+    const Facts& f = *f_;
+    auto gives = [&](const spec::ControlCommand& c) {
+      return wrote(c.register_key.c_str()) && c.selected_by(uint16_t(d.value_of(c.register_key)));
+    };
+    if (gives(f.start_relative) || gives(f.start_absolute)) start_position(d, gives(f.start_absolute));
+    if (gives(f.start_speed)) start_speed(d);
+    if (gives(f.emergency_stop)) {
       homing_ = Homing::off;
-      if (d.value_of("stop_command") & kEmergencyBit)
-        d.axis().emergency_stop();
-      else
-        d.axis().stop(stop_decel_);  // §7.6.2 注意: the decel time set before the move
+      d.axis().emergency_stop();
+    } else if (gives(f.stop)) {
+      homing_ = Homing::off;
+      d.axis().stop(stop_decel_);  // §7.6.2 注意: the decel time set before the move
     }
-    if (wrote("enable") && !alarm_) {  // §8 锁机: an alarm holds the motor released until cleared
-      enabled_ = d.value_of("enable") == 1;
-      if (!enabled_) {
+    if (!alarm_) {  // §8 锁机: an alarm holds the motor released until cleared
+      if (gives(f.enable)) enabled_ = true;
+      if (gives(f.release)) {
+        enabled_ = false;
         homing_ = Homing::off;
         d.axis().emergency_stop();
       }
     }
-    if (wrote("alarm_clear") && d.value_of("alarm_clear") == 1) alarm_ = 0;
+    if (gives(f.alarm_clear)) clear_alarm(d);
+    // 0x002C: not a control command (it changes no state); its register's
+    // command prints "1 clears" in words only.
     if (wrote("position_clear") && d.value_of("position_clear") == 1) d.axis().set_position(0);
-    if (wrote("homing_command") && d.value_of("homing_command") == 1) start_homing(d);
-    if (wrote("param_command")) {
-      // The EEPROM-sync switch 0x0016 is the engine's (persistence.unless).
-      if (d.value_of("param_command") == kFactoryReset) d.factory_reset();
-      if (d.value_of("param_command") == kSaveParams) d.save_persistent();
-    }
+    if (gives(f.start_homing)) start_homing(d);
+    // The EEPROM-sync switch 0x0016 is the engine's (persistence.unless).
+    if (wrote(f.factory_reset.key.c_str()) && d.value_of(f.factory_reset.key) == f.factory_reset.value)
+      d.factory_reset();
+    if (wrote(f.save.key.c_str()) && d.value_of(f.save.key) == f.save.value) d.save_persistent();
     publish(d);
   }
 
@@ -95,7 +150,7 @@ class Sihong57hsR : public Behaviour {
   // drive cuts the motor current on the alarm (our reading: §8 says 锁机), so
   // it reads released; 0x002A = 1 clears the code and leaves it released.
   bool trip_fault(Device& d) override {
-    alarm_ = kOverVoltageAlarm;
+    alarm_ = f_->tripped_alarm;
     enabled_ = false;
     homing_ = Homing::off;
     d.axis().emergency_stop();
@@ -115,21 +170,39 @@ class Sihong57hsR : public Behaviour {
   }
 
  private:
-  // §7.6.1: bits 0-1 = 1 position move of 0x0024 pulses (relative, or to
-  // 0x0024 with bit 2), = 2 speed move at 0x0023 (its sign the direction, §7.2).
-  void start(Device& d, int command) {
+  // §7.6.1: a position move of 0x0024 pulses (relative, or to 0x0024 when
+  // absolute), or a speed move at 0x0023 (its sign the direction, §7.2).
+  void start_position(Device& d, bool absolute) {
     if (!enabled_) return;
     homing_ = Homing::off;
-    double start = pulses_per_s(d, double(d.value_of("start_speed")));
-    double max = pulses_per_s(d, std::abs(double(d.value_of("max_speed"))));
-    double accel = ramp(d, "accel_time");
     stop_decel_ = ramp(d, "decel_time");
-    if ((command & kModeMask) == kPositionMode) {
-      double pulses = double(d.value_of("total_pulses"));
-      double from = (command & kAbsoluteBit) ? 0 : std::round(d.axis().position());
-      d.axis().move_to(from + pulses, start, max, accel, stop_decel_);
-    } else if ((command & kModeMask) == kSpeedMode) {
-      d.axis().run_at(d.value_of("max_speed") < 0 ? -max : max, start, accel);
+    double pulses = double(d.value_of("total_pulses"));
+    double from = absolute ? 0 : std::round(d.axis().position());
+    d.axis().move_to(from + pulses, start_speed_of(d), max_speed_of(d), ramp(d, "accel_time"), stop_decel_);
+  }
+  void start_speed(Device& d) {
+    if (!enabled_) return;
+    homing_ = Homing::off;
+    stop_decel_ = ramp(d, "decel_time");
+    double max = max_speed_of(d);
+    d.axis().run_at(d.value_of("max_speed") < 0 ? -max : max, start_speed_of(d), ramp(d, "accel_time"));
+  }
+  static double start_speed_of(const Device& d) { return pulses_per_s(d, double(d.value_of("start_speed"))); }
+  static double max_speed_of(const Device& d) { return pulses_per_s(d, std::abs(double(d.value_of("max_speed")))); }
+
+  // 0x002A clears the alarm where the spec's control leads out of the alarm
+  // to a state with no fault (its `when` holding for the alarm code).
+  void clear_alarm(Device& d) {
+    const spec::Control& c = facts::control(d.spec());
+    for (const auto* t : c.transitions_on(f_->alarm_state, f_->alarm_clear.id)) {
+      bool holds = true;
+      for (const auto& when : t->when) {
+        int64_t v = d.value_of(when.register_key);
+        holds = holds && std::find(when.values.begin(), when.values.end(), v) != when.values.end();
+      }
+      if (!holds) continue;
+      if (const spec::ControlState* to = c.state(t->to); to && !to->fault) alarm_ = 0;
+      return;
     }
   }
 
@@ -237,13 +310,14 @@ class Sihong57hsR : public Behaviour {
   void publish(Device& d) {
     const Axis& axis = d.axis();
     d.set_value_of("current_slave_id", d.slave_id());
-    d.set_value_of("work_mode", homing_ != Homing::off ? kWorkHoming : kWorkPositionSpeed);
+    const Facts& f = *f_;
+    d.set_value_of("work_mode", homing_ != Homing::off ? f.work_homing : f.work_moving);
     d.set_value_of("motion_state", axis.moving() ? 1 : 0);
     if (axis.direction() != 0) direction_ = axis.direction();
     d.set_value_of("motion_direction", direction_ < 0 ? kNegativeDirection : 0);
     d.set_value_of("alarm_code", alarm_);
-    uint16_t status = (axis.in_position() ? kInPositionBit : 0) | (homed_ ? kHomedBit : 0) |
-                      (axis.moving() ? kRunningBit : 0) | (alarm_ ? kAlarmBit : 0) | (enabled_ ? 0 : kReleasedBit);
+    uint16_t status = (axis.in_position() ? f.in_position : 0) | (homed_ ? f.homed : 0) |
+                      (axis.moving() ? f.running : 0) | (alarm_ ? f.alarm : 0) | (enabled_ ? 0 : f.released);
     d.set_value_of("motion_status", status);
     uint16_t inputs = 0;
     for (int x = 0; x < kInputs; ++x) {
@@ -295,6 +369,7 @@ class Sihong57hsR : public Behaviour {
   int alarm_ = 0, direction_ = 1, search_dir_ = 1, approach_dir_ = 1;
   Homing homing_ = Homing::off;
   double stop_decel_ = 0;
+  std::optional<Facts> f_;  // read from the spec at power-on
 };
 
 }  // namespace
