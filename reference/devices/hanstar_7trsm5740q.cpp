@@ -28,41 +28,118 @@
 //   is the edge that counts (碰到, "meets"); it is looked for every 50 us (one
 //   step at the 20 kHz maximum of 表一), and the motor decelerates from there.
 //   A 到位 forward/reverse of 0 steps runs until the edge.
-// * 表 M01: bits 2:0 read 1 while running (1-7 all mean "running"). The alarm
-//   nibble is cleared by the next command that starts motion. The status is
-//   written when the state changes, so it reads 0xFF until the first motion
-//   command (homing, 2004/2006).
+// * 表 M01: bits 2:0 read 1 while running (1-7 all mean "running": the
+//   lowest bit of control.motion's running_mask). The alarm nibble is cleared
+//   by the next command that starts motion. The status is written when the
+//   state changes, so it reads the initial state's 0xFF until the first
+//   motion command (homing, 2004/2006).
+// * 表 M02: each logic bit's default (0) is the level §5.7 says the sensor
+//   gives when active; the other value inverts what the drive sees. Bit 7 at
+//   its default is the motor's own direction.
+// * What the spec states is read from it at the first power-on: the status
+//   values of the control's states (表 M01), the register and word of each
+//   command (home, stop, position, forward, reverse), whether positioning
+//   waits for homing (control.motion.positioning_needs_homing, §5.2), and the
+//   表 M02 bits (hw-config's field keys). The 到位 commands (表 17) are not in
+//   the spec's control: they are reached by their registers' keys.
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <optional>
+#include <stdexcept>
+#include <string>
 
 #include "engine/device.h"
 
 namespace mbc::ref {
 namespace {
 
-// 表 M01.
-constexpr uint16_t kUndefined = 0xFF, kRunning = 0x1, kHomingBit = 1u << 3;
-constexpr int kAlarmShift = 4;
-enum Alarm { kNoAlarm = 0, kHomingFailed = 0x1, kUpWhileForward = 0x6, kDownWhileReverse = 0x7 };
-// 表 M02.
-constexpr uint16_t kUpActiveHigh = 1u << 0, kDownActiveHigh = 1u << 1, kHomeActiveLow = 1u << 6,
-                   kReverseMotor = 1u << 7;
 // §5.7: rpm = 300000 / (period * 细分).
 constexpr double kRpmPeriodProduct = 300000;
 constexpr double kArrivalSlice = 50e-6;  // s: one step at 20 kHz (表一 步进频率)
 
+[[noreturn]] void missing(const std::string& what) {
+  throw std::runtime_error("hanstar-7trsm5740q reference device: the spec states no " + what);
+}
+
+// A control command (6.2 表 13, 表 15): its register, and the words that give it.
+struct Command {
+  std::string key;
+  uint16_t mask = 0, value = 0;
+};
+
+// A 表 M02 bit; `normal` its default value.
+struct Bit {
+  int bit = 0;
+  bool normal = false;
+  // The bit is away from its default.
+  bool flipped(int64_t word) const { return bool((word >> bit) & 1) != normal; }
+};
+
+// What the spec states (control:, bitfields:), read once.
+struct Facts {
+  uint16_t undefined = 0;  // 表 M01 0xff: the initial state's reading
+  uint16_t running = 0;    // Bit[2:0] while running: the lowest bit of control.motion's running_mask
+  uint16_t homing = 0;     // Bit[3]: state homing's reading
+  uint16_t homing_failed = 0, up_alarm = 0, down_alarm = 0;  // Bit[7:4]: the alarm states' readings
+  Command home, stop, position, forward, reverse;
+  bool positioning_needs_homing = false;  // §5.2
+  Bit up_logic, down_logic, home_logic, reverse_direction;
+
+  static Facts of(const spec::Spec& s) {
+    if (!s.control) missing("control: section");
+    const spec::Control& c = *s.control;
+    auto reading = [&](const std::string& id) -> uint16_t {
+      const spec::ControlState* st = c.state(id);
+      if (!st || st->status.size() != 1) missing("state '" + id + "' with one status reading");
+      return uint16_t(st->status.front().value & st->status.front().mask);
+    };
+    auto command = [&](const char* id) {
+      const spec::ControlCommand* cmd = c.command(id);
+      if (!cmd) missing(std::string("command '") + id + "'");
+      return Command{cmd->register_key, cmd->mask, cmd->value};
+    };
+    const spec::Register* hw = s.find_by_key("hw_config");
+    const spec::Bitfield* m02 = hw ? s.find_bitfield(hw->bitfield_id) : nullptr;
+    auto bit = [&](const char* key) {
+      const spec::BitField* f = m02 ? m02->field(key) : nullptr;
+      if (!f) missing(std::string("hw_config field '") + key + "'");
+      return Bit{f->lo, f->default_value.value_or(0) != 0};
+    };
+    Facts f;
+    f.undefined = reading(c.initial);
+    if (!c.motion || !c.motion->running_mask) missing("control.motion.status running_mask");
+    f.running = uint16_t(c.motion->running_mask & -c.motion->running_mask);
+    f.homing = reading("homing");
+    f.homing_failed = reading("homing_failed");
+    f.up_alarm = reading("up_limit");
+    f.down_alarm = reading("down_limit");
+    f.home = command("home");
+    f.stop = command("stop");
+    f.position = command("position");
+    f.forward = command("forward");
+    f.reverse = command("reverse");
+    f.positioning_needs_homing = c.motion->positioning_needs_homing;
+    f.up_logic = bit("up_logic");
+    f.down_logic = bit("down_logic");
+    f.home_logic = bit("home_logic");
+    f.reverse_direction = bit("reverse_direction");
+    return f;
+  }
+};
+
 class Hanstar7trsm5740q : public Behaviour {
  public:
   void power_on(Device& d) override {
+    if (!facts_) facts_ = Facts::of(d.spec());
     // §5.2 "每次重新上电后，都需要一次复位操作": not homed, status undefined.
     d.axis().emergency_stop();
-    sign_ = (d.value_of("hw_config") & kReverseMotor) ? -1 : 1;
+    sign_ = facts_->reverse_direction.flipped(d.value_of("hw_config")) ? -1 : 1;
     origin_ = d.axis().position();
     target_ = 0;
     undefined_ = true;
     homed_ = false;
-    alarm_ = kNoAlarm;
+    alarm_ = 0;
     homing_ = Homing::off;
     arrival_ = Arrival::off;
     move_ = Move::none;
@@ -76,13 +153,20 @@ class Hanstar7trsm5740q : public Behaviour {
       const auto& r = d.reg_by_key(key);
       return r.address >= address && r.last_address() < uint32_t(address) + count;
     };
+    // A command acts when its register is written whole with a word that gives it.
+    auto gives = [&](const Command& c) {
+      return wrote(c.key.c_str()) && (d.word(uint16_t(d.reg_by_key(c.key).address)) & c.mask) == c.value;
+    };
+    const Facts& f = *facts_;
     if (wrote("hw_config")) set_direction(d);
-    if (wrote("home_command")) start_homing(d);
-    if (wrote("stop_command")) stop(d);
-    if (wrote("position_command") && homed_) go_to_coordinate(d, d.value_of("position_command"), Arrival::off);
-    if (wrote("forward_command")) relative(d, +1, d.value_of("forward_command"), Arrival::off);
-    if (wrote("reverse_command")) relative(d, -1, d.value_of("reverse_command"), Arrival::off);
-    // 表 17: "到位功能均在步进一体机正确复位情况下".
+    if (gives(f.home)) start_homing(d);
+    if (gives(f.stop)) stop(d);
+    if (gives(f.position) && (homed_ || !f.positioning_needs_homing))
+      go_to_coordinate(d, d.value_of(f.position.key), Arrival::off);
+    if (gives(f.forward)) relative(d, +1, d.value_of(f.forward.key), Arrival::off);
+    if (gives(f.reverse)) relative(d, -1, d.value_of(f.reverse.key), Arrival::off);
+    // 表 17: "到位功能均在步进一体机正确复位情况下" (the spec says so in these
+    // registers' effect only).
     if (homed_) {
       if (wrote("arrival_position_up")) go_to_coordinate(d, d.value_of("arrival_position_up"), Arrival::up);
       if (wrote("arrival_forward_up")) relative(d, +1, d.value_of("arrival_forward_up"), Arrival::up);
@@ -173,7 +257,7 @@ class Hanstar7trsm5740q : public Behaviour {
     d.axis().emergency_stop();
     move_ = Move::none;
     if (!found) {
-      alarm_ = kHomingFailed;  // "给出找零错误的报警信号"
+      alarm_ = facts_->homing_failed;  // "给出找零错误的报警信号"
       return;
     }
     homed_ = true;
@@ -230,7 +314,7 @@ class Hanstar7trsm5740q : public Behaviour {
   void begin_command() {
     undefined_ = false;
     positioning_ = false;
-    alarm_ = kNoAlarm;
+    alarm_ = 0;
     homing_ = Homing::off;
     arrival_edge_seen_ = false;
   }
@@ -243,7 +327,7 @@ class Hanstar7trsm5740q : public Behaviour {
   // M02 bit 7 reverses the motor: the drive's count keeps its value, its
   // directions swap on the machine.
   void set_direction(Device& d) {
-    int sign = (d.value_of("hw_config") & kReverseMotor) ? -1 : 1;
+    int sign = facts_->reverse_direction.flipped(d.value_of("hw_config")) ? -1 : 1;
     if (sign == sign_) return;
     double p = drive_position(d);
     sign_ = sign;
@@ -272,7 +356,7 @@ class Hanstar7trsm5740q : public Behaviour {
   // positioning commands (§5.2), a forward/reverse move may go on (§5.3).
   void limit_stop(Device& d, int dir) {
     d.axis().emergency_stop();
-    alarm_ = dir > 0 ? kUpWhileForward : kDownWhileReverse;
+    alarm_ = dir > 0 ? facts_->up_alarm : facts_->down_alarm;
     if (homing_ != Homing::off || positioning_) homed_ = false;
     homing_ = Homing::off;
     move_ = Move::none;
@@ -298,9 +382,9 @@ class Hanstar7trsm5740q : public Behaviour {
     AxisInputs machine = axis.inputs;
     auto& up = sign_ > 0 ? axis.inputs.positive_limit : axis.inputs.negative_limit;
     auto& down = sign_ > 0 ? axis.inputs.negative_limit : axis.inputs.positive_limit;
-    uint16_t hw = uint16_t(d.value_of("hw_config"));
-    if (arrival_ != Arrival::off || (hw & kUpActiveHigh)) up.reset();
-    if (arrival_ != Arrival::off || (hw & kDownActiveHigh)) down.reset();
+    const int64_t hw = d.value_of("hw_config");
+    if (arrival_ != Arrival::off || facts_->up_logic.flipped(hw)) up.reset();
+    if (arrival_ != Arrival::off || facts_->down_logic.flipped(hw)) down.reset();
     Axis::Step step = axis.advance_until(dt);
     axis.inputs = machine;
     return step;
@@ -314,11 +398,11 @@ class Hanstar7trsm5740q : public Behaviour {
   bool down_switch(const Device& d) const {
     return sign_ > 0 ? d.axis().negative_limit_active() : d.axis().positive_limit_active();
   }
-  // §5.7: an active limit sensor pulls the line low; bit = 1 makes high the active level.
-  bool up_seen(const Device& d) const { return up_switch(d) != bool(d.value_of("hw_config") & kUpActiveHigh); }
-  bool down_seen(const Device& d) const { return down_switch(d) != bool(d.value_of("hw_config") & kDownActiveHigh); }
-  // §5.7: an active home sensor drives the line high; bit 6 = 1 makes low the active level.
-  bool home_active_low(const Device& d) const { return d.value_of("hw_config") & kHomeActiveLow; }
+  // §5.7: an active limit sensor pulls the line low, an active home sensor
+  // drives it high; a logic bit away from its default inverts the level.
+  bool up_seen(const Device& d) const { return up_switch(d) != facts_->up_logic.flipped(d.value_of("hw_config")); }
+  bool down_seen(const Device& d) const { return down_switch(d) != facts_->down_logic.flipped(d.value_of("hw_config")); }
+  bool home_active_low(const Device& d) const { return facts_->home_logic.flipped(d.value_of("hw_config")); }
   bool home_seen(const Device& d) const { return d.axis().home_active() != home_active_low(d); }
   bool arrival_signal(const Device& d) const {
     return arrival_ == Arrival::up ? up_switch(d) : arrival_ == Arrival::down ? down_switch(d) : false;
@@ -342,10 +426,10 @@ class Hanstar7trsm5740q : public Behaviour {
 
   void publish(Device& d) {
     const Axis& axis = d.axis();
-    uint16_t status = kUndefined;
+    const Facts& f = *facts_;
+    uint16_t status = f.undefined;
     if (!undefined_)
-      status = uint16_t((axis.moving() ? kRunning : 0) | (homing_ != Homing::off ? kHomingBit : 0) |
-                        (alarm_ << kAlarmShift));
+      status = uint16_t((axis.moving() ? f.running : 0) | (homing_ != Homing::off ? f.homing : 0) | alarm_);
     d.set_value_of("motor_status", status);
     d.set_value_of("current_position", std::llround(drive_position(d)));
     d.set_value_of("target_position", target_);
@@ -357,7 +441,8 @@ class Hanstar7trsm5740q : public Behaviour {
   double origin_ = 0, run_speed_ = 0;
   int64_t target_ = 0;
   bool undefined_ = true, homed_ = false, positioning_ = false, arrival_edge_seen_ = false;
-  int alarm_ = kNoAlarm;
+  uint16_t alarm_ = 0;  // the Bit[7:4] of an alarm state's reading
+  std::optional<Facts> facts_;
   Homing homing_ = Homing::off;
   Arrival arrival_ = Arrival::off;
   Move move_ = Move::none;

@@ -200,9 +200,16 @@ struct Checker {
       const auto& b = s.bitfields[i];
       std::string p = "/bitfields/" + std::to_string(i);
       uint32_t used = 0;
+      std::map<std::string, size_t> keys;
       for (size_t k = 0; k < b.fields.size(); ++k) {
         const auto& f = b.fields[k];
         std::string fp = p + "/fields/" + std::to_string(k);
+        if (!f.key.empty()) {
+          auto [it, fresh] = keys.emplace(f.key, k);
+          if (!fresh)
+            error(fp + "/key", "duplicate-id", "bitfield '" + b.id + "' field key '" + f.key + "' is already used by field " +
+                                                   std::to_string(it->second));
+        }
         if (f.hi < f.lo) {
           error(fp, "bitfield", "bitfield '" + b.id + "' field '" + f.name.en + "' needs bit: N or bits: [lo, hi] with lo <= hi");
           continue;

@@ -252,6 +252,7 @@ nlohmann::json to_json(const Spec& s) {
       json x{{"lo", f.lo}, {"hi", f.hi}, {"name", name(f.name)}, {"reserved", f.reserved}};
       if (f.default_value) x["default"] = *f.default_value;
       if (!f.enum_id.empty()) x["enum"] = f.enum_id;
+      if (!f.key.empty()) x["key"] = f.key;
       fields.push_back(x);
     }
     bfs.push_back({{"id", b.id}, {"section", b.section}, {"fields", fields}});

@@ -362,6 +362,7 @@ struct Builder {
             x.lo = 0;
             x.hi = -1;  // reported by the bitfield rule
           }
+          x.key = str(f, "key");
           x.name = name(f["name"]);
           x.reserved = f.value("reserved", false);
           if (f.contains("default")) x.default_value = f["default"].get<int64_t>();

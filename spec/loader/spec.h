@@ -8,6 +8,7 @@
 #include <map>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace mbc::spec {
@@ -81,6 +82,9 @@ struct Enumeration {
 struct BitField {
   int lo = 0;  // lowest bit
   int hi = 0;  // highest bit (== lo for a single bit)
+  // A stable name behaviour code uses instead of the bit number (unique in
+  // its bitfield; empty when none is given).
+  std::string key;
   Name name;
   bool reserved = false;
   std::optional<int64_t> default_value;
@@ -93,6 +97,12 @@ struct Bitfield {
   std::string section;
   std::vector<BitField> fields;
   SourceLoc loc;
+
+  const BitField* field(std::string_view key) const {
+    for (const auto& f : fields)
+      if (!f.key.empty() && f.key == key) return &f;
+    return nullptr;
+  }
 };
 
 struct Persistence {

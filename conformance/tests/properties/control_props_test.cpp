@@ -13,6 +13,7 @@
 #include "loader.h"
 #include "modbus/crc16.h"
 #include "modbus/pdu.h"
+#include "policy/policy.h"
 #include "properties/properties.h"
 #include "readings.h"
 #include "session/link.h"
@@ -46,11 +47,10 @@ struct Open {
   const char* key;
   const char* why;
 };
-const std::vector<Open> kOpen = {
-    {"hanstar-7trsm5740q", "0x0BBC.word_order",
-     "control.motion.setup writes accel_steps (3004, u32) = 100, whose word order 表 14 does not print: read the other way it "
-     "is 100 << 16 steps and no move ends. The setup needs a value or a write that does not rest on the word order."},
-};
+// None now: Hanstar 0x0BBC.word_order (accel_steps, a u32 whose word order
+// 表 14 does not print) was one until the motion setup stopped writing it
+// (spec control.motion.setup: start period = running period, §5.7).
+const std::vector<Open> kOpen = {};
 const Open* open_of(const std::string& device, const std::string& key) {
   for (const auto& o : kOpen)
     if (device == o.device && key == o.key) return &o;
@@ -116,6 +116,75 @@ TEST(ControlOnOtherReading, CoversEveryDriveAndCanFail) {
   size_t ran = 0;
   auto f = failures(fmt::format("ref:{}?reading={}&fault=transition-wrong-target", it->device, it->key), ran);
   EXPECT_FALSE(f.empty()) << "a wrong transition on the variant " << it->key << " went unnoticed";
+}
+
+// The Hanstar variant that reads 3004-3005 (accel_steps) low word first was
+// open while the motion setup wrote it: now it passes (the parameterized
+// test), and a fault in its moves is still caught there.
+TEST(ControlOnOtherReading, HanstarAccelStepsWordOrderCanFail) {
+  const std::string variant = "ref:hanstar-7trsm5740q?reading=0x0BBC.word_order";
+  EXPECT_EQ(open_of("hanstar-7trsm5740q", "0x0BBC.word_order"), nullptr);
+  for (const char* fault : {"overshoot", "overspeed", "creep"}) {
+    size_t ran = 0;
+    auto f = failures(variant + "&fault=" + fault, ran);
+    EXPECT_FALSE(f.empty()) << fault << " on " << variant << " went unnoticed";
+  }
+}
+
+// A setup write (control.motion.setup, assumes) of a 2-word register whose
+// word order the manual does not state reads the same either way: a drive
+// built to the other order must be set up as the spec means (the Hanstar's
+// accel_steps = 100 was 6553600 steps read low word first).
+TEST(MotionSetup, NoWriteRestsOnAWordOrderTheManualLeavesOpen) {
+  for (const auto& id : spec::spec_ids()) {
+    spec::Spec s = spec::load_spec_by_id(id);
+    if (!s.control || !s.control->motion) continue;
+    const auto& m = *s.control->motion;
+    for (const auto* list : {&m.setup, &m.assumes})
+      for (const auto& w : *list) {
+        const spec::Register* r = s.find_by_key(w.key);
+        ASSERT_NE(r, nullptr) << id << " " << w.key;
+        if (r->words != 2 || r->basis_of(spec::Fact::word_order).basis == spec::Basis::stated) continue;
+        const uint32_t v = uint32_t(w.value);
+        EXPECT_EQ(v >> 16, v & 0xFFFF) << id << ": control.motion writes " << w.key << " = " << w.value
+                                       << ", whose word order the manual does not state (" << w.section << ")";
+      }
+  }
+}
+
+// The live-drive frame policy on the Hanstar's motion setup: 2008 changes a
+// move's speed (表 16, motion: true) and needs --allow-motion; the start and
+// running periods (3008, 3009) need --allow-writes, since 表 14 does not say
+// FC 03 reads them back (read inferred): the old value could not be kept for
+// the restore. Each goes out with its opt-in.
+TEST(MotionSetup, TheFramePolicyJudgesTheHanstarSetupWrites) {
+  const spec::Spec s = spec::load_spec_by_id("hanstar-7trsm5740q");
+  ASSERT_TRUE(s.control && s.control->motion);
+  TargetInfo live;
+  live.kind = TargetKind::rtu;
+  live.framing = &mbc::kRtu;
+  live.live = true;
+  live.raw = true;
+  live.unit = 1;
+  std::set<std::string> keys;
+  for (const auto& w : s.control->motion->setup) {
+    keys.insert(w.key);
+    const spec::Register* r = s.find_by_key(w.key);
+    ASSERT_NE(r, nullptr);
+    ASSERT_EQ(r->words, 1) << w.key;
+    const Bytes pdu = write_single_register(uint16_t(r->address), uint16_t(w.value));
+    const bool command = r->access == spec::Access::command;
+    if (!command) {
+      ASSERT_EQ(r->basis_of(spec::Fact::read).basis, spec::Basis::inferred) << w.key;
+    }
+    Decision plain = allowed(PolicyFacts{&s, live, {}}, 1, pdu);
+    ASSERT_FALSE(plain) << w.key << " went out with no opt-in";
+    EXPECT_EQ(plain.refused->opt_in, command ? "--allow-motion" : "--allow-writes") << plain.refused->reason;
+    WritePolicy opt_in;
+    (command ? opt_in.allow_motion : opt_in.allow_writes) = true;
+    EXPECT_TRUE(allowed(PolicyFacts{&s, live, opt_in}, 1, pdu)) << w.key;
+  }
+  EXPECT_EQ(keys, (std::set<std::string>{"homing_period", "run_period", "speed_period_command"}));
 }
 
 // ---- set-points 0 move nothing (control-zero-setpoints-still) ---------------

@@ -7,6 +7,9 @@
 #include <gtest/gtest.h>
 
 #include <bit>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
 
 #include "engine/device.h"
 #include "loader.h"
@@ -386,6 +389,92 @@ TEST_F(Hanstar, WriteOfThreeRegistersIsRefused) {
   ASSERT_TRUE(reply);
   EXPECT_EQ(Bytes(reply->begin(), reply->end() - 2), (Bytes{1, 0x90, 3}));
   EXPECT_EQ(dev.holding_image(), before);
+}
+
+// The device takes what its spec states from the spec (issue 38): the
+// control's command words, its states' status readings, whether positioning
+// waits for homing, and the 表 M02 fields by key. The shipped spec with one
+// of them changed, written to a temporary directory and loaded as a user's
+// spec file is, changes the device the same way.
+class HanstarFromAChangedSpec : public Hanstar {
+ protected:
+  // The shipped spec with each `from` (found exactly once) replaced by its `to`.
+  void load_changed(const std::vector<std::pair<std::string, std::string>>& edits) {
+    std::ifstream in(spec::spec_path("hanstar-7trsm5740q"));
+    std::stringstream text;
+    text << in.rdbuf();
+    std::string yaml = text.str();
+    for (const auto& [from, to] : edits) {
+      const size_t at = yaml.find(from);
+      ASSERT_NE(at, std::string::npos) << from;
+      ASSERT_EQ(yaml.find(from, at + 1), std::string::npos) << from << " is in the spec more than once";
+      yaml.replace(at, from.size(), to);
+    }
+    const auto dir = std::filesystem::temp_directory_path() /
+                     ("hanstar-changed-" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) + "-" +
+                      ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    std::filesystem::create_directories(dir);
+    const auto file = dir / "hanstar-7trsm5740q.yaml";
+    std::ofstream(file) << yaml;
+    auto loaded = spec::load_spec_file(file.string());
+    std::filesystem::remove_all(dir);
+    ASSERT_TRUE(loaded.ok()) << (loaded.diagnostics.empty() ? "" : loaded.diagnostics.front().str());
+    dev = Device(std::move(*loaded.spec), 1);
+  }
+};
+
+// control.commands stop: "any word" (mask 0) becomes the word 1 alone.
+TEST_F(HanstarFromAChangedSpec, StopActsOnTheWordTheSpecGives) {
+  load_changed({{"register: stop_command\n      mask: 0x0000\n      value: 0x0000",
+                 "register: stop_command\n      mask: 0xFFFF\n      value: 0x0001"}});
+  configure();
+  write32("forward_command", 0);  // §5.4: speed mode
+  wait_s(0.5);
+  write("stop_command", 0);  // the 6.3.2 frame's word: no longer the stop
+  wait_s(0.5);
+  EXPECT_EQ(status(), kRunning);
+  EXPECT_NEAR(position(), kRunSpeed, 1);
+  write("stop_command", 1);
+  wait_s(0.5);
+  EXPECT_EQ(status(), kIdle);
+  EXPECT_NEAR(position(), kRunSpeed, 1);
+}
+
+// The homing_failed state reads Bit[7:4] = 0x2 instead of 表 M01's 0x1.
+TEST_F(HanstarFromAChangedSpec, AlarmCodesAreTheStatesReadings) {
+  load_changed({{"status: [{register: motor_status, mask: 0x00F0, value: 0x0010}]",
+                 "status: [{register: motor_status, mask: 0x00F0, value: 0x0020}]"}});
+  configure();
+  write("home_command", 1);
+  wait_s(20000 / kHomingSpeed + 1);
+  EXPECT_EQ(status(), 0x20);
+}
+
+// No control.motion.positioning_needs_homing: 2002 acts before any homing.
+TEST_F(HanstarFromAChangedSpec, PositioningWaitsForHomingOnlyWhereTheSpecSaysSo) {
+  load_changed({{"    positioning_needs_homing: {position_command: position_command, section: \"5.2\"}\n", ""}});
+  configure();
+  write32("position_command", 5000);
+  wait_s(1.5);
+  EXPECT_EQ(position(), 5000);
+  EXPECT_EQ(status(), kIdle);
+}
+
+// 表 M02 by key: with the keys of bits 4 and 7 swapped, bit 4 reverses the motor.
+TEST_F(HanstarFromAChangedSpec, TheMotorDirectionBitIsTheKeyedField) {
+  load_changed({{"{bit: 4, key: idle_hold,", "{bit: 4, key: reverse_direction,"},
+                {"{bit: 7, key: reverse_direction,", "{bit: 7, key: idle_hold,"}});
+  configure();
+  write("hw_config", kReverseMotor);  // bit 7: now the idle hold
+  write32("forward_command", 1000);
+  wait_s(1);
+  EXPECT_EQ(position(), 1000);
+  EXPECT_NEAR(dev.axis().position(), 1000, 1e-6);
+  write("hw_config", 1 << 4);  // bit 4: now the direction
+  write32("forward_command", 1000);
+  wait_s(1);
+  EXPECT_EQ(position(), 2000);
+  EXPECT_NEAR(dev.axis().position(), 0, 1e-6);
 }
 
 }  // namespace
