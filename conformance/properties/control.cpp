@@ -620,17 +620,30 @@ void undefined_command(Session& s) {
   give(s, m, w);
 }
 
-// The register the stop property watches, and whether it is a speed.
+// The mode the stop property runs, and whether its actual is a speed (it
+// reads 0 at standstill) or a position (it reads the same twice).
 struct Axis {
   const spec::ControlMode* mode = nullptr;
   bool speed = false;
 };
 
+// A speed mode first (it runs until stopped), else the position mode: one
+// with a set-point and an actual, selected by its `select` write or started
+// by its start command. A speed mode's actual that a position or homing mode
+// also reads is a position (HSC60: the pulse count).
 Axis moving_mode(const Control& c) {
+  auto usable = [](const spec::ControlMode& m) {
+    return !m.setpoint_keys.empty() && !m.actual_key.empty() && (m.select || !m.start_command.empty());
+  };
+  auto counts_position = [&](const std::string& key) {
+    return std::any_of(c.modes.begin(), c.modes.end(), [&](const spec::ControlMode& m) {
+      return (m.id == "position" || m.id == "homing") && m.actual_key == key;
+    });
+  };
   Axis a;
   for (const auto& mode : c.modes) {
-    if (!mode.select || mode.setpoint_keys.empty() || mode.actual_key.empty()) continue;
-    if (mode.id == "speed" && mode.start_command.empty()) return {&mode, true};
+    if (!usable(mode)) continue;
+    if (mode.id == "speed") return {&mode, !counts_position(mode.actual_key)};
     if (!a.mode && mode.id == "position") a = {&mode, false};
   }
   return a;
@@ -642,15 +655,22 @@ void stop_from_motion(Session& s) {
   for (const auto& cmd : c.commands)
     if (cmd.stops) stops.push_back(&cmd);
   Ctl m = initial(s);
-  auto [id, node] = pick_reachable(s, m, [](const ControlState& st) { return st.motion && !st.fault; });
+  Axis axis = moving_mode(c);
+  // A start command with transitions starts from where it has one (57HS-R:
+  // standstill), one with none (Rieding) from any moving state.
+  const ControlCommand* start = axis.mode ? c.command(axis.mode->start_command) : nullptr;
+  const bool start_has_transitions = start && has_transitions(c, start->id);
+  auto [id, node] = pick_reachable(s, m, [&](const ControlState& st) {
+    return st.motion && !st.fault && (!start_has_transitions || !c.transitions_on(st.id, start->id).empty());
+  });
   if (id.empty()) fail("no moving state is reachable from the start by the spec's commands");
   const ControlCommand& stop = *pick_of(stops);
-  Axis axis = moving_mode(c);
   int64_t setpoint = 0;
   if (axis.mode) {
     // The mode that moves the axis, a set-point that moves it, then the state.
-    const auto& sel = *axis.mode->select;
-    write_checked(s, reg(s, sel.key), uint32_t(sel.value), {}, fmt::format("{} = {} (select mode {}, {})", sel.key, sel.value, axis.mode->id, sel.section));
+    if (const auto& sel = axis.mode->select)
+      write_checked(s, reg(s, sel->key), uint32_t(sel->value), {},
+                    fmt::format("{} = {} (select mode {}, {})", sel->key, sel->value, axis.mode->id, sel->section));
     const Register& sp = reg(s, axis.mode->setpoint_keys.front());
     double top = c.top_speed.value_or(1000);
     if (sp.range) top = std::min(top, sp.range->max);
@@ -659,12 +679,17 @@ void stop_from_motion(Session& s) {
     m.zeroed = s.zeroed();
   }
   walk(s, m, node.path);
-  if (axis.mode && !axis.mode->start_command.empty())
-    if (const ControlCommand* start = c.command(axis.mode->start_command)) {
-      Write up{start->register_key, uint16_t(m.last[start->register_key].value_or(0) | start->word()), start->id};
-      write_checked(s, reg(s, up.key), up.word, {}, fmt::format("{} = 0x{:04X} (start: {})", up.key, up.word, start->id));
-      m.last[up.key] = up.word;
-    }
+  if (start) {
+    const std::string key = start->register_key;
+    // Its bits over the last word's others (CiA 402 bit 4 in the controlword);
+    // a command of any write (mask 0) its own word.
+    const uint16_t word =
+        start->mask ? uint16_t((m.last[key].value_or(0) & ~start->mask) | (start->word() & start->mask)) : start->word();
+    const Register& r = reg(s, key);
+    WriteOutcome o = apply_write(c, m, key, word);
+    write_checked(s, r, word, write_expect(c, echo_of(s.view().write_request(r, word)), o),
+                  fmt::format("{} = 0x{:04X} (start: {}, {})", key, word, start->id, start->section));
+  }
   const std::string actual = axis.mode ? axis.mode->actual_key : "";
   auto sample = [&](const std::string& why) { return actual.empty() ? 0 : read_value(s, actual, why); };
   wait_ms(s, 200);
@@ -673,24 +698,34 @@ void stop_from_motion(Session& s) {
     wait_ms(s, 20);
     before2 = sample("moving");
   }
-  if (!actual.empty() && (axis.speed ? before == 0 : before2 == before))
-    fail(fmt::format("in {} with {} = {}, the axis does not move ({} reads {})", id, axis.mode->setpoint_keys.front(), setpoint,
-                     actual, before2));
+  if (!actual.empty() && (axis.speed ? before == 0 : before2 == before)) {
+    const std::string what = fmt::format("in {} with {} = {}, the axis does not move ({} reads {})", id,
+                                         axis.mode->setpoint_keys.front(), setpoint, actual, before2);
+    // A set-point in % of another parameter (Rieding 0802H: of PN-103, with
+    // no printed default) moves the axis only as far as that one is set.
+    if (reg(s, axis.mode->setpoint_keys.front()).unit.find('%') != std::string::npos)
+      RC_DISCARD(what + ": its speed is a % of a parameter, nothing to stop");
+    fail(what);
+  }
   const Register& r = reg(s, stop.register_key);
   const std::string stop_note = fmt::format("{} = 0x{:04X} ({}, stops: {})", stop.register_key, stop.word(), stop.id, stop.section);
   WriteOutcome stop_outcome = apply_write(c, m, stop.register_key, stop.word());
   write_checked(s, r, stop.word(), write_expect(c, echo_of(s.view().write_request(r, stop.word())), stop_outcome), stop_note);
-  // Sampled until it stands (speed 0, or the position the same twice).
+  // Sampled until it stands: a speed reads 0, a position the same over
+  // kStill samples (a slow deceleration moves less than a pulse per sample).
   constexpr double kSampleMs = 10;
+  constexpr int kStill = 5;
   const double limit = stop.stop_within_ms.value_or(10'000);
   double t = 0;
   int64_t prev = before2, now = before2;
+  int still = 0;
   bool stopped = false;
   while (t < limit + kSampleMs) {
     wait_ms(s, kSampleMs);
     t += kSampleMs;
     now = sample(fmt::format("{:.0f} ms after {}", t, stop.id));
-    stopped = axis.speed ? now == 0 : now == prev;
+    still = now == prev ? still + 1 : 0;
+    stopped = axis.speed ? now == 0 : still >= kStill;
     if (stopped) break;
     prev = now;
   }
@@ -698,6 +733,12 @@ void stop_from_motion(Session& s) {
     fail(fmt::format("{} ({}) from {} at {} = {}: {:.0f} ms later {} still reads {} (stated: stopped within {} ms)", stop.id,
                      stop.section, id, axis.mode ? axis.mode->setpoint_keys.front() : "", setpoint, t, actual, now,
                      *stop.stop_within_ms));
+  // No stated time: how long it takes is observed, but a speed that holds
+  // steady away from 0 this long after the stop was never slowed.
+  if (!stopped && axis.speed && still >= kStill && now != 0)
+    fail(fmt::format("{} ({}) from {} at {} = {}: {:.0f} ms later {} still reads {}, steady: the stop was not acted on",
+                     stop.id, stop.section, id, axis.mode->setpoint_keys.front(), setpoint, t, actual, now));
+  if (stopped && !axis.speed) t -= kStill * kSampleMs;  // it stood from the first of the still samples
   // The state the spec's transitions give the stop (Quick stop active, then Switch on disabled).
   apply_automatic(c, m, t);
   check_status(s, m, stop_note);

@@ -73,6 +73,7 @@ ControlExecutor::Decision ControlExecutor::decide(const Device& d, const std::st
       if (gives != model) out.bent = true;
     }
     if (!gives) continue;
+    if (tweak_ && tweak_->ignores(*this, c)) out.ignored = true;
     const spec::ControlTransition* model = nullptr;
     for (const spec::ControlTransition* t : control_.transitions_on(state_, c.id))
       if (conditions_hold(d, *t)) {
@@ -138,7 +139,15 @@ std::optional<uint8_t> ControlExecutor::check_write(const Device& d, uint16_t ad
 }
 
 void ControlExecutor::on_write(Device& d, uint16_t address, uint16_t count) {
-  if (inner_) inner_->on_write(d, address, count);
+  // Decided before the behaviour acts (moving_ is as check_write saw it).
+  bool ignored = false;
+  if (inner_ && tweak_)
+    for (const auto& key : command_keys_)
+      if (covers(d, key, address, count)) {
+        auto it = last_word_.find(key);
+        ignored |= decide(d, key, it == last_word_.end() ? 0 : it->second, d.word(d.reg_by_key(key).address)).ignored;
+      }
+  if (inner_ && !ignored) inner_->on_write(d, address, count);
   moving_ = d.axis().moving();
   // Modes first, so that one write of the mode and the command word starts
   // the mode it selects.

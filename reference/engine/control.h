@@ -43,6 +43,8 @@
 // drive detects it and shows it), else the model's step with its readings.
 // A ControlTweak (reference/faults) that departs from the model imposes its
 // state: its readings are written over the behaviour's until the next step.
+// A write giving a command the tweak ignores is not passed to the behaviour:
+// the drive does not act on it (a stop ignored while moving).
 #pragma once
 
 #include <cstdint>
@@ -75,6 +77,9 @@ class ControlTweak {
                         bool model) const {
     return model;
   }
+  // Whether the drive does not act on a write that gives command `c` (its
+  // own behaviour, if any, never sees the write).
+  virtual bool ignores(const ControlExecutor&, const spec::ControlCommand&) const { return false; }
   // The word published into status register `key`; `word` is the model's.
   virtual uint16_t status(const ControlExecutor&, const std::string& key, uint16_t word) const { return word; }
 };
@@ -107,6 +112,7 @@ class ControlExecutor final : public Behaviour {
     bool starts_mode = false;
     bool undefined = false;
     bool bent = false;  // a tweak changed the model's answer
+    bool ignored = false;  // the word gives a command the tweak ignores: the drive does not act on the write
   };
   Decision decide(const Device&, const std::string& key, uint16_t last, uint16_t word) const;
   bool conditions_hold(const Device&, const spec::ControlTransition&) const;

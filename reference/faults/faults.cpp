@@ -234,6 +234,11 @@ class ControlFaults final : public ref::ControlTweak {
     return model;
   }
 
+  bool ignores(const ref::ControlExecutor& x, const spec::ControlCommand& c) const override {
+    if (faults_.has(Fault::stop_ignored) && c.stops && x.axis_moving()) return true;
+    return faults_.has(Fault::transition_missing) && c.id == missing_command_ && x.state() == motion_state_;
+  }
+
   bool selected(const ref::ControlExecutor&, const spec::ControlCommand& c, uint16_t, uint16_t word,
                 bool model) const override {
     if (faults_.has(Fault::edge_as_level) && c.trigger == spec::Trigger::edge &&

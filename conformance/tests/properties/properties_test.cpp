@@ -115,6 +115,12 @@ const std::vector<Tooth> kTeeth = {
     {"control-undefined-command", "sihong-57hs-r", "undefined-command-accepted"},
     {"control-undefined-command", "hanstar-7trsm5740q", "undefined-command-accepted"},
     {"control-undefined-command", "rieding-dhe", "undefined-command-accepted"},
+    // A stop ignored while moving: the drive's own behaviour never sees the
+    // write (the Rieding's speed is a % of a parameter with no printed
+    // default, so its reference does not move and the property skips it).
+    {"control-stop-from-motion", "sihong-57hs-r", "stop-ignored"},
+    {"control-stop-from-motion", "hsc60", "stop-ignored"},
+    {"control-stop-from-motion", "hanstar-7trsm5740q", "stop-ignored"},
 };
 
 void PrintTo(const Tooth& t, std::ostream* os) { *os << t.invariant << " on " << t.device << "?fault=" << t.fault; }
