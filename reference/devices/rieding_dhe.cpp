@@ -22,9 +22,13 @@
 // * Removing the enable (D8; the external enable input is not simulated),
 //   the emergency stop (D9) and a fault stop the motor at once; nothing moves
 //   until they are gone.
-// * What the spec's control states is read from it: the emergency stop and
-//   reset bits (commands emergency_stop, reset), which faults D10 clears (the
-//   reset transitions), the fault code LU reads.
+// * What the spec states is read from it when the drive powers on: the
+//   command word's fields by key (run_mode, direction, internal_speed,
+//   enable), the emergency stop and reset bits (control commands
+//   emergency_stop, reset), which faults D10 clears (the reset transitions),
+//   the fault code LU reads. The field values (0 position, 1 speed, 2
+//   torque; 0 stop, 1 FWD, 2 REV) are the enums' by their printed text, kept
+//   here as constants.
 // * Faults: the simulation raises none. A test (or serve) injects one with
 //   Device::set_value_of("fault_code", ...); D10 clears it when 附表二 says
 //   it is recoverable (可以恢复).
@@ -36,23 +40,57 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <optional>
+#include <stdexcept>
 #include <string>
 
+#include "engine/control_facts.h"
 #include "engine/device.h"
 
 namespace mbc::ref {
 namespace {
 
-// 四 (2) command word.
-constexpr uint16_t kModeMask = 0x000F, kDirectionShift = 4, kDirectionMask = 0x3, kInternalShift = 6,
-                   kInternalMask = 0x3, kEnable = 1u << 8;
+// 四 (2) command word: the values of its run-mode and run-direction fields.
 enum Mode { kPositionMode = 0, kSpeedMode = 1, kTorqueMode = 2 };
 enum Direction { kStop = 0, kForward = 1, kReverse = 2 };
 constexpr int kCountsPerLine = 4;  // quadrature decoding of PN-111
 
+// A field of the command word: its lowest bit and its width's mask.
+struct Field {
+  int lo = 0;
+  uint16_t mask = 0;
+  int of(uint16_t word) const { return (word >> lo) & mask; }
+};
+
+// What the spec states (bitfields:, control:), read at the first power-on.
+struct Facts {
+  Field run_mode, direction, internal_speed;
+  uint16_t enable = 0, emergency_stop = 0, reset = 0;
+  uint16_t fault_lu = 0;  // 附表二 LU, the fault caused out of band
+
+  explicit Facts(const spec::Spec& s)
+      : emergency_stop(facts::command(s, "emergency_stop").mask),
+        reset(facts::command(s, "reset").mask),
+        fault_lu(facts::reading(s, "fault_lu", "fault_code").value) {
+    const spec::Register* r = s.find_by_key("command_word");
+    const spec::Bitfield* b = r ? s.find_bitfield(r->bitfield_id) : nullptr;
+    auto field = [&](const char* key) {
+      const spec::BitField* f = b ? b->field(key) : nullptr;
+      if (!f) throw std::invalid_argument(s.device.id + ": the command_word bitfield has no field '" + key + "'");
+      return Field{f->lo, uint16_t((1u << (f->hi - f->lo + 1)) - 1)};
+    };
+    run_mode = field("run_mode");
+    direction = field("direction");
+    internal_speed = field("internal_speed");
+    const Field e = field("enable");
+    enable = uint16_t(e.mask << e.lo);
+  }
+};
+
 class RiedingDhe : public Behaviour {
  public:
   void power_on(Device& d) override {
+    if (!f_) f_.emplace(d.spec());
     d.axis().emergency_stop();
     command_pulses_ = 0;
     publish(d);
@@ -64,7 +102,7 @@ class RiedingDhe : public Behaviour {
       return r.address >= address && r.last_address() < uint32_t(address) + count;
     };
     if (wrote("command_word")) {
-      if (word(d) & bits_of(d, "reset")) clear_recoverable_fault(d);
+      if (word(d) & f_->reset) clear_recoverable_fault(d);
       apply_command(d);
     }
     if (wrote("speed_setpoint")) change_speed(d);
@@ -83,7 +121,7 @@ class RiedingDhe : public Behaviour {
   // Out of band (Device::trip_fault): LU 欠压 (附表二 code 0x0A, 可以恢复); the
   // motor stops at once, as with every fault.
   bool trip_fault(Device& d) override {
-    d.set_value_of("fault_code", fault_code_of(d, "fault_lu"));
+    d.set_value_of("fault_code", f_->fault_lu);
     d.axis().emergency_stop();
     publish(d);
     return true;
@@ -142,36 +180,25 @@ class RiedingDhe : public Behaviour {
       return m.register_key == "fault_code" && m.matches(code);
     });
   }
-  // The command word bits of control command `id` (D9 SCI 急停, D10 SCI 复位).
-  static uint16_t bits_of(const Device& d, const char* id) {
-    const spec::ControlCommand* cmd = d.spec().control->command(id);
-    return cmd ? cmd->mask : 0;
-  }
-  // The fault code state `id` reads (LU: 0x0A).
-  static uint16_t fault_code_of(const Device& d, const char* id) {
-    const spec::ControlState* st = d.spec().control->state(id);
-    return st && !st->status.empty() ? st->status.front().value : 0;
-  }
-
   // ---- the command word (四 (2))
 
   static uint16_t word(const Device& d) { return uint16_t(d.value_of("command_word")); }
-  static int mode(const Device& d) { return word(d) & kModeMask; }
-  static int direction(const Device& d) {
-    int dir = (word(d) >> kDirectionShift) & kDirectionMask;
+  int mode(const Device& d) const { return f_->run_mode.of(word(d)); }
+  int direction(const Device& d) const {
+    int dir = f_->direction.of(word(d));
     return dir == kForward ? 1 : dir == kReverse ? -1 : 0;
   }
-  static bool may_run(const Device& d) {
+  bool may_run(const Device& d) const {
     uint16_t w = word(d);
-    return (w & kEnable) && !(w & bits_of(d, "emergency_stop")) && d.value_of("fault_code") == 0;
+    return (w & f_->enable) && !(w & f_->emergency_stop) && d.value_of("fault_code") == 0;
   }
 
   // ---- speeds, in pulses and seconds
 
   static double pulses_per_rev(const Device& d) { return double(kCountsPerLine * d.value_of("encoder_lines")); }
   static double rated_rpm(const Device& d) { return double(d.value_of("rated_speed")); }
-  static double speed_rpm(const Device& d) {
-    int internal = (word(d) >> kInternalShift) & kInternalMask;
+  double speed_rpm(const Device& d) const {
+    int internal = f_->internal_speed.of(word(d));
     double rpm;
     if (internal != 0) {
       rpm = double(d.value_of("internal_speed_" + std::to_string(internal)));
@@ -182,7 +209,7 @@ class RiedingDhe : public Behaviour {
     double max = double(d.value_of("max_speed"));
     return max > 0 ? std::min(rpm, max) : rpm;
   }
-  static double speed(const Device& d) { return speed_rpm(d) * pulses_per_rev(d) / 60; }
+  double speed(const Device& d) const { return speed_rpm(d) * pulses_per_rev(d) / 60; }
   static double ramp(const Device& d, const char* time_key) {
     const auto& r = d.reg_by_key(time_key);
     double seconds = double(d.value(r)) * r.scale;
@@ -193,7 +220,7 @@ class RiedingDhe : public Behaviour {
   static double decel(const Device& d) { return ramp(d, "decel_time"); }
 
   // What the drive is told to do: a speed run, or a position move under way.
-  static int commanded_direction(const Device& d) {
+  int commanded_direction(const Device& d) const {
     if (!may_run(d)) return 0;
     if (mode(d) == kSpeedMode) return direction(d);
     return mode(d) == kPositionMode && d.axis().target() ? d.axis().direction() : 0;
@@ -210,6 +237,7 @@ class RiedingDhe : public Behaviour {
   }
 
   double command_pulses_ = 0;
+  std::optional<Facts> f_;  // read from the spec at the first power-on
 };
 
 }  // namespace

@@ -11,6 +11,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "changed_spec.h"
 #include "engine/device.h"
 #include "loader.h"
 #include "modbus/crc16.h"
@@ -398,28 +399,8 @@ TEST_F(Hanstar, WriteOfThreeRegistersIsRefused) {
 // spec file is, changes the device the same way.
 class HanstarFromAChangedSpec : public Hanstar {
  protected:
-  // The shipped spec with each `from` (found exactly once) replaced by its `to`.
   void load_changed(const std::vector<std::pair<std::string, std::string>>& edits) {
-    std::ifstream in(spec::spec_path("hanstar-7trsm5740q"));
-    std::stringstream text;
-    text << in.rdbuf();
-    std::string yaml = text.str();
-    for (const auto& [from, to] : edits) {
-      const size_t at = yaml.find(from);
-      ASSERT_NE(at, std::string::npos) << from;
-      ASSERT_EQ(yaml.find(from, at + 1), std::string::npos) << from << " is in the spec more than once";
-      yaml.replace(at, from.size(), to);
-    }
-    const auto dir = std::filesystem::temp_directory_path() /
-                     ("hanstar-changed-" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) + "-" +
-                      ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    std::filesystem::create_directories(dir);
-    const auto file = dir / "hanstar-7trsm5740q.yaml";
-    std::ofstream(file) << yaml;
-    auto loaded = spec::load_spec_file(file.string());
-    std::filesystem::remove_all(dir);
-    ASSERT_TRUE(loaded.ok()) << (loaded.diagnostics.empty() ? "" : loaded.diagnostics.front().str());
-    dev = Device(std::move(*loaded.spec), 1);
+    load_changed_spec(dev, "hanstar-7trsm5740q", edits);
   }
 };
 

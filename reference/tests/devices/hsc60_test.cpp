@@ -5,6 +5,7 @@
 // examples; expected values from the manual's register table.
 #include <gtest/gtest.h>
 
+#include "changed_spec.h"
 #include "engine/device.h"
 #include "loader.h"
 #include "modbus/crc16.h"
@@ -225,6 +226,38 @@ TEST_F(Hsc60, EncoderCountFollowsTheAxis) {
   write("motion_command", 2);
   wait_ms(5000);
   EXPECT_EQ(read32("encoder_count"), uint32_t(-933));  // -1400 pulses
+}
+
+// The device takes its control facts from the spec (issue 38): the same
+// spec with one fact changed, loaded as a user's file is, changes it so.
+class Hsc60FromAChangedSpec : public Hsc60 {
+ protected:
+  void load_changed(const std::vector<std::pair<std::string, std::string>>& edits) {
+    load_changed_spec(dev, "hsc60", edits);
+  }
+};
+
+// The continuous runs' words swapped: (70) = 3 runs in reverse, 4 forward.
+TEST_F(Hsc60FromAChangedSpec, RunsActOnTheWordsTheSpecGives) {
+  load_changed({{"value: 3, trigger: write, motion: true,\n       section: \"四 MODBUS寄存器地址定义 (70)\", quote: \"3—",
+                 "value: 4, trigger: write, motion: true,\n       section: \"四 MODBUS寄存器地址定义 (70)\", quote: \"3—"},
+                {"value: 4, trigger: write, motion: true,\n       section: \"四 MODBUS寄存器地址定义 (70)\", quote: \"4—",
+                 "value: 3, trigger: write, motion: true,\n       section: \"四 MODBUS寄存器地址定义 (70)\", quote: \"4—"}});
+  write("motion_command", 3);
+  wait_ms(1000);
+  EXPECT_EQ(pulse_count(), uint32_t(-(400 + 800)));
+  write("motion_command", 5);
+  write("motion_command", 4);
+  wait_ms(1000);
+  EXPECT_EQ(pulse_count(), 0u);
+}
+
+// The first fault step goes to the position error: a fault sets bit 3, not bit 0.
+TEST_F(Hsc60FromAChangedSpec, AFaultIsTheSpecsFirstFaultStep) {
+  load_changed({{"{id: over-current, from: \"*\", event: fault, to: over_current,",
+                 "{id: over-current, from: \"*\", event: fault, to: position_error,"}});
+  ASSERT_TRUE(dev.trip_fault());
+  EXPECT_EQ(read("status") & 0x000B, 0x0008);
 }
 
 }  // namespace

@@ -5,6 +5,7 @@
 // from the spec's examples; expected values from the manual's rules.
 #include <gtest/gtest.h>
 
+#include "changed_spec.h"
 #include "engine/device.h"
 #include "loader.h"
 #include "modbus/crc16.h"
@@ -208,6 +209,51 @@ TEST_F(Rieding, AccelerationTimeFromPn35) {
   EXPECT_EQ(read("current_speed"), 120);
   wait_s(0.1);
   EXPECT_EQ(read("current_speed"), 240);
+}
+
+// The device takes the command word's fields and its control facts from the
+// spec (issue 38): the same spec with one changed, loaded as a user's file
+// is, changes the device so.
+class RiedingFromAChangedSpec : public Rieding {
+ protected:
+  void load_changed(const std::vector<std::pair<std::string, std::string>>& edits) {
+    load_changed_spec(dev, "rieding-dhe", edits);
+    SetUp();
+  }
+};
+
+// The enable field keyed on D10 instead of D8: 0x0111 runs nothing, 0x0411 runs.
+TEST_F(RiedingFromAChangedSpec, TheEnableIsTheKeyedField) {
+  load_changed({{"{bit: 8, key: enable,", "{bit: 8, key: sci_enable_printed,"},
+                {"{bit: 10, key: reset,", "{bit: 10, key: enable,"}});
+  replay("spd1-enable-fwd");
+  replay("spd1-speed-10pct");
+  wait_s(1);
+  EXPECT_EQ(feedback(), 0);
+  write("command_word", kReset | kSpeedForward);
+  wait_s(1);
+  EXPECT_EQ(feedback(), 4 * kPulsesPerRev);
+}
+
+// The emergency stop command on D11: D9 no longer stops the motor.
+TEST_F(RiedingFromAChangedSpec, TheEmergencyStopIsTheCommandsBit) {
+  load_changed({{"      mask: 0x0200\n      value: 0x0200\n      write: 0x0200", "      mask: 0x0800\n      value: 0x0800\n      write: 0x0800"}});
+  replay("spd1-enable-fwd");
+  replay("spd1-speed-10pct");
+  wait_s(0.5);
+  write("command_word", kEnable | kEmergencyStop | kSpeedForward);
+  wait_s(0.5);
+  EXPECT_EQ(feedback(), 4 * kPulsesPerRev);
+  write("command_word", kEnable | 0x0800 | kSpeedForward);
+  EXPECT_EQ(read("current_speed"), 0);
+}
+
+// The LU fault read as code 0x0D: a fault caused out of band shows 0x0D.
+TEST_F(RiedingFromAChangedSpec, AFaultShowsTheCodeItsStateReads) {
+  load_changed({{"status: [{register: fault_code, mask: 0xFFFF, value: 0x000A}]",
+                 "status: [{register: fault_code, mask: 0xFFFF, value: 0x000D}]"}});
+  ASSERT_TRUE(dev.trip_fault());
+  EXPECT_EQ(read("fault_code"), 0x0D);
 }
 
 }  // namespace

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 
+#include "changed_spec.h"
 #include "engine/device.h"
 #include "loader.h"
 #include "modbus/crc16.h"
@@ -336,6 +337,62 @@ TEST_F(Sihong57hsR, SaveAndFactoryResetCommands) {
 
 // §6.1 0x0002: the address the drive currently answers to.
 TEST_F(Sihong57hsR, ReportsItsSlaveAddress) { EXPECT_EQ(read("current_slave_id"), 1); }
+
+// The device takes its control facts from the spec (issue 38): the same
+// spec with one fact changed, loaded as a user's file is, changes it so.
+class Sihong57hsRFromAChangedSpec : public Sihong57hsR {
+ protected:
+  void load_changed(const std::vector<std::pair<std::string, std::string>>& edits) {
+    load_changed_spec(dev, "sihong-57hs-r", edits);
+  }
+};
+
+// The stop and emergency stop words swapped: 0x0028 = 1 decelerates, 0 stops at once.
+TEST_F(Sihong57hsRFromAChangedSpec, StopsActOnTheWordsTheSpecGives) {
+  load_changed({{"id: stop\n      name: {zh: 正常停止, en: \"normal stop (decelerate)\"}\n      register: stop_command\n"
+                 "      mask: 0x0001\n      value: 0x0000",
+                 "id: stop\n      name: {zh: 正常停止, en: \"normal stop (decelerate)\"}\n      register: stop_command\n"
+                 "      mask: 0x0001\n      value: 0x0001"},
+                {"id: emergency_stop\n      name: {zh: 急停, en: \"emergency stop\"}\n      register: stop_command\n"
+                 "      mask: 0x0001\n      value: 0x0001",
+                 "id: emergency_stop\n      name: {zh: 急停, en: \"emergency stop\"}\n      register: stop_command\n"
+                 "      mask: 0x0001\n      value: 0x0000"}});
+  write("max_speed", 600);
+  write("decel_time", 100);
+  write("start_command", 2);
+  wait_ms(1000);
+  write("stop_command", 1);  // §7.6.2's emergency stop word: now the normal stop
+  wait_ms(40);
+  EXPECT_EQ(read("motion_state"), 1);
+  EXPECT_GT(read("current_speed"), 0);
+  wait_ms(100);
+  EXPECT_EQ(read("current_speed"), 0);
+  write("start_command", 2);
+  wait_ms(1000);
+  write("stop_command", 0);  // §7.6.2's normal stop word: now at once
+  EXPECT_EQ(read("current_speed"), 0);
+  EXPECT_EQ(read("motion_state"), 0);
+}
+
+// The alarm state read from bits 3 and 6 instead of 0x0007 Bit3 alone: a fault sets both.
+TEST_F(Sihong57hsRFromAChangedSpec, TheAlarmBitIsTheAlarmStatesReading) {
+  load_changed({{"status: [{register: motion_status, mask: 0x0008, value: 0x0008}]",
+                 "status: [{register: motion_status, mask: 0x0048, value: 0x0048}]"}});
+  ASSERT_TRUE(dev.trip_fault());
+  EXPECT_EQ(read("motion_status") & 0x0048, 0x0048);
+}
+
+// A start word outside 7.6.1's: relative moves on 0x0027 = 3, and 1 starts nothing.
+TEST_F(Sihong57hsRFromAChangedSpec, StartsActOnTheWordsTheSpecGives) {
+  load_changed({{"mask: 0x0007\n      value: 0x0001", "mask: 0x0007\n      value: 0x0003"}});
+  write32("total_pulses", 3000);
+  write("start_command", 1);
+  wait_ms(5000);
+  EXPECT_EQ(read("current_position"), 0);
+  write("start_command", 3);
+  wait_ms(5000);
+  EXPECT_EQ(read("current_position"), 3000);
+}
 
 }  // namespace
 }  // namespace mbc::ref
