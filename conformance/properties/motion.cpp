@@ -266,7 +266,13 @@ void homing_gate(Session& s) {
 std::function<std::string(const SpecView&, const TargetInfo&, const DeviceFacts*)> needs_motion(bool homing_gate = false) {
   return [homing_gate](const SpecView& v, const TargetInfo& t, const DeviceFacts*) -> std::string {
     const MotionFacts* m = motion_facts(v.spec());
-    if (!m) return "the spec has no control: motion: section (spec/README.md)";
+    if (!m) {
+      const auto& c = v.spec().control;
+      if (c && c->no_motion)
+        return fmt::format("the manual states no position move these can hold ({}): {}", c->no_motion->section,
+                           c->no_motion->why);
+      return "the spec has no control: motion: section (spec/README.md)";
+    }
     if (homing_gate && !m->positioning_needs_homing) return "the manual does not make positioning wait for homing";
     if (!t.virtual_clock) return "needs a target on a virtual clock (ref:); live motion is not sampled in real time yet";
     if (t.live) return "live target";

@@ -402,6 +402,12 @@ struct Builder {
       // A profile's condition on a role the device has not mapped: error above.
     }
     if (ctl.contains("motion")) c.motion = motion(ctl["motion"], "/control/motion");
+    if (ctl.contains("no_motion")) {
+      c.no_motion = Control::Unstated{str(ctl["no_motion"], "section"), str(ctl["no_motion"], "why")};
+      if (c.motion)
+        error(rd.origin("/control/no_motion"), "", "control-motion-unstated",
+              "control has both motion: and no_motion: (why the manual gives no position move): keep the one that is true");
+    }
     check();
     for (auto& e : states) c.states.push_back(e.value);
     for (auto& e : commands) c.commands.push_back(e.value);

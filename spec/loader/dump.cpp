@@ -180,6 +180,7 @@ json control(const std::optional<Control>& co) {
                      {"select_in", x.select_in}, {"basis", basis(x.basis)}});
   j["modes"] = modes;
   j["motion"] = motion_json(c.motion);
+  j["no_motion"] = c.no_motion ? json{{"section", c.no_motion->section}, {"why", c.no_motion->why}} : json(nullptr);
   return j;
 }
 

@@ -539,6 +539,12 @@ struct Control {
   // A position move, set up, started, stopped and watched (the motion
   // properties' facts), `control.motion` in the language.
   std::optional<MotionOperations> motion;
+  // `control.no_motion`: why the manual gives no `motion` (Rieding: the
+  // distance-to-position scale is not printed); the motion properties say so.
+  struct Unstated {
+    std::string section, why;
+  };
+  std::optional<Unstated> no_motion;
   SourceLoc loc;
 
   const ControlState* state(const std::string& id) const;
