@@ -64,7 +64,7 @@ const std::vector<FaultInfo>& all_faults() {
        "control: a command not defined in the current state is taken as in the first state that defines it "
        "(CiA 402: Switch on from Switch on disabled goes to Switched on) instead of what `undefined` says"},
       {Fault::status_bit_wrong, "status-bit-wrong",
-       "control: in the first state with motion, the highest bit its status reading sets reads 0 "
+       "control: in the first state with motion whose status reading sets a bit, the highest bit it sets reads 0 "
        "(CiA 402: quick stop bit 5 clear in Operation enabled)"},
       {Fault::transition_missing, "transition-missing",
        "control: the first command (in the model's order) that leaves the first state with motion is ignored there "
@@ -175,15 +175,21 @@ class ControlFaults final : public ref::ControlTweak {
     for (const auto& s : c.states)
       if (s.motion && !s.fault) {
         motion_state_ = s.id;
-        if (!s.status.empty()) {
-          const spec::StatusMatch& m = s.status.front();
-          if (uint16_t set = m.value & m.mask) {
-            wrong_key_ = m.register_key;
-            wrong_bit_ = uint16_t(1u << (15 - std::countl_zero(set)));
-          }
-        }
         break;
       }
+    // status-bit-wrong: the first such state whose reading sets a bit (a
+    // standstill that reads all zeros has none to clear: 57HS-R moving).
+    for (const auto& s : c.states) {
+      if (!s.motion || s.fault) continue;
+      for (const spec::StatusMatch& m : s.status)
+        if (uint16_t set = m.value & m.mask) {
+          wrong_state_ = s.id;
+          wrong_key_ = m.register_key;
+          wrong_bit_ = uint16_t(1u << (15 - std::countl_zero(set)));
+          break;
+        }
+      if (!wrong_state_.empty()) break;
+    }
     // transition-missing: the first command that leaves that state (CiA 402: Shutdown, 8).
     for (const auto& cmd : c.commands) {
       if (cmd.stops) continue;
@@ -248,14 +254,14 @@ class ControlFaults final : public ref::ControlTweak {
   }
 
   uint16_t status(const ref::ControlExecutor& x, const std::string& key, uint16_t word) const override {
-    if (faults_.has(Fault::status_bit_wrong) && key == wrong_key_ && x.state() == motion_state_)
+    if (faults_.has(Fault::status_bit_wrong) && key == wrong_key_ && x.state() == wrong_state_)
       return uint16_t(word & ~wrong_bit_);
     return word;
   }
 
  private:
   FaultSet faults_;
-  std::string motion_state_, wrong_key_, missing_command_, wrong_target_;
+  std::string motion_state_, wrong_state_, wrong_key_, missing_command_, wrong_target_;
   uint16_t wrong_bit_ = 0;
   std::vector<spec::ControlTransition> redirected_;  // not resized after construction
   std::vector<std::string> has_transition_;          // commands some transition names

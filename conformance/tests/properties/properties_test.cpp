@@ -121,6 +121,12 @@ const std::vector<Tooth> kTeeth = {
     {"control-stop-from-motion", "sihong-57hs-r", "stop-ignored"},
     {"control-stop-from-motion", "hsc60", "stop-ignored"},
     {"control-stop-from-motion", "hanstar-7trsm5740q", "stop-ignored"},
+    // The 57HS-R's first moving state with a bit set is moving (Bit2 运行中
+    // cleared: the status says stopped while the axis runs); a start ignored
+    // leaves the axis where it was.
+    {"motion-status-agrees", "sihong-57hs-r", "status-bit-wrong"},
+    {"motion-position-exact", "sihong-57hs-r", "transition-missing"},
+    {"motion-position-exact", "hsc60", "transition-missing"},
 };
 
 void PrintTo(const Tooth& t, std::ostream* os) { *os << t.invariant << " on " << t.device << "?fault=" << t.fault; }
