@@ -27,11 +27,20 @@ Options live_options() {
   return o;
 }
 
-CaseResult run_live(const std::string& uri, const std::string& device, const std::string& invariant) {
+CaseResult run_live(const std::string& uri, const std::string& device, const std::string& invariant,
+                    Options options = live_options()) {
   static std::map<std::string, spec::Spec> specs;
   if (!specs.count(device)) specs.emplace(device, spec::load_spec_by_id(device));
   TargetSource src = source_for(uri, &specs.at(device));
-  return run_invariant(*find_invariant(invariant), src, live_options());
+  return run_invariant(*find_invariant(invariant), src, options);
+}
+
+// --allow-motion: the stop property moves the axis.
+Options moving_options() {
+  Options o = live_options();
+  o.cases = 5;
+  o.policy.allow_motion = true;
+  return o;
 }
 
 TEST(PropsOverServe, CleanDeviceHoldsOverTcpAndRtuOverTcp) {
@@ -60,7 +69,8 @@ TEST(PropsOverServe, ServedFaultIsCaught) {
 // (RTU over TCP), as well as in-process (properties_test): the state machine
 // holds, and a state-machine fault served the same way is caught. On a live
 // target the stop is not sampled in real time and no fault can be tripped out
-// of band: those two skip, each with its reason.
+// of band: that one skips. The stop from motion moves the axis: it skips
+// without --allow-motion, and with it samples the axis on the wall clock.
 TEST(PropsOverServe, ControlPropertiesOnCia402OverRtu) {
   ServeProcess server({"--device", "cia402-modbus@1", "--rtu-tcp", "127.0.0.1:0"});
   ASSERT_TRUE(server.wait_listening(1)) << server.log();
@@ -71,9 +81,23 @@ TEST(PropsOverServe, ControlPropertiesOnCia402OverRtu) {
   }
   CaseResult stop = run_live(rtu, "cia402-modbus", "control-stop-from-motion");
   EXPECT_EQ(stop.outcome, Outcome::skip) << stop.message;
+  EXPECT_NE(stop.message.find("--allow-motion"), std::string::npos) << stop.message;
+  stop = run_live(rtu, "cia402-modbus", "control-stop-from-motion", moving_options());
+  EXPECT_EQ(stop.outcome, Outcome::pass) << stop.message;
   CaseResult reset = run_live(rtu, "cia402-modbus", "control-fault-reset");
   EXPECT_EQ(reset.outcome, Outcome::skip) << reset.message;
   EXPECT_NE(reset.message.find("trip"), std::string::npos) << reset.message;
+}
+
+// A drive that ignores a quick stop while it moves, served over TCP: caught
+// in real time (the speed holds steady after the stop), as in-process.
+TEST(PropsOverServe, AStopIgnoredWhileMovingIsCaughtLive) {
+  ServeProcess server({"--fault", "stop-ignored", "--device", "cia402-modbus@1", "--tcp", "127.0.0.1:0"});
+  ASSERT_TRUE(server.wait_listening(1)) << server.log();
+  std::string tcp = fmt::format("tcp://127.0.0.1:{}?unit=1", server.endpoint("tcp")->port());
+  CaseResult c = run_live(tcp, "cia402-modbus", "control-stop-from-motion", moving_options());
+  EXPECT_EQ(c.outcome, Outcome::fail) << c.message;
+  EXPECT_NE(c.message.find("quick_stop"), std::string::npos) << c.message;
 }
 
 TEST(PropsOverServe, ControlFaultServedOverRtuIsCaught) {
