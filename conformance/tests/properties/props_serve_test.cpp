@@ -190,13 +190,13 @@ TEST(PropsCli, ALiveCleanDriveWithoutOptInsFailsNoProperty) {
 // PARTIAL, names --allow-motion in the summary, report.json and junit.xml,
 // and exits 0, or 3 under --require-complete; with the flag the same
 // properties run and pass. A property the flag alone would not enable (the
-// stop from motion: a live axis is not sampled yet) names no opt-in.
+// fault reset: no fault can be caused on a live drive) names no opt-in.
 TEST(PropsCli, APropertySkippedForWantOfAnOptInMakesThePropsRunPartial) {
   TempDir dir;
   ServeProcess server({"--device", "sihong-57hs-r@1", "--tcp", "127.0.0.1:0"});
   ASSERT_TRUE(server.wait_listening(1)) << server.log();
   const std::string base = fmt::format("--target 'tcp://127.0.0.1:{}?unit=1' --device sihong-57hs-r --cases 10 --seed 1 -q "
-                                       "--only control-undefined-command --only control-stop-from-motion",
+                                       "--only control-undefined-command --only control-fault-reset",
                                        server.endpoint("tcp")->port());
   std::string out;
   EXPECT_EQ(run_cli(base + " --out " + (dir / "partial"), &out), 0) << out;
