@@ -228,9 +228,7 @@ class ControlFaults final : public ref::ControlTweak {
 
   const spec::ControlTransition* take(const ref::ControlExecutor& x, const spec::ControlCommand& c,
                                       const spec::ControlTransition* model) const override {
-    if (faults_.has(Fault::stop_ignored) && c.stops && x.axis_moving()) return nullptr;
-    if (faults_.has(Fault::transition_missing) && model && c.id == missing_command_ && x.state() == motion_state_)
-      return nullptr;
+    if (ignores(x, c)) return nullptr;  // the model's side of what the drive does not act on
     if (faults_.has(Fault::transition_wrong_target) && model)
       for (const auto& t : redirected_)
         if (t.id == model->id) return &t;
